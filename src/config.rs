@@ -1,0 +1,280 @@
+//! The `pipeline.toml` schema: one table per stage, each deserialised straight into that
+//! stage's `…Params` struct (the TOML keys are the field names). Unknown keys and wrong
+//! types are errors naming the file, line, column and dotted key.
+
+use crate::error::{Error, Result};
+use crate::points::{ClassFilter, Format, ReadOptions};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// A whole pipeline file.
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Pipeline {
+    /// `[input]`: which point clouds to read and how.
+    pub input: InputConfig,
+    /// `[output]`: where results go.
+    #[serde(default)]
+    pub output: OutputConfig,
+}
+
+/// `[input]`
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputConfig {
+    /// Files or glob patterns (`fixtures/*.las`), relative to the pipeline file's directory.
+    /// All matches are read into one cloud: adjacent tiles of one survey.
+    pub paths: Vec<String>,
+    /// `auto` (default: recognised from the content), `las`, `laz` or `xyz`.
+    #[serde(default)]
+    pub format: FormatChoice,
+    /// Keep only these ASPRS classes (e.g. `[2]` for ground); all when absent.
+    #[serde(default)]
+    pub keep_classes: Option<Vec<u8>>,
+    /// Drop these classes (e.g. `[7, 18]`, low and high noise).
+    #[serde(default)]
+    pub drop_classes: Vec<u8>,
+    /// Read at most this many points in all (the first ones, in file order).
+    #[serde(default)]
+    pub max_points: Option<u64>,
+}
+
+/// Input format choice.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FormatChoice {
+    /// Recognise from the file's content.
+    #[default]
+    Auto,
+    /// LAS.
+    Las,
+    /// LAZ.
+    Laz,
+    /// XYZ/CSV text.
+    Xyz,
+}
+
+/// `[output]`
+#[derive(Debug, Clone, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputConfig {
+    /// Output directory, relative to the pipeline file's directory (default `out`).
+    #[serde(default = "default_out")]
+    pub dir: PathBuf,
+}
+
+fn default_out() -> PathBuf {
+    PathBuf::from("out")
+}
+
+impl Default for OutputConfig {
+    fn default() -> Self {
+        OutputConfig { dir: default_out() }
+    }
+}
+
+impl InputConfig {
+    /// Reader options from this table.
+    pub fn read_options(&self) -> ReadOptions {
+        ReadOptions {
+            format: match self.format {
+                FormatChoice::Auto => None,
+                FormatChoice::Las => Some(Format::Las),
+                FormatChoice::Laz => Some(Format::Laz),
+                FormatChoice::Xyz => Some(Format::Xyz),
+            },
+            classes: ClassFilter::new(self.keep_classes.as_deref(), &self.drop_classes),
+            max_points: self.max_points,
+        }
+    }
+}
+
+/// A loaded pipeline and where it came from.
+#[derive(Debug, Clone)]
+pub struct LoadedPipeline {
+    /// The configuration.
+    pub config: Pipeline,
+    /// The file it was read from.
+    pub path: PathBuf,
+    /// Its text (to locate keys in later error messages).
+    pub text: String,
+}
+
+impl LoadedPipeline {
+    /// Directory relative paths are resolved against.
+    pub fn base_dir(&self) -> PathBuf {
+        self.path
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .map_or_else(|| PathBuf::from("."), Path::to_path_buf)
+    }
+
+    /// The output directory, resolved.
+    pub fn output_dir(&self) -> PathBuf {
+        self.base_dir().join(&self.config.output.dir)
+    }
+
+    /// An error about `key` (dotted path) of this file, pointing at its line.
+    pub fn key_error(&self, key: &str, message: impl Into<String>) -> Error {
+        let (line, column) = locate_key(&self.text, key);
+        Error::Config {
+            path: self.path.clone(),
+            line,
+            column,
+            key: key.to_string(),
+            message: message.into(),
+        }
+    }
+
+    /// The input files: every path and glob expanded, sorted within each pattern,
+    /// duplicates removed. A pattern that matches nothing is an error.
+    pub fn input_files(&self) -> Result<Vec<PathBuf>> {
+        let base = self.base_dir();
+        let mut out: Vec<PathBuf> = Vec::new();
+        if self.config.input.paths.is_empty() {
+            return Err(self.key_error("input.paths", "no input given: list at least one file or glob"));
+        }
+        for pat in &self.config.input.paths {
+            let full = base.join(pat);
+            let is_glob = pat.contains(['*', '?', '[']);
+            if !is_glob {
+                if !full.is_file() {
+                    return Err(self.key_error(
+                        "input.paths",
+                        format!("input file {} does not exist", full.display()),
+                    ));
+                }
+                if !out.contains(&full) {
+                    out.push(full);
+                }
+                continue;
+            }
+            let pattern = full.to_string_lossy().into_owned();
+            let entries = glob::glob(&pattern)
+                .map_err(|e| self.key_error("input.paths", format!("bad glob `{pat}`: {e}")))?;
+            let mut matched: Vec<PathBuf> = entries.filter_map(|e| e.ok()).filter(|p| p.is_file()).collect();
+            if matched.is_empty() {
+                return Err(self.key_error("input.paths", format!("glob `{pat}` matches no file")));
+            }
+            matched.sort();
+            for m in matched {
+                if !out.contains(&m) {
+                    out.push(m);
+                }
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// Reads and checks a pipeline file.
+pub fn load(path: &Path) -> Result<LoadedPipeline> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let config = parse(path, &text)?;
+    Ok(LoadedPipeline {
+        config,
+        path: path.to_path_buf(),
+        text,
+    })
+}
+
+/// Parses pipeline text; `path` is only used in error messages.
+pub fn parse(path: &Path, text: &str) -> Result<Pipeline> {
+    let at = |span: Option<std::ops::Range<usize>>| {
+        let offset = span.map_or(0, |s| s.start).min(text.len());
+        line_col(text, offset)
+    };
+    let de = toml::Deserializer::parse(text).map_err(|e| {
+        let (line, column) = at(e.span());
+        Error::Config {
+            path: path.to_path_buf(),
+            line,
+            column,
+            key: "(syntax)".into(),
+            message: e.message().trim().to_string(),
+        }
+    })?;
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let mut key = e.path().to_string();
+        let inner = e.into_inner();
+        let message = inner.message().trim().to_string();
+        // serde names the parent table for unknown fields; add the field itself.
+        if let Some(rest) = message.strip_prefix("unknown field `") {
+            if let Some(name) = rest.split('`').next().filter(|n| !key.ends_with(n)) {
+                key = if key == "." || key.is_empty() { name.to_string() } else { format!("{key}.{name}") };
+            }
+        }
+        if key == "." {
+            key = "(top level)".into();
+        }
+        let (line, column) = at(inner.span());
+        Error::Config {
+            path: path.to_path_buf(),
+            line,
+            column,
+            key,
+            message,
+        }
+    })
+}
+
+/// 1-based line and column of byte `offset`.
+fn line_col(text: &str, offset: usize) -> (usize, usize) {
+    let before = &text[..offset];
+    let line = before.matches('\n').count() + 1;
+    let column = before.rfind('\n').map_or(offset, |p| offset - p - 1) + 1;
+    (line, column)
+}
+
+/// Line and column of `key = …` for a dotted key `table.key` (line 1 if not written, i.e.
+/// a default value is at fault).
+pub fn locate_key(text: &str, dotted: &str) -> (usize, usize) {
+    let (table, key) = dotted.rsplit_once('.').unwrap_or(("", dotted));
+    let mut current = String::new();
+    let mut table_line = None;
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if let Some(h) = line.strip_prefix('[') {
+            current = h.trim_start_matches('[').split(']').next().unwrap_or("").trim().to_string();
+            if current == table {
+                table_line = Some(i + 1);
+            }
+            continue;
+        }
+        if current == table {
+            if let Some(rest) = line.strip_prefix(key) {
+                if rest.trim_start().starts_with('=') {
+                    let col = raw.len() - raw.trim_start().len() + 1;
+                    return (i + 1, col);
+                }
+            }
+        }
+    }
+    (table_line.unwrap_or(1), 1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_key_names_line_and_key() {
+        let text = "[input]\npaths = [\"a.las\"]\ncolour = 3\n";
+        let e = parse(Path::new("p.toml"), text).unwrap_err().to_string();
+        assert!(e.starts_with("p.toml:3:1: input.colour: unknown field `colour`"), "{e}");
+    }
+
+    #[test]
+    fn wrong_type_names_line_and_key() {
+        let text = "[input]\npaths = [\"a.las\"]\nmax_points = \"many\"\n";
+        let e = parse(Path::new("p.toml"), text).unwrap_err().to_string();
+        assert!(e.starts_with("p.toml:3:14: input.max_points: invalid type"), "{e}");
+    }
+
+    #[test]
+    fn locate_finds_keys_in_tables() {
+        let text = "[input]\npaths = []\n[output]\n  dir = \"x\"\n";
+        assert_eq!(locate_key(text, "output.dir"), (4, 3));
+        assert_eq!(locate_key(text, "output.other"), (3, 1));
+    }
+}

@@ -1,0 +1,23 @@
+//! terratile: an offline terrain pipeline for airborne LIDAR.
+//!
+//! Point clouds (LAS/LAZ/XYZ) are read through memory maps into a struct-of-arrays
+//! [`points::PointCloud`]; the terrain stages (noise removal, resampling, hole filling,
+//! Röttger quadtree error metrics) turn them into tiled heightfields that game engines load.
+//! See `README.md` for the pipeline file and `../shared/SPEC.md` for the algorithms.
+#![deny(missing_docs)]
+#![deny(unsafe_code)]
+
+pub mod bench;
+pub mod config;
+pub mod error;
+pub mod fsutil;
+pub mod generate;
+pub mod pipeline;
+pub mod points;
+pub mod progress;
+pub mod rng;
+pub mod terrain;
+
+pub use error::{Error, Result};
+pub use points::{PointCloud, ReadOptions};
+pub use progress::{NoProgress, Progress};

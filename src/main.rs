@@ -1,0 +1,344 @@
+//! The `terratile` command: parses arguments (clap), draws progress (indicatif), prints one
+//! line per error and exits 2 on bad input, 1 on internal failure. All work is in the library.
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Mutex;
+use terratile::error::{Error, Result};
+use terratile::points::{self, ClassFilter, Format, ReadOptions};
+use terratile::progress::Progress;
+
+/// terratile: airborne LIDAR point clouds to crack-free tiled terrain for game engines.
+#[derive(Parser, Debug)]
+#[command(name = "terratile", version, about, long_about = None)]
+struct Cli {
+    /// Worker threads (default: one per core).
+    #[arg(long, global = true, value_name = "N")]
+    threads: Option<usize>,
+    /// No progress bars.
+    #[arg(long, short, global = true)]
+    quiet: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Run a pipeline file (default ./pipeline.toml).
+    Run {
+        /// The pipeline file.
+        #[arg(default_value = "pipeline.toml")]
+        pipeline: PathBuf,
+        /// Print the run summary as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Describe point cloud files: format, counts, bounds, CRS, classes, returns, spacing.
+    Info {
+        /// LAS, LAZ or XYZ files.
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+        /// Print JSON (one array) instead of text.
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        read: ReadArgs,
+    },
+    /// Generate a synthetic airborne-LIDAR survey (terrain, ridge, cliff, buildings, trees,
+    /// a lake hole, scan-line density, outliers).
+    Generate(GenerateArgs),
+    /// Convert LAS/LAZ to uncompressed LAS, optionally cut to N points (first N or a seeded
+    /// random sample); records pass through unchanged.
+    Convert {
+        /// Input LAS or LAZ.
+        input: PathBuf,
+        /// Output LAS.
+        output: PathBuf,
+        /// Keep only the first N points.
+        #[arg(long, value_name = "N", conflicts_with = "sample")]
+        first: Option<u64>,
+        /// Keep a random sample of N points (file order kept).
+        #[arg(long, value_name = "N")]
+        sample: Option<u64>,
+        /// Seed of the sample.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Measure terratile against references in the same process.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Subcommand, Debug)]
+enum BenchCommand {
+    /// Time decoding FILE against a plain parallel copy of its bytes from a fresh map.
+    Read {
+        /// The file (LAS, LAZ or XYZ).
+        file: PathBuf,
+        /// Repetitions (the median is reported).
+        #[arg(long, default_value_t = 5)]
+        repeat: usize,
+        /// Also time las::Reader on the same file.
+        #[arg(long)]
+        las_rs: bool,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Args, Debug, Clone)]
+struct ReadArgs {
+    /// Keep only these classes (comma-separated, e.g. 2).
+    #[arg(long, value_delimiter = ',', value_name = "CLASSES")]
+    keep_classes: Option<Vec<u8>>,
+    /// Drop these classes (comma-separated, e.g. 7,18).
+    #[arg(long, value_delimiter = ',', value_name = "CLASSES")]
+    drop_classes: Vec<u8>,
+    /// Read at most N points.
+    #[arg(long, value_name = "N")]
+    max_points: Option<u64>,
+    /// Force the input format instead of recognising it.
+    #[arg(long, value_enum)]
+    format: Option<FormatArg>,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum FormatArg {
+    Las,
+    Laz,
+    Xyz,
+}
+
+impl ReadArgs {
+    fn options(&self) -> ReadOptions {
+        ReadOptions {
+            format: self.format.map(|f| match f {
+                FormatArg::Las => Format::Las,
+                FormatArg::Laz => Format::Laz,
+                FormatArg::Xyz => Format::Xyz,
+            }),
+            classes: ClassFilter::new(self.keep_classes.as_deref(), &self.drop_classes),
+            max_points: self.max_points,
+        }
+    }
+}
+
+#[derive(Args, Debug)]
+struct GenerateArgs {
+    /// Output file (.las or .xyz); with --tiles, files NAME-C-R.ext beside it.
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Exact number of points.
+    #[arg(long, default_value_t = 100_000)]
+    points: u64,
+    /// Scene size in metres, WIDTHxHEIGHT (default: sized for 1.5 points/m²).
+    #[arg(long, value_parser = parse_pair::<f64>)]
+    size: Option<(f64, f64)>,
+    /// Split into COLSxROWS tiles.
+    #[arg(long, value_parser = parse_pair::<usize>, default_value = "1x1")]
+    tiles: (usize, usize),
+    /// Output format(s), cycled over the tiles: las, xyz or e.g. las,xyz.
+    #[arg(long, value_delimiter = ',', default_value = "las")]
+    format: Vec<GenFormat>,
+    /// Outliers per million points.
+    #[arg(long, default_value_t = 60)]
+    outliers_per_million: u32,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum GenFormat {
+    Las,
+    Xyz,
+}
+
+fn parse_pair<T: std::str::FromStr>(s: &str) -> std::result::Result<(T, T), String> {
+    let (a, b) = s
+        .split_once(['x', 'X', ','])
+        .ok_or_else(|| format!("`{s}`: expected AxB"))?;
+    let p = |v: &str| v.trim().parse::<T>().map_err(|_| format!("`{s}`: `{v}` is not a number"));
+    Ok((p(a)?, p(b)?))
+}
+
+/// indicatif bars behind the library's `Progress`; hidden when quiet or not on a terminal.
+struct Bars {
+    bar: Mutex<Option<ProgressBar>>,
+    quiet: bool,
+}
+
+impl Bars {
+    fn new(quiet: bool) -> Bars {
+        Bars {
+            bar: Mutex::new(None),
+            quiet,
+        }
+    }
+}
+
+impl Progress for Bars {
+    fn start(&self, label: &str, total: u64) {
+        if self.quiet {
+            return;
+        }
+        let bar = if total > 0 {
+            ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr())
+        } else {
+            ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr())
+        };
+        let style = ProgressStyle::with_template("{msg:40!} [{elapsed_precise}] {wide_bar} {percent:>3}%")
+            .unwrap_or_else(|_| ProgressStyle::default_bar());
+        bar.set_style(style);
+        bar.set_message(label.to_string());
+        if let Ok(mut b) = self.bar.lock() {
+            *b = Some(bar);
+        }
+    }
+    fn advance(&self, n: u64) {
+        if let Ok(b) = self.bar.lock() {
+            if let Some(b) = b.as_ref() {
+                b.inc(n);
+            }
+        }
+    }
+    fn finish(&self) {
+        if let Ok(mut b) = self.bar.lock() {
+            if let Some(b) = b.take() {
+                b.finish_and_clear();
+            }
+        }
+    }
+}
+
+fn print_json<T: serde::Serialize>(v: &T) -> Result<()> {
+    let s = serde_json::to_string_pretty(v).map_err(|e| Error::Internal(e.to_string()))?;
+    println!("{s}");
+    Ok(())
+}
+
+fn run(cli: Cli) -> Result<()> {
+    if let Some(n) = cli.threads {
+        if n == 0 {
+            return Err(Error::Usage("--threads must be at least 1".into()));
+        }
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build_global()
+            .map_err(|e| Error::Internal(e.to_string()))?;
+    }
+    let bars = Bars::new(cli.quiet);
+    let progress: &dyn Progress = &bars;
+    match cli.command {
+        Command::Run { pipeline, json } => {
+            let loaded = terratile::config::load(&pipeline)?;
+            let summary = terratile::pipeline::run(&loaded, progress)?;
+            if json {
+                print_json(&summary)?;
+            } else if !cli.quiet {
+                print!("{summary}");
+            }
+        }
+        Command::Info { files, json, read } => {
+            let opts = read.options();
+            let mut infos = Vec::new();
+            for f in &files {
+                infos.push(points::FileInfo::of(f, &opts, progress)?);
+            }
+            if json {
+                print_json(&infos)?;
+            } else {
+                for i in &infos {
+                    print!("{i}");
+                }
+            }
+        }
+        Command::Generate(g) => generate(&g, cli.quiet)?,
+        Command::Convert {
+            input,
+            output,
+            first,
+            sample,
+            seed,
+        } => {
+            let sel = match (first, sample) {
+                (Some(n), _) => points::Selection::First(n),
+                (None, Some(n)) => points::Selection::Sample { n, seed },
+                (None, None) => points::Selection::All,
+            };
+            let n = points::convert(&input, &output, sel)?;
+            if !cli.quiet {
+                println!("{}: {n} points", output.display());
+            }
+        }
+        Command::Bench(BenchCommand::Read {
+            file,
+            repeat,
+            las_rs,
+            json,
+        }) => {
+            let r = terratile::bench::read(&file, &ReadOptions::default(), repeat, las_rs)?;
+            if json {
+                print_json(&r)?;
+            } else {
+                println!("{r}");
+            }
+        }
+    }
+    Ok(())
+}
+
+fn generate(g: &GenerateArgs, quiet: bool) -> Result<()> {
+    use terratile::generate::{self as gen, GenerateParams, OutFormat};
+    if g.tiles.0 == 0 || g.tiles.1 == 0 {
+        return Err(Error::Usage("--tiles: at least 1x1".into()));
+    }
+    let params = GenerateParams {
+        seed: g.seed,
+        points: g.points,
+        size: g.size.map(|(w, h)| [w, h]),
+        outliers_per_million: g.outliers_per_million,
+        ..Default::default()
+    };
+    let scene = gen::generate(&params)?;
+    let formats: Vec<OutFormat> = g
+        .format
+        .iter()
+        .map(|f| match f {
+            GenFormat::Las => OutFormat::Las,
+            GenFormat::Xyz => OutFormat::Xyz,
+        })
+        .collect();
+    if let Some(parent) = g.output.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+    }
+    let written = gen::write_scene(&scene, &g.output, &formats, g.tiles)?;
+    if !quiet {
+        for (p, c) in &written {
+            println!("{}: {} points", p.display(), c.len());
+        }
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let quiet = cli.quiet;
+    let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(cli)));
+    match outcome {
+        Ok(Ok(())) => ExitCode::SUCCESS,
+        Ok(Err(e)) => {
+            eprintln!("terratile: {e}");
+            ExitCode::from(e.exit_code() as u8)
+        }
+        Err(_) => {
+            if !quiet {
+                eprintln!("terratile: internal error (this is a bug; please report it with the input)");
+            }
+            ExitCode::from(1)
+        }
+    }
+}

@@ -1,0 +1,179 @@
+//! LAS and LAZ into a [`PointCloud`]: the header through [`LasHeader`], the records through
+//! [`super::las_records`]. LAZ is decompressed by the `laz` crate's parallel chunk
+//! decompressor in batches, and each batch goes through the same record decoder as LAS.
+
+use super::las_header::LasHeader;
+use super::las_records::{self, Layout};
+use super::{Format, PointCloud, ReadOptions, SourceInfo};
+use crate::error::{Error, Result};
+use crate::progress::Progress;
+use std::borrow::Cow;
+use std::io::{Cursor, Seek, SeekFrom};
+use std::path::Path;
+
+/// Points decompressed per LAZ batch: 1 Mi points is 20–67 MB of records, enough to keep
+/// every core busy on LASzip chunks (50 000 points each) without holding the whole file.
+const LAZ_BATCH: u64 = 1 << 20;
+
+pub(crate) fn read_las(
+    path: &Path,
+    bytes: &[u8],
+    opts: &ReadOptions,
+    progress: &dyn Progress,
+) -> Result<PointCloud> {
+    let h = LasHeader::parse(path, bytes)?;
+    if opts.format == Some(Format::Las) && h.compressed {
+        return Err(Error::format(
+            path,
+            super::las_header::off::POINT_FORMAT,
+            "format is set to las, but the point data is LASzip-compressed",
+        ));
+    }
+    let layout = Layout {
+        len: h.record_length as usize,
+        extended: h.point_format >= 6,
+        scale: h.scale,
+        offset: h.offset,
+    };
+    let mut cloud = PointCloud::default();
+    progress.start(&format!("reading {}", path.display()), h.point_count);
+
+    if !h.compressed {
+        let records = uncompressed_records(path, bytes, &h)?;
+        las_records::decode(records, &layout, &opts.classes, opts.max_points, &mut cloud);
+        progress.advance(h.point_count);
+    } else {
+        let expected = opts.max_points.map_or(h.point_count, |c| c.min(h.point_count)) as usize;
+        cloud.x.reserve_exact(expected);
+        cloud.y.reserve_exact(expected);
+        cloud.z.reserve_exact(expected);
+        cloud.classification.reserve_exact(expected);
+        cloud.return_number.reserve_exact(expected);
+        cloud.number_of_returns.reserve_exact(expected);
+        cloud.intensity.reserve_exact(expected);
+        let mut dec = LazDecoder::new(path, bytes, &h)?;
+        let mut buf = Vec::new();
+        let mut done = 0u64;
+        while done < h.point_count {
+            let left = opts.max_points.map(|c| c.saturating_sub(cloud.len() as u64));
+            if left == Some(0) {
+                break;
+            }
+            let n = LAZ_BATCH.min(h.point_count - done);
+            dec.next_batch(n, &mut buf)?;
+            las_records::decode(&buf, &layout, &opts.classes, left, &mut cloud);
+            done += n;
+            progress.advance(n);
+        }
+    }
+    progress.finish();
+    cloud.sources.push(SourceInfo {
+        path: path.to_path_buf(),
+        format: if h.compressed { Format::Laz } else { Format::Las },
+        version: Some(h.version),
+        point_format: Some(h.point_format),
+        record_length: Some(h.record_length),
+        points_in_file: h.point_count,
+        points_read: cloud.len() as u64,
+        scale: Some(h.scale),
+        offset: Some(h.offset),
+        header_bounds: Some(h.bounds()),
+        crs: h.crs.clone(),
+    });
+    Ok(cloud)
+}
+
+/// The point record bytes of an uncompressed LAS, checked against the header's promise.
+fn uncompressed_records<'a>(path: &Path, bytes: &'a [u8], h: &LasHeader) -> Result<&'a [u8]> {
+    let len = h.record_length as u64;
+    let start = h.offset_to_points;
+    let avail = (bytes.len() as u64).saturating_sub(start);
+    let whole = avail / len;
+    if whole < h.point_count {
+        return Err(Error::format(
+            path,
+            start + whole * len,
+            format!(
+                "truncated point records: the header promises {} points of {len} bytes from byte {start}, the file holds {whole}",
+                h.point_count
+            ),
+        ));
+    }
+    Ok(&bytes[start as usize..(start + h.point_count * len) as usize])
+}
+
+/// Batched parallel LASzip decompression over a memory map.
+struct LazDecoder<'a> {
+    path: &'a Path,
+    inner: laz::ParLasZipDecompressor<Cursor<&'a [u8]>>,
+    item_size: usize,
+    offset: u64,
+}
+
+impl<'a> LazDecoder<'a> {
+    fn new(path: &'a Path, bytes: &'a [u8], h: &LasHeader) -> Result<LazDecoder<'a>> {
+        let at = h.offset_to_points;
+        let vlr = h.laszip_vlr().ok_or_else(|| {
+            Error::format(
+                path,
+                super::las_header::off::POINT_FORMAT,
+                "compressed point format, but no LASzip VLR",
+            )
+        })?;
+        let laz_vlr = laz::LazVlr::read_from(vlr.data.as_slice())
+            .map_err(|e| Error::format(path, at, format!("unreadable LASzip VLR: {e}")))?;
+        let item_size = laz_vlr.items_size() as usize;
+        if item_size != h.record_length as usize {
+            return Err(Error::format(
+                path,
+                super::las_header::off::RECORD_LENGTH,
+                format!(
+                    "point record length {} disagrees with the LASzip items ({item_size} bytes)",
+                    h.record_length
+                ),
+            ));
+        }
+        let mut cursor = Cursor::new(bytes);
+        cursor
+            .seek(SeekFrom::Start(at))
+            .map_err(|e| Error::io(path, e))?;
+        let inner = guard(path, at, || laz::ParLasZipDecompressor::new(cursor, laz_vlr))?
+            .map_err(|e| Error::format(path, at, format!("unreadable LAZ chunk table: {e}")))?;
+        Ok(LazDecoder {
+            path,
+            inner,
+            item_size,
+            offset: at,
+        })
+    }
+
+    fn next_batch(&mut self, n: u64, buf: &mut Vec<u8>) -> Result<()> {
+        buf.resize(n as usize * self.item_size, 0);
+        let (path, at) = (self.path, self.offset);
+        let inner = &mut self.inner;
+        guard(path, at, || inner.decompress_many(buf))?
+            .map_err(|e| Error::format(path, at, format!("corrupt or truncated LAZ point data: {e}")))
+    }
+}
+
+/// Runs LASzip code, turning a panic inside the decompressor (which a corrupt file can
+/// provoke) into a format error instead of an abort.
+fn guard<T>(path: &Path, at: u64, f: impl FnOnce() -> T) -> Result<T> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|_| {
+        Error::format(path, at, "corrupt LAZ point data: the decompressor failed")
+    })
+}
+
+/// The header and the uncompressed point record bytes of a LAS or LAZ file, for tools that
+/// pass records through unchanged (`terratile convert`).
+pub fn raw_records<'a>(path: &Path, bytes: &'a [u8]) -> Result<(LasHeader, Cow<'a, [u8]>)> {
+    let h = LasHeader::parse(path, bytes)?;
+    if !h.compressed {
+        let r = uncompressed_records(path, bytes, &h)?;
+        return Ok((h, Cow::Borrowed(r)));
+    }
+    let mut dec = LazDecoder::new(path, bytes, &h)?;
+    let mut buf = Vec::new();
+    dec.next_batch(h.point_count, &mut buf)?;
+    Ok((h, Cow::Owned(buf)))
+}

@@ -1,0 +1,200 @@
+//! Writing point clouds as LAS 1.2 through `las::Writer` (for `generate` and the removed-noise
+//! output), and record pass-through for `convert`. Every write goes to a temporary file that
+//! is renamed into place, so a failed write leaves nothing behind.
+
+use super::{Crs, LasHeader, PointCloud};
+use crate::error::{Error, Result};
+use crate::fsutil::write_atomic;
+use std::path::Path;
+
+/// How to write a cloud as LAS.
+#[derive(Debug, Clone)]
+pub struct LasWriteOptions {
+    /// Scale factors (0.01 = centimetres for metric data).
+    pub scale: [f64; 3],
+    /// Offsets; `None` picks the bounds' minimum rounded down to a multiple of 1000 units.
+    pub offset: Option<[f64; 3]>,
+    /// CRS to record (as a WKT VLR, or GeoTIFF keys for a bare EPSG code).
+    pub crs: Option<Crs>,
+    /// Overrides every point's class (e.g. 7 for points removed as noise).
+    pub classification: Option<u8>,
+}
+
+impl Default for LasWriteOptions {
+    fn default() -> Self {
+        LasWriteOptions {
+            scale: [0.01; 3],
+            offset: None,
+            crs: None,
+            classification: None,
+        }
+    }
+}
+
+impl LasWriteOptions {
+    /// The offsets used for a cloud with these bounds.
+    pub fn offset_for(&self, b: &super::Bounds) -> [f64; 3] {
+        self.offset.unwrap_or_else(|| {
+            if b.is_empty() {
+                [0.0; 3]
+            } else {
+                b.min.map(|m| (m / 1000.0).floor() * 1000.0)
+            }
+        })
+    }
+}
+
+fn projection_vlr(record_id: u16, data: Vec<u8>, description: &str) -> las::Vlr {
+    las::Vlr {
+        user_id: "LASF_Projection".into(),
+        record_id,
+        description: description.into(),
+        data,
+    }
+}
+
+/// The VLRs that record `crs` in a LAS 1.2 file.
+fn crs_vlrs(crs: &Crs) -> Vec<las::Vlr> {
+    if let Some(wkt) = &crs.wkt {
+        let mut data = wkt.as_bytes().to_vec();
+        data.push(0);
+        return vec![projection_vlr(2112, data, "OGC WKT")];
+    }
+    let Some(code) = crs.epsg.filter(|&c| c <= u16::MAX as u32) else {
+        return Vec::new();
+    };
+    // GeoKey directory 1.1.0: model type projected (1), ProjectedCSType = code, and the
+    // linear unit when it is one GeoTIFF names.
+    let mut keys: Vec<[u16; 4]> = vec![[1024, 0, 1, 1], [3072, 0, 1, code as u16]];
+    if let Some(u) = &crs.unit {
+        let unit = if u.metres == 1.0 {
+            Some(9001)
+        } else if u.metres == 0.3048 {
+            Some(9002)
+        } else if (u.metres - 1200.0 / 3937.0).abs() < 1e-12 {
+            Some(9003)
+        } else {
+            None
+        };
+        if let Some(unit) = unit {
+            keys.push([3076, 0, 1, unit]);
+        }
+    }
+    let mut shorts = vec![1u16, 1, 0, keys.len() as u16];
+    shorts.extend(keys.iter().flatten());
+    let data = shorts.iter().flat_map(|s| s.to_le_bytes()).collect();
+    vec![projection_vlr(34735, data, "GeoTIFF GeoKeyDirectoryTag")]
+}
+
+/// Writes `cloud` to `path` as LAS 1.2, point format 0 (x, y, z, intensity, returns, class).
+pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasWriteOptions) -> Result<()> {
+    let bounds = cloud.bounds();
+    let offset = opts.offset_for(&bounds);
+    let mut b = las::Builder::from((1, 2));
+    b.point_format = las::point::Format::new(0).map_err(|e| Error::Internal(e.to_string()))?;
+    b.generating_software = format!("terratile {}", env!("CARGO_PKG_VERSION"));
+    b.system_identifier = "terratile".into();
+    b.transforms = las::Vector {
+        x: las::Transform {
+            scale: opts.scale[0],
+            offset: offset[0],
+        },
+        y: las::Transform {
+            scale: opts.scale[1],
+            offset: offset[1],
+        },
+        z: las::Transform {
+            scale: opts.scale[2],
+            offset: offset[2],
+        },
+    };
+    if let Some(crs) = &opts.crs {
+        b.vlrs = crs_vlrs(crs);
+    }
+    let header = b
+        .into_header()
+        .map_err(|e| Error::Internal(format!("LAS header: {e}")))?;
+    // las::Writer wants to own a 'static writer, so the file is built in memory and then
+    // written atomically.
+    let buf = std::io::Cursor::new(Vec::with_capacity(cloud.len() * 20 + 4096));
+    let mut writer = las::Writer::new(buf, header).map_err(|e| las_err(path, e))?;
+    {
+        for i in 0..cloud.len() {
+            let class = opts
+                .classification
+                .or_else(|| cloud.classification.get(i).copied())
+                .unwrap_or(1);
+            let p = las::Point {
+                x: cloud.x[i],
+                y: cloud.y[i],
+                z: cloud.z[i],
+                intensity: cloud.intensity.get(i).copied().unwrap_or(0),
+                return_number: cloud.return_number.get(i).copied().unwrap_or(1),
+                number_of_returns: cloud.number_of_returns.get(i).copied().unwrap_or(1),
+                classification: las::point::Classification::new(class)
+                    .map_err(|e| las_err(path, e))?,
+                ..Default::default()
+            };
+            writer.write_point(p).map_err(|e| las_err(path, e))?;
+        }
+    }
+    let buf = writer.into_inner().map_err(|e| las_err(path, e))?;
+    crate::fsutil::write_bytes_atomic(path, buf.get_ref())
+}
+
+fn las_err(path: &Path, e: las::Error) -> Error {
+    match e {
+        las::Error::Io(io) => Error::io(path, io),
+        other => Error::Usage(format!("{}: cannot write LAS: {other}", path.display())),
+    }
+}
+
+/// Writes an uncompressed LAS holding `records` (whole records in `h`'s point format) with
+/// `h`'s header fields, VLRs and CRS; counts and bounds are recomputed from the records.
+pub fn write_raw_las(path: &Path, h: &LasHeader, records: &[u8], bounds: &super::Bounds) -> Result<()> {
+    let len = h.record_length as usize;
+    let n = (records.len() / len) as u64;
+    let mut raw = h.raw.clone();
+    raw.point_data_record_format = h.point_format;
+    let vlrs: Vec<las::raw::Vlr> = h
+        .vlrs
+        .iter()
+        .filter(|v| !v.is_laszip() && !v.extended && v.data.len() <= u16::MAX as usize)
+        .map(|v| v.to_raw())
+        .collect();
+    raw.number_of_variable_length_records = vlrs.len() as u32;
+    raw.evlr = None;
+    let vlr_bytes: u64 = vlrs.iter().map(|v| 54 + v.data.len() as u64).sum();
+    raw.offset_to_point_data = (raw.header_size as u64 + vlr_bytes) as u32;
+    raw.number_of_point_records = if n <= u32::MAX as u64 && h.point_format < 6 { n as u32 } else { 0 };
+    if let Some(lf) = raw.large_file.as_mut() {
+        lf.number_of_point_records = n;
+        lf.number_of_points_by_return = [0; 15];
+    }
+    raw.number_of_points_by_return = [0; 5];
+    let extended = h.point_format >= 6;
+    for r in records.chunks_exact(len) {
+        let ret = if extended { r[14] & 0x0F } else { r[14] & 0x07 };
+        if (1..=5).contains(&ret) {
+            raw.number_of_points_by_return[ret as usize - 1] += 1;
+        }
+        if let Some(lf) = raw.large_file.as_mut() {
+            if (1..=15).contains(&ret) {
+                lf.number_of_points_by_return[ret as usize - 1] += 1;
+            }
+        }
+    }
+    raw.min_x = bounds.min[0];
+    raw.min_y = bounds.min[1];
+    raw.min_z = bounds.min[2];
+    raw.max_x = bounds.max[0];
+    raw.max_y = bounds.max[1];
+    raw.max_z = bounds.max[2];
+    write_atomic(path, |w| {
+        raw.write_to(&mut *w).map_err(|e| las_err(path, e))?;
+        for v in &vlrs {
+            v.write_to(&mut *w).map_err(|e| las_err(path, e))?;
+        }
+        std::io::Write::write_all(w, records).map_err(|e| Error::io(path, e))
+    })
+}

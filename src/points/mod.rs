@@ -1,0 +1,443 @@
+//! Point clouds in: the struct-of-arrays [`PointCloud`], its bounds, and the readers for
+//! LAS/LAZ (memory-mapped, records decoded in parallel) and XYZ/CSV text (SPEC §1).
+//!
+//! Formats are recognised from the content: a `LASF` signature is LAS, or LAZ when the point
+//! format carries the compression bit or a LASzip VLR is present; anything else that looks
+//! like text is XYZ.
+
+mod convert;
+mod crs;
+mod las_header;
+mod las_read;
+mod las_records;
+mod las_write;
+mod stats;
+mod xyz;
+
+pub use convert::{convert, Selection};
+pub use crs::{Crs, LinearUnit};
+pub use las_header::{LasHeader, Vlr};
+pub use las_read::raw_records;
+pub use las_write::{write_las, write_raw_las, LasWriteOptions};
+pub use stats::{class_name, CloudStats, FileInfo, Histogram};
+pub use xyz::parse_xyz;
+
+use crate::error::{Error, Result};
+use crate::progress::Progress;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Point coordinates in world units (f64) plus the per-point attributes later stages need,
+/// stored column by column.
+///
+/// Cost per point: x, y, z (3 × 8 bytes) + classification (1) + return number (1)
+/// + number of returns (1) + intensity (2) = 29 bytes when the source has every attribute;
+/// attributes the source lacks (XYZ text) are empty columns and cost nothing.
+#[derive(Debug, Clone, Default)]
+pub struct PointCloud {
+    /// Easting.
+    pub x: Vec<f64>,
+    /// Northing.
+    pub y: Vec<f64>,
+    /// Height.
+    pub z: Vec<f64>,
+    /// ASPRS class per point (2 ground, 7 low noise, 18 high noise, …); empty if unknown.
+    pub classification: Vec<u8>,
+    /// Return number (1-based) per point; empty if unknown.
+    pub return_number: Vec<u8>,
+    /// Number of returns of the pulse per point; empty if unknown.
+    pub number_of_returns: Vec<u8>,
+    /// Pulse return intensity per point; empty if unknown.
+    pub intensity: Vec<u16>,
+    /// Where the points came from, one entry per source file.
+    pub sources: Vec<SourceInfo>,
+}
+
+/// What a reader learned about one input file from its header.
+#[derive(Debug, Clone, Serialize)]
+pub struct SourceInfo {
+    /// The file.
+    pub path: PathBuf,
+    /// Its format.
+    pub format: Format,
+    /// LAS version (major, minor), for LAS/LAZ.
+    pub version: Option<(u8, u8)>,
+    /// LAS point data record format (0–10), for LAS/LAZ.
+    pub point_format: Option<u8>,
+    /// LAS point record length in bytes.
+    pub record_length: Option<u16>,
+    /// Points the file holds (header count for LAS/LAZ, data lines for XYZ).
+    pub points_in_file: u64,
+    /// Points kept after the class filter and the cap.
+    pub points_read: u64,
+    /// Scale factors (x, y, z), for LAS/LAZ.
+    pub scale: Option<[f64; 3]>,
+    /// Offsets (x, y, z), for LAS/LAZ.
+    pub offset: Option<[f64; 3]>,
+    /// Bounds as the header states them (LAS/LAZ).
+    pub header_bounds: Option<Bounds>,
+    /// Coordinate reference system from the VLRs, if any.
+    pub crs: Option<Crs>,
+}
+
+/// Point cloud file formats terratile reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    /// ASPRS LAS 1.0–1.4, uncompressed.
+    Las,
+    /// LASzip-compressed LAS.
+    Laz,
+    /// Text: x y z first three numeric columns.
+    Xyz,
+}
+
+impl std::fmt::Display for Format {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Format::Las => "LAS",
+            Format::Laz => "LAZ",
+            Format::Xyz => "XYZ",
+        })
+    }
+}
+
+/// An axis-aligned 3-D box.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Bounds {
+    /// Minimum x, y, z.
+    pub min: [f64; 3],
+    /// Maximum x, y, z.
+    pub max: [f64; 3],
+}
+
+impl Bounds {
+    /// The empty box (min = +∞, max = −∞), the identity of [`Bounds::union`].
+    pub const EMPTY: Bounds = Bounds {
+        min: [f64::INFINITY; 3],
+        max: [f64::NEG_INFINITY; 3],
+    };
+
+    /// True when no point has been added.
+    pub fn is_empty(&self) -> bool {
+        self.min[0] > self.max[0]
+    }
+
+    /// Grows the box to hold `p`.
+    #[inline]
+    pub fn add(&mut self, p: [f64; 3]) {
+        for (k, v) in p.into_iter().enumerate() {
+            self.min[k] = self.min[k].min(v);
+            self.max[k] = self.max[k].max(v);
+        }
+    }
+
+    /// The smallest box holding both.
+    pub fn union(self, o: Bounds) -> Bounds {
+        let mut b = self;
+        for k in 0..3 {
+            b.min[k] = b.min[k].min(o.min[k]);
+            b.max[k] = b.max[k].max(o.max[k]);
+        }
+        b
+    }
+
+    /// Extent along each axis.
+    pub fn size(&self) -> [f64; 3] {
+        [
+            self.max[0] - self.min[0],
+            self.max[1] - self.min[1],
+            self.max[2] - self.min[2],
+        ]
+    }
+}
+
+/// Which classes to keep: a 256-entry table built from keep/drop lists.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ClassFilter {
+    keep: [bool; 256],
+    active: bool,
+    keep_list_given: bool,
+}
+
+impl Default for ClassFilter {
+    fn default() -> Self {
+        ClassFilter {
+            keep: [true; 256],
+            active: false,
+            keep_list_given: false,
+        }
+    }
+}
+
+impl ClassFilter {
+    /// Keep only `keep` (all classes if `None`), then drop every class in `drop`.
+    pub fn new(keep: Option<&[u8]>, drop: &[u8]) -> ClassFilter {
+        let mut table = [keep.is_none(); 256];
+        if let Some(keep) = keep {
+            for &c in keep {
+                table[c as usize] = true;
+            }
+        }
+        for &c in drop {
+            table[c as usize] = false;
+        }
+        ClassFilter {
+            active: table.iter().any(|k| !k),
+            keep: table,
+            keep_list_given: keep.is_some(),
+        }
+    }
+
+    /// True if points of class `c` are kept.
+    #[inline(always)]
+    pub fn keeps(&self, c: u8) -> bool {
+        self.keep[c as usize]
+    }
+
+    /// True if some class is filtered out.
+    pub fn is_active(&self) -> bool {
+        self.active
+    }
+
+    /// True if the filter was given an explicit keep list.
+    pub fn has_keep_list(&self) -> bool {
+        self.keep_list_given
+    }
+}
+
+/// Reader options: format override, class filter, point cap.
+#[derive(Debug, Clone, Default)]
+pub struct ReadOptions {
+    /// Force a format instead of recognising it from the content.
+    pub format: Option<Format>,
+    /// Which classes to keep.
+    pub classes: ClassFilter,
+    /// Keep at most this many points (the first ones in file order, after the class filter).
+    pub max_points: Option<u64>,
+}
+
+impl PointCloud {
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    /// True if there are no points.
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// The tight bounding box of the points (computed in parallel).
+    pub fn bounds(&self) -> Bounds {
+        self.x
+            .par_iter()
+            .zip(&self.y)
+            .zip(&self.z)
+            .fold(
+                || Bounds::EMPTY,
+                |mut b, ((&x, &y), &z)| {
+                    b.add([x, y, z]);
+                    b
+                },
+            )
+            .reduce(|| Bounds::EMPTY, Bounds::union)
+    }
+
+    /// The CRS of the first source that has one.
+    pub fn crs(&self) -> Option<&Crs> {
+        self.sources.iter().find_map(|s| s.crs.as_ref())
+    }
+
+    /// Bytes held by the point columns (what the ≤ 30 bytes/point budget counts).
+    pub fn heap_bytes(&self) -> usize {
+        self.x.capacity() * 8
+            + self.y.capacity() * 8
+            + self.z.capacity() * 8
+            + self.classification.capacity()
+            + self.return_number.capacity()
+            + self.number_of_returns.capacity()
+            + self.intensity.capacity() * 2
+    }
+
+    /// Appends `other`'s points; an attribute column survives only if both clouds have it.
+    pub fn append(&mut self, mut other: PointCloud) {
+        let n = self.len();
+        fn merge<T: Copy>(a: &mut Vec<T>, b: Vec<T>, n: usize, m: usize) {
+            if a.len() == n && b.len() == m {
+                a.extend_from_slice(&b);
+            } else {
+                *a = Vec::new();
+            }
+        }
+        if n == 0 && self.sources.is_empty() {
+            std::mem::swap(self, &mut other);
+            return;
+        }
+        let m = other.len();
+        self.x.extend_from_slice(&other.x);
+        self.y.extend_from_slice(&other.y);
+        self.z.extend_from_slice(&other.z);
+        merge(&mut self.classification, other.classification, n, m);
+        merge(&mut self.return_number, other.return_number, n, m);
+        merge(&mut self.number_of_returns, other.number_of_returns, n, m);
+        merge(&mut self.intensity, other.intensity, n, m);
+        self.sources.append(&mut other.sources);
+    }
+
+    /// A new cloud with the points whose `keep` flag is set, in order (parallel gather).
+    pub fn select(&self, keep: &[bool]) -> PointCloud {
+        assert_eq!(keep.len(), self.len(), "select: mask length differs from cloud");
+        let idx: Vec<u32> = keep
+            .iter()
+            .enumerate()
+            .filter_map(|(i, &k)| k.then_some(i as u32))
+            .collect();
+        self.gather(&idx)
+    }
+
+    /// A new cloud with the points at `idx`, in that order (parallel gather).
+    pub fn gather(&self, idx: &[u32]) -> PointCloud {
+        fn col<T: Copy + Send + Sync>(src: &[T], idx: &[u32]) -> Vec<T> {
+            if src.is_empty() {
+                return Vec::new();
+            }
+            idx.par_iter().map(|&i| src[i as usize]).collect()
+        }
+        PointCloud {
+            x: col(&self.x, idx),
+            y: col(&self.y, idx),
+            z: col(&self.z, idx),
+            classification: col(&self.classification, idx),
+            return_number: col(&self.return_number, idx),
+            number_of_returns: col(&self.number_of_returns, idx),
+            intensity: col(&self.intensity, idx),
+            sources: self.sources.clone(),
+        }
+    }
+}
+
+/// Recognises a file's format from its first bytes.
+pub fn detect_format(path: &Path, head: &[u8]) -> Result<Format> {
+    if head.is_empty() {
+        return Err(Error::format(path, 0, "empty file"));
+    }
+    if head.starts_with(b"LASF") {
+        return Ok(if las_header::looks_compressed(head) {
+            Format::Laz
+        } else {
+            Format::Las
+        });
+    }
+    // Text: the first kilobyte is printable ASCII/UTF-8 with line breaks.
+    let probe = &head[..head.len().min(1024)];
+    let texty = probe
+        .iter()
+        .all(|&b| b == b'\n' || b == b'\r' || b == b'\t' || (0x20..0x7f).contains(&b) || b >= 0x80);
+    if texty && std::str::from_utf8(probe).is_ok_or_cut() {
+        return Ok(Format::Xyz);
+    }
+    let sig: String = head[..head.len().min(4)]
+        .iter()
+        .map(|&b| format!("{b:02x}"))
+        .collect::<Vec<_>>()
+        .join(" ");
+    Err(Error::format(
+        path,
+        0,
+        format!("unrecognised format: signature {sig} is neither LASF nor text"),
+    ))
+}
+
+trait Utf8Probe {
+    fn is_ok_or_cut(&self) -> bool;
+}
+
+impl Utf8Probe for std::result::Result<&str, std::str::Utf8Error> {
+    /// A probe cut in the middle of a multi-byte character still counts as text.
+    fn is_ok_or_cut(&self) -> bool {
+        match self {
+            Ok(_) => true,
+            Err(e) => e.error_len().is_none(),
+        }
+    }
+}
+
+/// A read-only memory map of `path` (the one place terratile uses `unsafe`).
+pub fn map_file(path: &Path) -> Result<memmap2::Mmap> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    if len == 0 {
+        return Err(Error::format(path, 0, "empty file"));
+    }
+    #[allow(unsafe_code)]
+    // SAFETY: the map is read-only and private to this process. If another process truncates
+    // the file while we read it, accesses past the new end raise SIGBUS; that is the accepted
+    // contract of every memory-mapped reader (PDAL, LAStools) and documented in the README.
+    let map = unsafe { memmap2::MmapOptions::new().map(&file) }.map_err(|e| Error::io(path, e))?;
+    #[cfg(unix)]
+    let _ = map.advise(memmap2::Advice::Sequential);
+    Ok(map)
+}
+
+/// Reads one point cloud file (LAS, LAZ or XYZ; recognised from its content).
+pub fn read(path: &Path, opts: &ReadOptions, progress: &dyn Progress) -> Result<PointCloud> {
+    let map = map_file(path)?;
+    let format = match opts.format {
+        Some(f) => f,
+        None => detect_format(path, &map)?,
+    };
+    match format {
+        Format::Las | Format::Laz => las_read::read_las(path, &map, opts, progress),
+        Format::Xyz => {
+            if opts.classes.has_keep_list() {
+                return Err(Error::Usage(format!(
+                    "{}: a keep-classes filter is set, but XYZ text has no classification",
+                    path.display()
+                )));
+            }
+            let mut cloud = parse_xyz(path, &map, progress)?;
+            if let Some(cap) = opts.max_points {
+                cloud.truncate(cap as usize);
+            }
+            Ok(cloud)
+        }
+    }
+}
+
+/// Reads several files into one cloud (adjacent tiles of one survey), in the order given.
+pub fn read_all(paths: &[PathBuf], opts: &ReadOptions, progress: &dyn Progress) -> Result<PointCloud> {
+    let mut cloud = PointCloud::default();
+    for p in paths {
+        let mut o = opts.clone();
+        if let Some(cap) = opts.max_points {
+            o.max_points = Some(cap.saturating_sub(cloud.len() as u64));
+        }
+        cloud.append(read(p, &o, progress)?);
+    }
+    Ok(cloud)
+}
+
+impl PointCloud {
+    /// Keeps the first `n` points.
+    pub fn truncate(&mut self, n: usize) {
+        if n >= self.len() {
+            return;
+        }
+        self.x.truncate(n);
+        self.y.truncate(n);
+        self.z.truncate(n);
+        for c in [
+            &mut self.classification,
+            &mut self.return_number,
+            &mut self.number_of_returns,
+        ] {
+            c.truncate(n);
+        }
+        self.intensity.truncate(n);
+        if let Some(s) = self.sources.last_mut() {
+            s.points_read = s.points_read.min(n as u64);
+        }
+    }
+}
