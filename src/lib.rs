@@ -12,6 +12,7 @@ pub mod config;
 pub mod error;
 pub mod fsutil;
 pub mod generate;
+pub mod mesh;
 pub mod pipeline;
 pub mod points;
 pub mod progress;

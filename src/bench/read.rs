@@ -1,6 +1,6 @@
-//! In-process measurements behind `terratile bench`: each compares terratile against a
-//! reference measured in the same run, so the ratio means something on a noisy machine.
+//! `bench read`: decoding a point file against a plain copy of its bytes.
 
+use super::median;
 use crate::error::{Error, Result};
 use crate::points::{self, map_file, ReadOptions};
 use crate::progress::NoProgress;
@@ -38,11 +38,6 @@ pub struct ReadBench {
     pub speedup_vs_las_rs: Option<f64>,
     /// Repetitions (medians are reported).
     pub repeats: usize,
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 /// Maps `path` afresh and copies every byte into a new buffer with all threads; returns a
