@@ -332,7 +332,7 @@ pub fn generate(params: &GenerateParams) -> Result<Scene> {
     // Outliers sit at evenly spread positions in scan order, half high (birds, haze: 80–250 m
     // up), half low (multipath: 15–60 m down).
     let mut outliers = Vec::with_capacity(n_out);
-    let every = if n_out > 0 { n / n_out } else { usize::MAX };
+    let every = n.checked_div(n_out).unwrap_or(usize::MAX);
     let mut kept = keep.iter();
     for i in 0..n {
         if n_out > 0 && i % every == every / 2 && outliers.len() < n_out {

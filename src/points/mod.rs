@@ -32,7 +32,7 @@ use std::path::{Path, PathBuf};
 /// stored column by column.
 ///
 /// Cost per point: x, y, z (3 × 8 bytes) + classification (1) + return number (1)
-/// + number of returns (1) + intensity (2) = 29 bytes when the source has every attribute;
+/// plus number of returns (1) + intensity (2) = 29 bytes when the source has every attribute;
 /// attributes the source lacks (XYZ text) are empty columns and cost nothing.
 #[derive(Debug, Clone, Default)]
 pub struct PointCloud {

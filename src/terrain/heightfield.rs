@@ -116,7 +116,7 @@ impl Heightfield {
     #[inline]
     pub fn z(&self, i: usize, j: usize) -> Option<f64> {
         let h = self.heights[[j, i]];
-        (self.state[[j, i]].has_height() && h.is_finite()).then(|| self.z_offset + h as f64)
+        (self.state[[j, i]].has_height() && h.is_finite()).then_some(self.z_offset + h as f64)
     }
 
     /// World z at (x, y) by bilinear interpolation between the four surrounding cell centres
@@ -166,7 +166,7 @@ impl Heightfield {
                 hi = hi.max(*h);
             }
         }
-        (lo <= hi).then(|| (self.z_offset + lo as f64, self.z_offset + hi as f64))
+        (lo <= hi).then_some((self.z_offset + lo as f64, self.z_offset + hi as f64))
     }
 }
 
