@@ -3,6 +3,9 @@
 //! Delaunay baseline they are measured against. Each stage is a plain function with a
 //! `…Params` struct; none reads files or prints.
 
+pub mod extract;
 pub mod heightfield;
+pub mod quadtree;
+pub mod tiles;
 
 pub use heightfield::{CellState, Heightfield};
