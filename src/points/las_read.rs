@@ -43,7 +43,9 @@ pub(crate) fn read_las(
         las_records::decode(records, &layout, &opts.classes, opts.max_points, &mut cloud);
         progress.advance(h.point_count);
     } else {
-        let expected = opts.max_points.map_or(h.point_count, |c| c.min(h.point_count)) as usize;
+        let expected = opts
+            .max_points
+            .map_or(h.point_count, |c| c.min(h.point_count)) as usize;
         cloud.x.reserve_exact(expected);
         cloud.y.reserve_exact(expected);
         cloud.z.reserve_exact(expected);
@@ -55,7 +57,9 @@ pub(crate) fn read_las(
         let mut buf = Vec::new();
         let mut done = 0u64;
         while done < h.point_count {
-            let left = opts.max_points.map(|c| c.saturating_sub(cloud.len() as u64));
+            let left = opts
+                .max_points
+                .map(|c| c.saturating_sub(cloud.len() as u64));
             if left == Some(0) {
                 break;
             }
@@ -69,7 +73,11 @@ pub(crate) fn read_las(
     progress.finish();
     cloud.sources.push(SourceInfo {
         path: path.to_path_buf(),
-        format: if h.compressed { Format::Laz } else { Format::Las },
+        format: if h.compressed {
+            Format::Laz
+        } else {
+            Format::Las
+        },
         version: Some(h.version),
         point_format: Some(h.point_format),
         record_length: Some(h.record_length),
@@ -137,8 +145,10 @@ impl<'a> LazDecoder<'a> {
         cursor
             .seek(SeekFrom::Start(at))
             .map_err(|e| Error::io(path, e))?;
-        let inner = guard(path, at, || laz::ParLasZipDecompressor::new(cursor, laz_vlr))?
-            .map_err(|e| Error::format(path, at, format!("unreadable LAZ chunk table: {e}")))?;
+        let inner = guard(path, at, || {
+            laz::ParLasZipDecompressor::new(cursor, laz_vlr)
+        })?
+        .map_err(|e| Error::format(path, at, format!("unreadable LAZ chunk table: {e}")))?;
         Ok(LazDecoder {
             path,
             inner,
@@ -151,17 +161,21 @@ impl<'a> LazDecoder<'a> {
         buf.resize(n as usize * self.item_size, 0);
         let (path, at) = (self.path, self.offset);
         let inner = &mut self.inner;
-        guard(path, at, || inner.decompress_many(buf))?
-            .map_err(|e| Error::format(path, at, format!("corrupt or truncated LAZ point data: {e}")))
+        guard(path, at, || inner.decompress_many(buf))?.map_err(|e| {
+            Error::format(
+                path,
+                at,
+                format!("corrupt or truncated LAZ point data: {e}"),
+            )
+        })
     }
 }
 
 /// Runs LASzip code, turning a panic inside the decompressor (which a corrupt file can
 /// provoke) into a format error instead of an abort.
 fn guard<T>(path: &Path, at: u64, f: impl FnOnce() -> T) -> Result<T> {
-    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|_| {
-        Error::format(path, at, "corrupt LAZ point data: the decompressor failed")
-    })
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f))
+        .map_err(|_| Error::format(path, at, "corrupt LAZ point data: the decompressor failed"))
 }
 
 /// The header and the uncompressed point record bytes of a LAS or LAZ file, for tools that

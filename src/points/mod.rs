@@ -31,9 +31,9 @@ use std::path::{Path, PathBuf};
 /// Point coordinates in world units (f64) plus the per-point attributes later stages need,
 /// stored column by column.
 ///
-/// Cost per point: x, y, z (3 × 8 bytes) + classification (1) + return number (1)
-/// + number of returns (1) + intensity (2) = 29 bytes when the source has every attribute;
-/// attributes the source lacks (XYZ text) are empty columns and cost nothing.
+/// Cost per point: x, y, z (3 × 8 bytes), classification (1), return number (1), number of
+/// returns (1) and intensity (2): 29 bytes when the source has every attribute. Attributes
+/// the source lacks (XYZ text) are empty columns and cost nothing.
 #[derive(Debug, Clone, Default)]
 pub struct PointCloud {
     /// Easting.
@@ -288,7 +288,11 @@ impl PointCloud {
 
     /// A new cloud with the points whose `keep` flag is set, in order (parallel gather).
     pub fn select(&self, keep: &[bool]) -> PointCloud {
-        assert_eq!(keep.len(), self.len(), "select: mask length differs from cloud");
+        assert_eq!(
+            keep.len(),
+            self.len(),
+            "select: mask length differs from cloud"
+        );
         let idx: Vec<u32> = keep
             .iter()
             .enumerate()
@@ -407,7 +411,11 @@ pub fn read(path: &Path, opts: &ReadOptions, progress: &dyn Progress) -> Result<
 }
 
 /// Reads several files into one cloud (adjacent tiles of one survey), in the order given.
-pub fn read_all(paths: &[PathBuf], opts: &ReadOptions, progress: &dyn Progress) -> Result<PointCloud> {
+pub fn read_all(
+    paths: &[PathBuf],
+    opts: &ReadOptions,
+    progress: &dyn Progress,
+) -> Result<PointCloud> {
     let mut cloud = PointCloud::default();
     for p in paths {
         let mut o = opts.clone();

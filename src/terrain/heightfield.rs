@@ -69,7 +69,14 @@ pub fn choose_z_offset(zmin: f64, zmax: f64) -> f64 {
 
 impl Heightfield {
     /// An all-empty grid of `cols` × `rows` cells.
-    pub fn empty(cols: usize, rows: usize, corner: [f64; 2], cell_size: [f64; 2], z_offset: f64, crs: Option<Crs>) -> Heightfield {
+    pub fn empty(
+        cols: usize,
+        rows: usize,
+        corner: [f64; 2],
+        cell_size: [f64; 2],
+        z_offset: f64,
+        crs: Option<Crs>,
+    ) -> Heightfield {
         Heightfield {
             heights: Array2::from_elem((rows, cols), f32::NAN),
             counts: Array2::zeros((rows, cols)),
@@ -116,7 +123,7 @@ impl Heightfield {
     #[inline]
     pub fn z(&self, i: usize, j: usize) -> Option<f64> {
         let h = self.heights[[j, i]];
-        (self.state[[j, i]].has_height() && h.is_finite()).then(|| self.z_offset + h as f64)
+        (self.state[[j, i]].has_height() && h.is_finite()).then_some(self.z_offset + h as f64)
     }
 
     /// World z at (x, y) by bilinear interpolation between the four surrounding cell centres
@@ -166,7 +173,7 @@ impl Heightfield {
                 hi = hi.max(*h);
             }
         }
-        (lo <= hi).then(|| (self.z_offset + lo as f64, self.z_offset + hi as f64))
+        (lo <= hi).then_some((self.z_offset + lo as f64, self.z_offset + hi as f64))
     }
 }
 
