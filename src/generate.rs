@@ -304,6 +304,13 @@ fn scan_line(world: &World, v0: f64, spacing: f64, seed: u64, out: &mut Vec<Ret>
 }
 
 /// Generates a scene.
+///
+/// ```
+/// use terratile::generate::{generate, GenerateParams};
+/// let scene = generate(&GenerateParams { seed: 5, points: 2_000, ..Default::default() }).unwrap();
+/// assert_eq!(scene.cloud.len(), 2_000);
+/// assert!(scene.cloud.classification.contains(&2), "ground points");
+/// ```
 pub fn generate(params: &GenerateParams) -> Result<Scene> {
     if params.points < 100 {
         return Err(Error::param(

@@ -261,7 +261,12 @@ fn run(cli: Cli) -> Result<()> {
                 }
             }
         }
-        Command::Generate(g) => generate(&g, cli.quiet)?,
+        Command::Generate(g) => {
+            progress.start("generating", 0);
+            let r = generate(&g, cli.quiet);
+            progress.finish();
+            r?
+        }
         Command::Convert {
             input,
             output,
@@ -274,7 +279,10 @@ fn run(cli: Cli) -> Result<()> {
                 (None, Some(n)) => points::Selection::Sample { n, seed },
                 (None, None) => points::Selection::All,
             };
-            let n = points::convert(&input, &output, sel)?;
+            progress.start(&format!("converting {}", input.display()), 0);
+            let n = points::convert(&input, &output, sel);
+            progress.finish();
+            let n = n?;
             if !cli.quiet {
                 println!("{}: {n} points", output.display());
             }

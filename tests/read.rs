@@ -105,6 +105,23 @@ fn every_real_tile_matches_las_rs_and_its_header() {
 }
 
 #[test]
+fn point_cloud_costs_at_most_30_bytes_per_point() {
+    for rel in ["lidar/autzen_trim.las", "lidar/bcts_3.laz"] {
+        let Some(f) = common::data_file(rel) else {
+            return;
+        };
+        let c = points::read(&f, &ReadOptions::default(), &NoProgress).unwrap();
+        let per_point = c.heap_bytes() as f64 / c.len() as f64;
+        assert!(per_point <= 30.0, "{rel}: {per_point} bytes per point");
+        assert_eq!(
+            c.heap_bytes(),
+            29 * c.len(),
+            "{rel}: columns are allocated exactly"
+        );
+    }
+}
+
+#[test]
 fn class_filter_and_cap_match_a_plain_filter() {
     let Some(f) = common::data_file("lidar/autzen_trim.las") else {
         return;

@@ -386,6 +386,16 @@ pub fn map_file(path: &Path) -> Result<memmap2::Mmap> {
 }
 
 /// Reads one point cloud file (LAS, LAZ or XYZ; recognised from its content).
+///
+/// ```
+/// use terratile::points::{self, ClassFilter, ReadOptions};
+/// let path = std::env::temp_dir().join(format!("doc-read-{}.xyz", std::process::id()));
+/// std::fs::write(&path, "x y z\n1 2 3\n4 5 6.5\n").unwrap();
+/// let cloud = points::read(&path, &ReadOptions::default(), &terratile::NoProgress).unwrap();
+/// assert_eq!(cloud.z, [3.0, 6.5]);
+/// assert!(cloud.classification.is_empty(), "text carries no classes");
+/// # std::fs::remove_file(&path).unwrap();
+/// ```
 pub fn read(path: &Path, opts: &ReadOptions, progress: &dyn Progress) -> Result<PointCloud> {
     let map = map_file(path)?;
     let format = match opts.format {
