@@ -128,8 +128,9 @@ impl<'a> LazDecoder<'a> {
                 "compressed point format, but no LASzip VLR",
             )
         })?;
-        let laz_vlr = laz::LazVlr::read_from(vlr.data.as_slice())
+        let laz_vlr = guard(path, at, || laz::LazVlr::read_from(vlr.data.as_slice()))?
             .map_err(|e| Error::format(path, at, format!("unreadable LASzip VLR: {e}")))?;
+        check_chunk_table(path, bytes, h)?;
         let item_size = laz_vlr.items_size() as usize;
         if item_size != h.record_length as usize {
             return Err(Error::format(
@@ -169,6 +170,45 @@ impl<'a> LazDecoder<'a> {
             )
         })
     }
+}
+
+/// Checks the LASzip chunk table's size before the `laz` crate allocates it: a corrupt chunk
+/// count would otherwise ask for gigabytes. Every chunk holds at least one point and one byte.
+fn check_chunk_table(path: &Path, bytes: &[u8], h: &LasHeader) -> Result<()> {
+    let at = h.offset_to_points as usize;
+    let read_i64 = |p: usize| {
+        bytes
+            .get(p..p + 8)
+            .map(|b| i64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
+    };
+    let mut table = read_i64(at).ok_or_else(|| {
+        Error::format(path, at as u64, "truncated LAZ data: no chunk table offset")
+    })?;
+    if table <= at as i64 {
+        // The writer could not seek back: LASzip then stores the offset in the last 8 bytes.
+        table = read_i64(bytes.len().saturating_sub(8)).unwrap_or(0);
+    }
+    if table <= at as i64 || table as u64 + 8 > bytes.len() as u64 {
+        return Err(Error::format(
+            path,
+            at as u64,
+            format!(
+                "LAZ chunk table offset {table} lies outside the file ({} bytes)",
+                bytes.len()
+            ),
+        ));
+    }
+    let t = table as usize;
+    let chunks = u32::from_le_bytes(bytes[t + 4..t + 8].try_into().unwrap_or([0; 4])) as u64;
+    let limit = h.point_count.max(1).min(bytes.len() as u64);
+    if chunks > limit {
+        return Err(Error::format(
+            path,
+            table as u64 + 4,
+            format!("LAZ chunk table claims {chunks} chunks, more than the file can hold"),
+        ));
+    }
+    Ok(())
 }
 
 /// Runs LASzip code, turning a panic inside the decompressor (which a corrupt file can
