@@ -132,7 +132,10 @@ impl LoadedPipeline {
         let base = self.base_dir();
         let mut out: Vec<PathBuf> = Vec::new();
         if self.config.input.paths.is_empty() {
-            return Err(self.key_error("input.paths", "no input given: list at least one file or glob"));
+            return Err(self.key_error(
+                "input.paths",
+                "no input given: list at least one file or glob",
+            ));
         }
         for pat in &self.config.input.paths {
             let full = base.join(pat);
@@ -152,7 +155,10 @@ impl LoadedPipeline {
             let pattern = full.to_string_lossy().into_owned();
             let entries = glob::glob(&pattern)
                 .map_err(|e| self.key_error("input.paths", format!("bad glob `{pat}`: {e}")))?;
-            let mut matched: Vec<PathBuf> = entries.filter_map(|e| e.ok()).filter(|p| p.is_file()).collect();
+            let mut matched: Vec<PathBuf> = entries
+                .filter_map(|e| e.ok())
+                .filter(|p| p.is_file())
+                .collect();
             if matched.is_empty() {
                 return Err(self.key_error("input.paths", format!("glob `{pat}` matches no file")));
             }
@@ -201,7 +207,11 @@ pub fn parse(path: &Path, text: &str) -> Result<Pipeline> {
         // serde names the parent table for unknown fields; add the field itself.
         if let Some(rest) = message.strip_prefix("unknown field `") {
             if let Some(name) = rest.split('`').next().filter(|n| !key.ends_with(n)) {
-                key = if key == "." || key.is_empty() { name.to_string() } else { format!("{key}.{name}") };
+                key = if key == "." || key.is_empty() {
+                    name.to_string()
+                } else {
+                    format!("{key}.{name}")
+                };
             }
         }
         if key == "." {
@@ -235,7 +245,13 @@ pub fn locate_key(text: &str, dotted: &str) -> (usize, usize) {
     for (i, raw) in text.lines().enumerate() {
         let line = raw.trim();
         if let Some(h) = line.strip_prefix('[') {
-            current = h.trim_start_matches('[').split(']').next().unwrap_or("").trim().to_string();
+            current = h
+                .trim_start_matches('[')
+                .split(']')
+                .next()
+                .unwrap_or("")
+                .trim()
+                .to_string();
             if current == table {
                 table_line = Some(i + 1);
             }
@@ -261,14 +277,20 @@ mod tests {
     fn unknown_key_names_line_and_key() {
         let text = "[input]\npaths = [\"a.las\"]\ncolour = 3\n";
         let e = parse(Path::new("p.toml"), text).unwrap_err().to_string();
-        assert!(e.starts_with("p.toml:3:1: input.colour: unknown field `colour`"), "{e}");
+        assert!(
+            e.starts_with("p.toml:3:1: input.colour: unknown field `colour`"),
+            "{e}"
+        );
     }
 
     #[test]
     fn wrong_type_names_line_and_key() {
         let text = "[input]\npaths = [\"a.las\"]\nmax_points = \"many\"\n";
         let e = parse(Path::new("p.toml"), text).unwrap_err().to_string();
-        assert!(e.starts_with("p.toml:3:14: input.max_points: invalid type"), "{e}");
+        assert!(
+            e.starts_with("p.toml:3:14: input.max_points: invalid type"),
+            "{e}"
+        );
     }
 
     #[test]

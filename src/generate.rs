@@ -103,7 +103,10 @@ impl World {
         while world.buildings.len() < n_buildings && tries < 10_000 {
             tries += 1;
             let half = [rng.range(6.0, 15.0), rng.range(5.0, 12.0)];
-            let c = [rng.range(half[0] + 2.0, w - half[0] - 2.0), rng.range(half[1] + 2.0, h - half[1] - 2.0)];
+            let c = [
+                rng.range(half[0] + 2.0, w - half[0] - 2.0),
+                rng.range(half[1] + 2.0, h - half[1] - 2.0),
+            ];
             if !world.clear_of_features(c, half[0].max(half[1]) + 4.0) {
                 continue;
             }
@@ -125,8 +128,14 @@ impl World {
         let rows = (h / world.tree_cell).ceil() as usize + 1;
         world.tree_grid = vec![Vec::new(); world.tree_cols * rows];
         for (k, t) in world.trees.iter().enumerate() {
-            let (c0, c1) = (((t.c[0] - t.r) / world.tree_cell).floor().max(0.0) as usize, ((t.c[0] + t.r) / world.tree_cell) as usize);
-            let (r0, r1) = (((t.c[1] - t.r) / world.tree_cell).floor().max(0.0) as usize, ((t.c[1] + t.r) / world.tree_cell) as usize);
+            let (c0, c1) = (
+                ((t.c[0] - t.r) / world.tree_cell).floor().max(0.0) as usize,
+                ((t.c[0] + t.r) / world.tree_cell) as usize,
+            );
+            let (r0, r1) = (
+                ((t.c[1] - t.r) / world.tree_cell).floor().max(0.0) as usize,
+                ((t.c[1] + t.r) / world.tree_cell) as usize,
+            );
             for r in r0..=r1.min(rows - 1) {
                 for c in c0..=c1.min(world.tree_cols - 1) {
                     world.tree_grid[r * world.tree_cols + c].push(k as u32);
@@ -166,7 +175,8 @@ impl World {
     /// Bare-earth height at (u, v).
     fn ground(&self, u: f64, v: f64) -> f64 {
         let (w, h) = (self.w, self.h);
-        let rolling = 6.0 * (u / 45.0).sin() * (v / 60.0).cos() + 4.0 * ((u + v) / 80.0).sin() + 0.03 * u;
+        let rolling =
+            6.0 * (u / 45.0).sin() * (v / 60.0).cos() + 4.0 * ((u + v) / 80.0).sin() + 0.03 * u;
         // Ridge along (0.05w, 0.85h) → (0.6w, 0.55h), Gaussian profile.
         let (ax, ay, bx, by) = (0.05 * w, 0.85 * h, 0.6 * w, 0.55 * h);
         let (dx, dy) = (bx - ax, by - ay);
@@ -238,7 +248,13 @@ fn scan_line(world: &World, v0: f64, spacing: f64, seed: u64, out: &mut Vec<Ret>
         let g = world.ground(pu, pv) + 0.03 * rng.normal();
         if let Some(b) = world.building_at(pu, pv) {
             let z = b.roof + 0.02 * rng.normal();
-            out.push(Ret { p: [pu, pv, z], class: 6, ret: 1, nret: 1, intensity: 180 + rng.below(40) as u16 });
+            out.push(Ret {
+                p: [pu, pv, z],
+                class: 6,
+                ret: 1,
+                nret: 1,
+                intensity: 180 + rng.below(40) as u16,
+            });
             continue;
         }
         if let Some((t, rel)) = world.tree_at(pu, pv) {
@@ -248,25 +264,61 @@ fn scan_line(world: &World, v0: f64, spacing: f64, seed: u64, out: &mut Vec<Ret>
                 let mid = rng.unit() < 0.4;
                 let reaches_ground = rng.unit() < 0.7;
                 let n = 1 + mid as u8 + reaches_ground as u8;
-                out.push(Ret { p: [pu, pv, canopy], class: 5, ret: 1, nret: n, intensity: 40 + rng.below(60) as u16 });
+                out.push(Ret {
+                    p: [pu, pv, canopy],
+                    class: 5,
+                    ret: 1,
+                    nret: n,
+                    intensity: 40 + rng.below(60) as u16,
+                });
                 if mid {
                     let z = rng.range(g + 1.0, canopy - 0.5).max(g + 0.5);
-                    out.push(Ret { p: [pu, pv, z], class: 5, ret: 2, nret: n, intensity: 20 + rng.below(40) as u16 });
+                    out.push(Ret {
+                        p: [pu, pv, z],
+                        class: 5,
+                        ret: 2,
+                        nret: n,
+                        intensity: 20 + rng.below(40) as u16,
+                    });
                 }
                 if reaches_ground {
-                    out.push(Ret { p: [pu, pv, g], class: 2, ret: n, nret: n, intensity: 10 + rng.below(30) as u16 });
+                    out.push(Ret {
+                        p: [pu, pv, g],
+                        class: 2,
+                        ret: n,
+                        nret: n,
+                        intensity: 10 + rng.below(30) as u16,
+                    });
                 }
                 continue;
             }
         }
-        out.push(Ret { p: [pu, pv, g], class: 2, ret: 1, nret: 1, intensity: 90 + rng.below(60) as u16 });
+        out.push(Ret {
+            p: [pu, pv, g],
+            class: 2,
+            ret: 1,
+            nret: 1,
+            intensity: 90 + rng.below(60) as u16,
+        });
     }
 }
 
 /// Generates a scene.
+///
+/// ```
+/// use terratile::generate::{generate, GenerateParams};
+/// let scene = generate(&GenerateParams { seed: 5, points: 2_000, ..Default::default() }).unwrap();
+/// assert_eq!(scene.cloud.len(), 2_000);
+/// assert!(scene.cloud.classification.contains(&2), "ground points");
+/// ```
 pub fn generate(params: &GenerateParams) -> Result<Scene> {
     if params.points < 100 {
-        return Err(Error::param("generate", "points", params.points, "at least 100 points"));
+        return Err(Error::param(
+            "generate",
+            "points",
+            params.points,
+            "at least 100 points",
+        ));
     }
     // Returns per pulse is about 1.1; the lake and the trees' misses take some pulses.
     let [w, h] = params.size.unwrap_or_else(|| {
@@ -274,7 +326,12 @@ pub fn generate(params: &GenerateParams) -> Result<Scene> {
         [side, side]
     });
     if !(w > 1.0 && h > 1.0 && w.is_finite() && h.is_finite()) {
-        return Err(Error::param("generate", "size", format!("{w}x{h}"), "width and height must be > 1 m"));
+        return Err(Error::param(
+            "generate",
+            "size",
+            format!("{w}x{h}"),
+            "width and height must be > 1 m",
+        ));
     }
     let mut rng = SplitMix64::new(params.seed);
     let world = World::new(w, h, &mut rng);
@@ -287,7 +344,13 @@ pub fn generate(params: &GenerateParams) -> Result<Scene> {
         .map(|k| {
             let mut out = Vec::new();
             let v0 = (k as f64 + 0.5) * spacing;
-            scan_line(&world, v0, spacing, line_seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15), &mut out);
+            scan_line(
+                &world,
+                v0,
+                spacing,
+                line_seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+                &mut out,
+            );
             out
         })
         .flatten_iter()
@@ -300,7 +363,13 @@ pub fn generate(params: &GenerateParams) -> Result<Scene> {
             .map(|k| {
                 let mut out = Vec::new();
                 let v0 = (k as f64 + 0.5 / (pass as f64 + 1.0)) * spacing;
-                scan_line(&world, v0, spacing, line_seed ^ pass.wrapping_mul(0xD1B5_4A32_D192_ED03) ^ k as u64, &mut out);
+                scan_line(
+                    &world,
+                    v0,
+                    spacing,
+                    line_seed ^ pass.wrapping_mul(0xD1B5_4A32_D192_ED03) ^ k as u64,
+                    &mut out,
+                );
                 out
             })
             .flatten_iter()
@@ -308,7 +377,8 @@ pub fn generate(params: &GenerateParams) -> Result<Scene> {
         rets.extend(extra);
         pass += 1;
     }
-    let n_out = ((params.points as u128 * params.outliers_per_million as u128) / 1_000_000) as usize;
+    let n_out =
+        ((params.points as u128 * params.outliers_per_million as u128) / 1_000_000) as usize;
     let keep = rng.sample_indices(rets.len(), params.points as usize - n_out);
     let mut cloud = PointCloud::default();
     let n = params.points as usize;
@@ -340,9 +410,22 @@ pub fn generate(params: &GenerateParams) -> Result<Scene> {
             let v = rng.range(0.0, h);
             let g = world.ground(u, v);
             let high = outliers.len() % 2 == 0;
-            let z = if high { g + rng.range(80.0, 250.0) } else { g - rng.range(15.0, 60.0) };
+            let z = if high {
+                g + rng.range(80.0, 250.0)
+            } else {
+                g - rng.range(15.0, 60.0)
+            };
             outliers.push(i as u32);
-            push(&mut cloud, &Ret { p: [u, v, z], class: 1, ret: 1, nret: 1, intensity: rng.below(30) as u16 });
+            push(
+                &mut cloud,
+                &Ret {
+                    p: [u, v, z],
+                    class: 1,
+                    ret: 1,
+                    nret: 1,
+                    intensity: rng.below(30) as u16,
+                },
+            );
         } else if let Some(&k) = kept.next() {
             push(&mut cloud, &rets[k as usize]);
         }
@@ -412,7 +495,11 @@ pub fn write_xyz(path: &Path, cloud: &PointCloud) -> Result<()> {
         for i in 0..cloud.len() {
             line.clear();
             use std::fmt::Write as _;
-            let _ = writeln!(line, "{:.2} {:.2} {:.2}", cloud.x[i], cloud.y[i], cloud.z[i]);
+            let _ = writeln!(
+                line,
+                "{:.2} {:.2} {:.2}",
+                cloud.x[i], cloud.y[i], cloud.z[i]
+            );
             w.write_all(line.as_bytes()).map_err(io)?;
         }
         Ok(())
@@ -453,7 +540,10 @@ pub fn write_scene(
     } else {
         split_tiles(scene, tiles.0, tiles.1)
     };
-    let stem = out.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "scene".into());
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "scene".into());
     let mut written = Vec::new();
     for (k, ((c, r), mut cloud)) in parts.into_iter().enumerate() {
         let format = formats[k % formats.len()];

@@ -161,7 +161,11 @@ fn parse_pair<T: std::str::FromStr>(s: &str) -> std::result::Result<(T, T), Stri
     let (a, b) = s
         .split_once(['x', 'X', ','])
         .ok_or_else(|| format!("`{s}`: expected AxB"))?;
-    let p = |v: &str| v.trim().parse::<T>().map_err(|_| format!("`{s}`: `{v}` is not a number"));
+    let p = |v: &str| {
+        v.trim()
+            .parse::<T>()
+            .map_err(|_| format!("`{s}`: `{v}` is not a number"))
+    };
     Ok((p(a)?, p(b)?))
 }
 
@@ -190,8 +194,9 @@ impl Progress for Bars {
         } else {
             ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr())
         };
-        let style = ProgressStyle::with_template("{msg:40!} [{elapsed_precise}] {wide_bar} {percent:>3}%")
-            .unwrap_or_else(|_| ProgressStyle::default_bar());
+        let style =
+            ProgressStyle::with_template("{msg:40!} [{elapsed_precise}] {wide_bar} {percent:>3}%")
+                .unwrap_or_else(|_| ProgressStyle::default_bar());
         bar.set_style(style);
         bar.set_message(label.to_string());
         if let Ok(mut b) = self.bar.lock() {
@@ -256,7 +261,12 @@ fn run(cli: Cli) -> Result<()> {
                 }
             }
         }
-        Command::Generate(g) => generate(&g, cli.quiet)?,
+        Command::Generate(g) => {
+            progress.start("generating", 0);
+            let r = generate(&g, cli.quiet);
+            progress.finish();
+            r?
+        }
         Command::Convert {
             input,
             output,
@@ -269,7 +279,10 @@ fn run(cli: Cli) -> Result<()> {
                 (None, Some(n)) => points::Selection::Sample { n, seed },
                 (None, None) => points::Selection::All,
             };
-            let n = points::convert(&input, &output, sel)?;
+            progress.start(&format!("converting {}", input.display()), 0);
+            let n = points::convert(&input, &output, sel);
+            progress.finish();
+            let n = n?;
             if !cli.quiet {
                 println!("{}: {n} points", output.display());
             }
@@ -336,7 +349,9 @@ fn main() -> ExitCode {
         }
         Err(_) => {
             if !quiet {
-                eprintln!("terratile: internal error (this is a bug; please report it with the input)");
+                eprintln!(
+                    "terratile: internal error (this is a bug; please report it with the input)"
+                );
             }
             ExitCode::from(1)
         }

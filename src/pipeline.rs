@@ -49,7 +49,9 @@ impl std::fmt::Display for RunSummary {
                 "  {} ({}{}): {} of {} points",
                 s.path.display(),
                 s.format,
-                s.version.map(|(a, b)| format!(" {a}.{b}")).unwrap_or_default(),
+                s.version
+                    .map(|(a, b)| format!(" {a}.{b}"))
+                    .unwrap_or_default(),
                 s.points_read,
                 s.points_in_file
             )?;
@@ -68,9 +70,20 @@ impl std::fmt::Display for RunSummary {
         writeln!(f, "stages:")?;
         for s in &self.stages {
             let figs: Vec<String> = s.figures.iter().map(|(k, v)| format!("{k} {v}")).collect();
-            writeln!(f, "  {:<10} {:>8.3} s  {}", s.stage, s.seconds, figs.join(", "))?;
+            writeln!(
+                f,
+                "  {:<10} {:>8.3} s  {}",
+                s.stage,
+                s.seconds,
+                figs.join(", ")
+            )?;
         }
-        writeln!(f, "output: {} ({} files)", self.output_dir.display(), self.files.len())
+        writeln!(
+            f,
+            "output: {} ({} files)",
+            self.output_dir.display(),
+            self.files.len()
+        )
     }
 }
 

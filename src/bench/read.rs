@@ -74,13 +74,24 @@ pub fn read_with_las_rs(path: &Path) -> Result<points::PointCloud> {
 }
 
 /// Times decoding `path` against copying its bytes, `repeats` times each, interleaved.
-pub fn read(path: &Path, opts: &ReadOptions, repeats: usize, compare_las_rs: bool) -> Result<ReadBench> {
+pub fn read(
+    path: &Path,
+    opts: &ReadOptions,
+    repeats: usize,
+    compare_las_rs: bool,
+) -> Result<ReadBench> {
     let repeats = repeats.max(1);
-    let bytes = std::fs::metadata(path).map_err(|e| Error::io(path, e))?.len();
+    let bytes = std::fs::metadata(path)
+        .map_err(|e| Error::io(path, e))?
+        .len();
     // Warm the page cache so that both sides read from memory, not disk.
     let first = points::read(path, opts, &NoProgress)?;
     let points = first.len() as u64;
-    let format = first.sources.first().map(|s| s.format.to_string()).unwrap_or_default();
+    let format = first
+        .sources
+        .first()
+        .map(|s| s.format.to_string())
+        .unwrap_or_default();
     drop(first);
     let (mut dec, mut cp, mut lr) = (Vec::new(), Vec::new(), Vec::new());
     for _ in 0..repeats {
@@ -122,7 +133,14 @@ pub fn read(path: &Path, opts: &ReadOptions, repeats: usize, compare_las_rs: boo
 
 impl std::fmt::Display for ReadBench {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        writeln!(f, "{} ({}, {} points, {:.1} MB)", self.file, self.format, self.points, self.bytes as f64 / 1e6)?;
+        writeln!(
+            f,
+            "{} ({}, {} points, {:.1} MB)",
+            self.file,
+            self.format,
+            self.points,
+            self.bytes as f64 / 1e6
+        )?;
         writeln!(
             f,
             "  decode  {:>8.4} s  {:>8.0} MB/s  {:>6.1} M points/s",
@@ -130,10 +148,18 @@ impl std::fmt::Display for ReadBench {
             self.decode_mb_s,
             self.points_per_s / 1e6
         )?;
-        writeln!(f, "  copy    {:>8.4} s  {:>8.0} MB/s", self.copy_s, self.copy_mb_s)?;
+        writeln!(
+            f,
+            "  copy    {:>8.4} s  {:>8.0} MB/s",
+            self.copy_s, self.copy_mb_s
+        )?;
         writeln!(f, "  ratio decode/copy throughput: {:.2}", self.ratio)?;
         if let (Some(l), Some(s)) = (self.las_rs_points_per_s, self.speedup_vs_las_rs) {
-            writeln!(f, "  las::Reader {:>6.1} M points/s; terratile is {s:.1}x faster", l / 1e6)?;
+            writeln!(
+                f,
+                "  las::Reader {:>6.1} M points/s; terratile is {s:.1}x faster",
+                l / 1e6
+            )?;
         }
         write!(f, "  (median of {} runs)", self.repeats)
     }

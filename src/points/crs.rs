@@ -121,7 +121,11 @@ impl std::fmt::Display for KeyValue {
     }
 }
 
-fn parse_geokeys(dir: &[u8], doubles: Option<&[u8]>, ascii: Option<&[u8]>) -> Option<Vec<(u16, KeyValue)>> {
+fn parse_geokeys(
+    dir: &[u8],
+    doubles: Option<&[u8]>,
+    ascii: Option<&[u8]>,
+) -> Option<Vec<(u16, KeyValue)>> {
     let shorts: Vec<u16> = dir
         .chunks_exact(2)
         .map(|c| u16::from_le_bytes([c[0], c[1]]))
@@ -187,7 +191,9 @@ fn unit_from_epsg(code: u32) -> Option<LinearUnit> {
 }
 
 fn is_utm(code: u32) -> bool {
-    (32601..=32660).contains(&code) || (32701..=32760).contains(&code) || (25828..=25838).contains(&code)
+    (32601..=32660).contains(&code)
+        || (32701..=32760).contains(&code)
+        || (25828..=25838).contains(&code)
 }
 
 /// The first linear (non-angular) unit in a WKT string: `UNIT["foot",0.3048]` or
@@ -203,9 +209,13 @@ fn wkt_linear_unit(wkt: &str) -> Option<LinearUnit> {
         let name = parts.next()?.trim().trim_matches('"').to_string();
         let factor: f64 = parts.next()?.trim().parse().ok()?;
         let lname = name.to_ascii_lowercase();
-        let angular = lname.contains("degree") || lname.contains("radian") || lname.contains("grad");
+        let angular =
+            lname.contains("degree") || lname.contains("radian") || lname.contains("grad");
         if !angular && factor > 0.0 {
-            return Some(LinearUnit { name, metres: factor });
+            return Some(LinearUnit {
+                name,
+                metres: factor,
+            });
         }
         rest = &after[close..];
     }
@@ -225,7 +235,12 @@ fn wkt_top_epsg(wkt: &str) -> Option<u32> {
     }
     let inner = &t[start + 1..];
     let mut parts = inner.split(',');
-    if !parts.next()?.trim().trim_matches('"').eq_ignore_ascii_case("EPSG") {
+    if !parts
+        .next()?
+        .trim()
+        .trim_matches('"')
+        .eq_ignore_ascii_case("EPSG")
+    {
         return None;
     }
     parts.next()?.trim().trim_matches('"').parse().ok()

@@ -118,7 +118,11 @@ impl LasHeader {
             return Err(Error::format(path, 0, "empty file"));
         }
         if !bytes.starts_with(b"LASF") {
-            return Err(Error::format(path, 0, "not a LAS file: signature is not LASF"));
+            return Err(Error::format(
+                path,
+                0,
+                "not a LAS file: signature is not LASF",
+            ));
         }
         if len < 227 {
             return Err(truncated(227, "a LAS header"));
@@ -127,7 +131,11 @@ impl LasHeader {
         if major != 1 || minor > 4 {
             return Err(Error::format(
                 path,
-                if major != 1 { off::VERSION_MAJOR } else { off::VERSION_MINOR },
+                if major != 1 {
+                    off::VERSION_MAJOR
+                } else {
+                    off::VERSION_MINOR
+                },
                 format!("unsupported LAS version {major}.{minor} (terratile reads 1.0 to 1.4)"),
             ));
         }
@@ -135,9 +143,8 @@ impl LasHeader {
         if len < need {
             return Err(truncated(need, &format!("a LAS {major}.{minor} header")));
         }
-        let raw = las::raw::Header::read_from(bytes).map_err(|e| {
-            Error::format(path, 0, format!("unreadable LAS header: {e}"))
-        })?;
+        let raw = las::raw::Header::read_from(bytes)
+            .map_err(|e| Error::format(path, 0, format!("unreadable LAS header: {e}")))?;
         if (raw.header_size as u64) < need {
             return Err(Error::format(
                 path,
@@ -155,7 +162,9 @@ impl LasHeader {
             return Err(Error::format(
                 path,
                 off::POINT_FORMAT,
-                format!("unsupported point data record format {point_format} (LAS defines 0 to 10)"),
+                format!(
+                    "unsupported point data record format {point_format} (LAS defines 0 to 10)"
+                ),
             ));
         }
         if point_format >= 6 && minor < 4 {
@@ -182,7 +191,10 @@ impl LasHeader {
                 return Err(Error::format(
                     path,
                     off::SCALE + 8 * k as u64,
-                    format!("{} scale factor is {s}; it must be finite and non-zero", ["x", "y", "z"][k]),
+                    format!(
+                        "{} scale factor is {s}; it must be finite and non-zero",
+                        ["x", "y", "z"][k]
+                    ),
                 ));
             }
         }
@@ -244,10 +256,15 @@ impl LasHeader {
                     ),
                 ));
             }
-            let vlr = las::raw::Vlr::read_from(&bytes[at as usize..offset_to_points as usize], false)
-                .map_err(|_| {
-                    Error::format(path, at, format!("VLR {k} runs past the start of the point data"))
-                })?;
+            let vlr =
+                las::raw::Vlr::read_from(&bytes[at as usize..offset_to_points as usize], false)
+                    .map_err(|_| {
+                        Error::format(
+                            path,
+                            at,
+                            format!("VLR {k} runs past the start of the point data"),
+                        )
+                    })?;
             at += 54 + vlr.data.len() as u64;
             vlrs.push(Vlr::from_raw(vlr, false));
         }

@@ -43,7 +43,9 @@ pub(crate) fn read_las(
         las_records::decode(records, &layout, &opts.classes, opts.max_points, &mut cloud);
         progress.advance(h.point_count);
     } else {
-        let expected = opts.max_points.map_or(h.point_count, |c| c.min(h.point_count)) as usize;
+        let expected = opts
+            .max_points
+            .map_or(h.point_count, |c| c.min(h.point_count)) as usize;
         cloud.x.reserve_exact(expected);
         cloud.y.reserve_exact(expected);
         cloud.z.reserve_exact(expected);
@@ -55,7 +57,9 @@ pub(crate) fn read_las(
         let mut buf = Vec::new();
         let mut done = 0u64;
         while done < h.point_count {
-            let left = opts.max_points.map(|c| c.saturating_sub(cloud.len() as u64));
+            let left = opts
+                .max_points
+                .map(|c| c.saturating_sub(cloud.len() as u64));
             if left == Some(0) {
                 break;
             }
@@ -69,7 +73,11 @@ pub(crate) fn read_las(
     progress.finish();
     cloud.sources.push(SourceInfo {
         path: path.to_path_buf(),
-        format: if h.compressed { Format::Laz } else { Format::Las },
+        format: if h.compressed {
+            Format::Laz
+        } else {
+            Format::Las
+        },
         version: Some(h.version),
         point_format: Some(h.point_format),
         record_length: Some(h.record_length),
@@ -120,8 +128,9 @@ impl<'a> LazDecoder<'a> {
                 "compressed point format, but no LASzip VLR",
             )
         })?;
-        let laz_vlr = laz::LazVlr::read_from(vlr.data.as_slice())
+        let laz_vlr = guard(path, at, || laz::LazVlr::read_from(vlr.data.as_slice()))?
             .map_err(|e| Error::format(path, at, format!("unreadable LASzip VLR: {e}")))?;
+        check_chunk_table(path, bytes, h)?;
         let item_size = laz_vlr.items_size() as usize;
         if item_size != h.record_length as usize {
             return Err(Error::format(
@@ -137,8 +146,10 @@ impl<'a> LazDecoder<'a> {
         cursor
             .seek(SeekFrom::Start(at))
             .map_err(|e| Error::io(path, e))?;
-        let inner = guard(path, at, || laz::ParLasZipDecompressor::new(cursor, laz_vlr))?
-            .map_err(|e| Error::format(path, at, format!("unreadable LAZ chunk table: {e}")))?;
+        let inner = guard(path, at, || {
+            laz::ParLasZipDecompressor::new(cursor, laz_vlr)
+        })?
+        .map_err(|e| Error::format(path, at, format!("unreadable LAZ chunk table: {e}")))?;
         Ok(LazDecoder {
             path,
             inner,
@@ -151,17 +162,60 @@ impl<'a> LazDecoder<'a> {
         buf.resize(n as usize * self.item_size, 0);
         let (path, at) = (self.path, self.offset);
         let inner = &mut self.inner;
-        guard(path, at, || inner.decompress_many(buf))?
-            .map_err(|e| Error::format(path, at, format!("corrupt or truncated LAZ point data: {e}")))
+        guard(path, at, || inner.decompress_many(buf))?.map_err(|e| {
+            Error::format(
+                path,
+                at,
+                format!("corrupt or truncated LAZ point data: {e}"),
+            )
+        })
     }
+}
+
+/// Checks the LASzip chunk table's size before the `laz` crate allocates it: a corrupt chunk
+/// count would otherwise ask for gigabytes. Every chunk holds at least one point and one byte.
+fn check_chunk_table(path: &Path, bytes: &[u8], h: &LasHeader) -> Result<()> {
+    let at = h.offset_to_points as usize;
+    let read_i64 = |p: usize| {
+        bytes
+            .get(p..p + 8)
+            .map(|b| i64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
+    };
+    let mut table = read_i64(at).ok_or_else(|| {
+        Error::format(path, at as u64, "truncated LAZ data: no chunk table offset")
+    })?;
+    if table <= at as i64 {
+        // The writer could not seek back: LASzip then stores the offset in the last 8 bytes.
+        table = read_i64(bytes.len().saturating_sub(8)).unwrap_or(0);
+    }
+    if table <= at as i64 || table as u64 + 8 > bytes.len() as u64 {
+        return Err(Error::format(
+            path,
+            at as u64,
+            format!(
+                "LAZ chunk table offset {table} lies outside the file ({} bytes)",
+                bytes.len()
+            ),
+        ));
+    }
+    let t = table as usize;
+    let chunks = u32::from_le_bytes(bytes[t + 4..t + 8].try_into().unwrap_or([0; 4])) as u64;
+    let limit = h.point_count.max(1).min(bytes.len() as u64);
+    if chunks > limit {
+        return Err(Error::format(
+            path,
+            table as u64 + 4,
+            format!("LAZ chunk table claims {chunks} chunks, more than the file can hold"),
+        ));
+    }
+    Ok(())
 }
 
 /// Runs LASzip code, turning a panic inside the decompressor (which a corrupt file can
 /// provoke) into a format error instead of an abort.
 fn guard<T>(path: &Path, at: u64, f: impl FnOnce() -> T) -> Result<T> {
-    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)).map_err(|_| {
-        Error::format(path, at, "corrupt LAZ point data: the decompressor failed")
-    })
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(f))
+        .map_err(|_| Error::format(path, at, "corrupt LAZ point data: the decompressor failed"))
 }
 
 /// The header and the uncompressed point record bytes of a LAS or LAZ file, for tools that

@@ -106,7 +106,12 @@ fn decode_dense(l: &Layout, recs: &[u8], out: Out<'_>) {
         .zip(out.y.iter_mut())
         .zip(out.z.iter_mut())
         .zip(out.intensity.iter_mut())
-        .zip(out.ret.iter_mut().zip(out.nret.iter_mut()).zip(out.class.iter_mut()));
+        .zip(
+            out.ret
+                .iter_mut()
+                .zip(out.nret.iter_mut())
+                .zip(out.class.iter_mut()),
+        );
     let ext = l.extended;
     for (r, ((((x, y), z), i), ((ret, nret), class))) in recs.chunks_exact(l.len).zip(cols) {
         let r: &[u8; 17] = match r.first_chunk() {
@@ -163,7 +168,11 @@ pub(crate) fn decode(
     let mut kept: Vec<usize> = if filter.is_active() {
         chunks
             .par_iter()
-            .map(|c| c.chunks_exact(len).filter(|r| filter.keeps(layout.class(r))).count())
+            .map(|c| {
+                c.chunks_exact(len)
+                    .filter(|r| filter.keeps(layout.class(r)))
+                    .count()
+            })
             .collect()
     } else {
         chunks.iter().map(|c| c.len() / len).collect()

@@ -151,7 +151,12 @@ fn las_err(path: &Path, e: las::Error) -> Error {
 
 /// Writes an uncompressed LAS holding `records` (whole records in `h`'s point format) with
 /// `h`'s header fields, VLRs and CRS; counts and bounds are recomputed from the records.
-pub fn write_raw_las(path: &Path, h: &LasHeader, records: &[u8], bounds: &super::Bounds) -> Result<()> {
+pub fn write_raw_las(
+    path: &Path,
+    h: &LasHeader,
+    records: &[u8],
+    bounds: &super::Bounds,
+) -> Result<()> {
     let len = h.record_length as usize;
     let n = (records.len() / len) as u64;
     let mut raw = h.raw.clone();
@@ -166,7 +171,11 @@ pub fn write_raw_las(path: &Path, h: &LasHeader, records: &[u8], bounds: &super:
     raw.evlr = None;
     let vlr_bytes: u64 = vlrs.iter().map(|v| 54 + v.data.len() as u64).sum();
     raw.offset_to_point_data = (raw.header_size as u64 + vlr_bytes) as u32;
-    raw.number_of_point_records = if n <= u32::MAX as u64 && h.point_format < 6 { n as u32 } else { 0 };
+    raw.number_of_point_records = if n <= u32::MAX as u64 && h.point_format < 6 {
+        n as u32
+    } else {
+        0
+    };
     if let Some(lf) = raw.large_file.as_mut() {
         lf.number_of_point_records = n;
         lf.number_of_points_by_return = [0; 15];

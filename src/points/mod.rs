@@ -31,9 +31,9 @@ use std::path::{Path, PathBuf};
 /// Point coordinates in world units (f64) plus the per-point attributes later stages need,
 /// stored column by column.
 ///
-/// Cost per point: x, y, z (3 × 8 bytes) + classification (1) + return number (1)
-/// plus number of returns (1) + intensity (2) = 29 bytes when the source has every attribute;
-/// attributes the source lacks (XYZ text) are empty columns and cost nothing.
+/// Cost per point: x, y, z (3 × 8 bytes), classification (1), return number (1), number of
+/// returns (1) and intensity (2): 29 bytes when the source has every attribute. Attributes
+/// the source lacks (XYZ text) are empty columns and cost nothing.
 #[derive(Debug, Clone, Default)]
 pub struct PointCloud {
     /// Easting.
@@ -288,7 +288,11 @@ impl PointCloud {
 
     /// A new cloud with the points whose `keep` flag is set, in order (parallel gather).
     pub fn select(&self, keep: &[bool]) -> PointCloud {
-        assert_eq!(keep.len(), self.len(), "select: mask length differs from cloud");
+        assert_eq!(
+            keep.len(),
+            self.len(),
+            "select: mask length differs from cloud"
+        );
         let idx: Vec<u32> = keep
             .iter()
             .enumerate()
@@ -382,6 +386,16 @@ pub fn map_file(path: &Path) -> Result<memmap2::Mmap> {
 }
 
 /// Reads one point cloud file (LAS, LAZ or XYZ; recognised from its content).
+///
+/// ```
+/// use terratile::points::{self, ClassFilter, ReadOptions};
+/// let path = std::env::temp_dir().join(format!("doc-read-{}.xyz", std::process::id()));
+/// std::fs::write(&path, "x y z\n1 2 3\n4 5 6.5\n").unwrap();
+/// let cloud = points::read(&path, &ReadOptions::default(), &terratile::NoProgress).unwrap();
+/// assert_eq!(cloud.z, [3.0, 6.5]);
+/// assert!(cloud.classification.is_empty(), "text carries no classes");
+/// # std::fs::remove_file(&path).unwrap();
+/// ```
 pub fn read(path: &Path, opts: &ReadOptions, progress: &dyn Progress) -> Result<PointCloud> {
     let map = map_file(path)?;
     let format = match opts.format {
@@ -407,7 +421,11 @@ pub fn read(path: &Path, opts: &ReadOptions, progress: &dyn Progress) -> Result<
 }
 
 /// Reads several files into one cloud (adjacent tiles of one survey), in the order given.
-pub fn read_all(paths: &[PathBuf], opts: &ReadOptions, progress: &dyn Progress) -> Result<PointCloud> {
+pub fn read_all(
+    paths: &[PathBuf],
+    opts: &ReadOptions,
+    progress: &dyn Progress,
+) -> Result<PointCloud> {
     let mut cloud = PointCloud::default();
     for p in paths {
         let mut o = opts.clone();

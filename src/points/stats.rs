@@ -153,7 +153,11 @@ impl std::fmt::Display for FileInfo {
             write!(f, " ({rl}-byte records)")?;
         }
         writeln!(f)?;
-        writeln!(f, "  points        {} ({} in file)", self.stats.points, s.points_in_file)?;
+        writeln!(
+            f,
+            "  points        {} ({} in file)",
+            self.stats.points, s.points_in_file
+        )?;
         if let Some(b) = &self.stats.bounds {
             for (k, axis) in ["x", "y", "z"].iter().enumerate() {
                 writeln!(f, "  {axis}             {:.3} .. {:.3}", b.min[k], b.max[k])?;
@@ -167,7 +171,11 @@ impl std::fmt::Display for FileInfo {
             Some(c) => {
                 let t = c.text();
                 let short: String = t.chars().take(120).collect();
-                writeln!(f, "  crs           {short}{}", if t.chars().count() > 120 { "…" } else { "" })?;
+                writeln!(
+                    f,
+                    "  crs           {short}{}",
+                    if t.chars().count() > 120 { "…" } else { "" }
+                )?;
                 if let Some(u) = &c.unit {
                     writeln!(f, "  units         {} ({} m)", u.name, u.metres)?;
                 }

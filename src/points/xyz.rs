@@ -60,9 +60,7 @@ fn parse_line(line: &[u8]) -> std::result::Result<Option<[f64; 3]>, String> {
             }
         }
         if p == n || line[p] == b'#' {
-            return Err(format!(
-                "expected 3 numbers (x y z), found {k}"
-            ));
+            return Err(format!("expected 3 numbers (x y z), found {k}"));
         }
         let (val, used) = fast_float2::parse_partial::<f64, _>(&line[p..]).map_err(|_| {
             let tok: String = line[p..]
@@ -141,7 +139,11 @@ fn split_lines(text: &[u8]) -> Vec<&[u8]> {
 /// (a first non-comment line that does not start with a number). Returns (byte offset,
 /// lines skipped).
 fn data_start(text: &[u8]) -> (usize, u64) {
-    let mut at = if text.starts_with(b"\xEF\xBB\xBF") { 3 } else { 0 };
+    let mut at = if text.starts_with(b"\xEF\xBB\xBF") {
+        3
+    } else {
+        0
+    };
     let mut lines = 0u64;
     while at < text.len() {
         let end = text[at..]
@@ -188,7 +190,11 @@ pub fn parse_xyz(path: &Path, text: &[u8], progress: &dyn Progress) -> Result<Po
                     .iter()
                     .map(|c| c.iter().filter(|&&b| b == b'\n').count() as u64)
                     .sum();
-                return Err(Error::text(path, skipped + before + e.line + 1, e.message.clone()));
+                return Err(Error::text(
+                    path,
+                    skipped + before + e.line + 1,
+                    e.message.clone(),
+                ));
             }
         }
     }
@@ -232,7 +238,10 @@ mod tests {
     fn separators_and_comments() {
         assert_eq!(parse_line(b"1 2 3").unwrap(), Some([1.0, 2.0, 3.0]));
         assert_eq!(parse_line(b"1,2,3,99").unwrap(), Some([1.0, 2.0, 3.0]));
-        assert_eq!(parse_line(b"\t1.5\t-2e3 , 3").unwrap(), Some([1.5, -2000.0, 3.0]));
+        assert_eq!(
+            parse_line(b"\t1.5\t-2e3 , 3").unwrap(),
+            Some([1.5, -2000.0, 3.0])
+        );
         assert_eq!(parse_line(b"  # note").unwrap(), None);
         assert_eq!(parse_line(b"").unwrap(), None);
         assert!(parse_line(b"1 2").unwrap_err().contains("found 2"));

@@ -69,7 +69,14 @@ pub fn choose_z_offset(zmin: f64, zmax: f64) -> f64 {
 
 impl Heightfield {
     /// An all-empty grid of `cols` × `rows` cells.
-    pub fn empty(cols: usize, rows: usize, corner: [f64; 2], cell_size: [f64; 2], z_offset: f64, crs: Option<Crs>) -> Heightfield {
+    pub fn empty(
+        cols: usize,
+        rows: usize,
+        corner: [f64; 2],
+        cell_size: [f64; 2],
+        z_offset: f64,
+        crs: Option<Crs>,
+    ) -> Heightfield {
         Heightfield {
             heights: Array2::from_elem((rows, cols), f32::NAN),
             counts: Array2::zeros((rows, cols)),

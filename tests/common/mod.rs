@@ -14,9 +14,15 @@ pub fn shared_data() -> Option<PathBuf> {
         return Some(dir);
     }
     if std::env::var("CI").is_ok_and(|v| v == "true") {
-        panic!("CI=true but the shared data directory {} is missing", dir.display());
+        panic!(
+            "CI=true but the shared data directory {} is missing",
+            dir.display()
+        );
     }
-    eprintln!("skipping: shared data not found at {} (set TERRATILE_DATA)", dir.display());
+    eprintln!(
+        "skipping: shared data not found at {} (set TERRATILE_DATA)",
+        dir.display()
+    );
     None
 }
 
@@ -35,11 +41,143 @@ pub fn data_file(rel: &str) -> Option<PathBuf> {
 
 /// Every LAS/LAZ file in the shared `lidar/` folder, sorted.
 pub fn lidar_files() -> Vec<PathBuf> {
-    let Some(dir) = shared_data() else { return Vec::new() };
+    let Some(dir) = shared_data() else {
+        return Vec::new();
+    };
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir.join("lidar"))
         .map(|rd| rd.filter_map(|e| e.ok().map(|e| e.path())).collect())
         .unwrap_or_default();
     v.retain(|p| matches!(p.extension().and_then(|e| e.to_str()), Some("las" | "laz")));
     v.sort();
     v
+}
+
+/// One run of the real binary.
+#[derive(Debug)]
+pub struct Run {
+    /// The command line, for failure messages.
+    pub cmd: String,
+    /// Working directory.
+    pub dir: PathBuf,
+    /// Exit code (-1 if killed by a signal).
+    pub code: i32,
+    /// Standard output.
+    pub stdout: String,
+    /// Standard error.
+    pub stderr: String,
+}
+
+impl Run {
+    /// Everything a reader of a failed test needs: command, directory listing, output.
+    pub fn context(&self) -> String {
+        let mut listing = String::new();
+        for e in walk(&self.dir) {
+            listing.push_str(&format!(
+                "    {}\n",
+                e.strip_prefix(&self.dir).unwrap_or(&e).display()
+            ));
+        }
+        format!(
+            "command: {}\ndir: {}\n{listing}exit: {}\nstdout:\n{}\nstderr:\n{}",
+            self.cmd,
+            self.dir.display(),
+            self.code,
+            self.stdout,
+            self.stderr
+        )
+    }
+
+    /// Asserts success.
+    pub fn ok(&self) -> &Run {
+        assert_eq!(self.code, 0, "expected success\n{}", self.context());
+        self
+    }
+
+    /// Asserts a bad-input failure: exit 2 and one stderr line containing every needle.
+    pub fn input_error(&self, needles: &[&str]) -> &Run {
+        assert_eq!(self.code, 2, "expected exit code 2\n{}", self.context());
+        let lines: Vec<&str> = self
+            .stderr
+            .lines()
+            .filter(|l| !l.trim().is_empty())
+            .collect();
+        assert_eq!(
+            lines.len(),
+            1,
+            "expected one error line\n{}",
+            self.context()
+        );
+        for n in needles {
+            assert!(
+                self.stderr.contains(n),
+                "stderr lacks `{n}`\n{}",
+                self.context()
+            );
+        }
+        assert!(
+            !self.stderr.contains("panicked"),
+            "panic\n{}",
+            self.context()
+        );
+        self
+    }
+}
+
+/// Every file under `dir`, sorted.
+pub fn walk(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        if let Ok(rd) = std::fs::read_dir(&d) {
+            for e in rd.flatten() {
+                let p = e.path();
+                if p.is_dir() {
+                    stack.push(p.clone());
+                }
+                out.push(p);
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// Runs `terratile ARGS` in `dir` (quietly, without progress bars).
+pub fn terratile(dir: &Path, args: &[&str]) -> Run {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_terratile"))
+        .args(args)
+        .current_dir(dir)
+        .env_remove("RUST_BACKTRACE")
+        .output()
+        .expect("the terratile binary runs");
+    Run {
+        cmd: format!("terratile {}", args.join(" ")),
+        dir: dir.to_path_buf(),
+        code: out.status.code().unwrap_or(-1),
+        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
+        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+    }
+}
+
+/// The repository root.
+pub fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Copies the default job (pipeline.toml and fixtures/) into a fresh temporary directory.
+pub fn default_job() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::copy(
+        repo().join("pipeline.toml"),
+        dir.path().join("pipeline.toml"),
+    )
+    .unwrap();
+    std::fs::create_dir(dir.path().join("fixtures")).unwrap();
+    for e in std::fs::read_dir(repo().join("fixtures"))
+        .unwrap()
+        .flatten()
+    {
+        std::fs::copy(e.path(), dir.path().join("fixtures").join(e.file_name())).unwrap();
+    }
+    dir
 }
