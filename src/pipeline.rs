@@ -89,6 +89,7 @@ impl std::fmt::Display for RunSummary {
 
 /// Runs `pipeline`, reporting progress to `progress`.
 pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSummary> {
+    validate_tile_stages(pipeline)?;
     let files = pipeline.input_files()?;
     let cfg = &pipeline.config;
     let opts = cfg.input.read_options();
@@ -121,4 +122,80 @@ pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSumm
         files: Vec::new(),
     };
     Ok(summary)
+}
+
+/// Checks the parameters of the tile stages and outputs before any work, naming the
+/// pipeline key of a bad value (`tiles.size`, `extract.tolerance`, …).
+pub fn validate_tile_stages(pipeline: &LoadedPipeline) -> Result<()> {
+    let cfg = &pipeline.config;
+    let at_key = |e: Error| match e {
+        Error::Param {
+            stage,
+            param,
+            value,
+            message,
+        } => pipeline.key_error(&format!("{stage}.{param}"), format!("{value}: {message}")),
+        other => other,
+    };
+    cfg.tiles.validate().map_err(at_key)?;
+    cfg.quadtree.validate().map_err(at_key)?;
+    cfg.extract.validate().map_err(at_key)?;
+    crate::output::validate(&cfg.output).map_err(at_key)?;
+    Ok(())
+}
+
+/// The stages after hole filling: tiles → quadtree → outputs (meshes, EXR, heightmaps,
+/// previews, manifest) written into `dir`. Returns one report per stage and the files.
+pub fn tile_stages(
+    pipeline: &LoadedPipeline,
+    hf: &crate::terrain::Heightfield,
+    dir: &std::path::Path,
+    progress: &dyn Progress,
+) -> Result<(Vec<StageReport>, Vec<String>)> {
+    use crate::terrain::{quadtree, tiles};
+    let cfg = &pipeline.config;
+    let mut reports = Vec::new();
+    let t = Instant::now();
+    let set = tiles::tile(hf, &cfg.tiles)?;
+    reports.push(StageReport {
+        stage: "tiles".into(),
+        seconds: t.elapsed().as_secs_f64(),
+        figures: vec![
+            ("tile size".into(), set.tile_size.to_string()),
+            ("tiles".into(), format!("{}×{}", set.grid[0], set.grid[1])),
+            (
+                "samples".into(),
+                format!("{}×{}", set.samples[0], set.samples[1]),
+            ),
+            ("holes".into(), set.holes().to_string()),
+        ],
+    });
+    if crate::output::wants_meshes(&cfg.output) {
+        // Refuse before the work: a mesh needs a filled heightfield.
+        crate::terrain::extract::check_no_holes(&set)?;
+    }
+    let t = Instant::now();
+    let qt = quadtree::build(&set, &cfg.quadtree)?;
+    reports.push(StageReport {
+        stage: "quadtree".into(),
+        seconds: t.elapsed().as_secs_f64(),
+        figures: vec![
+            ("C".into(), qt.c.to_string()),
+            ("K".into(), qt.k.to_string()),
+        ],
+    });
+    let w = crate::output::write_terrain(dir, &set, &qt, &cfg.extract, &cfg.output, progress)?;
+    if crate::output::wants_meshes(&cfg.output) {
+        reports.push(StageReport {
+            stage: "extract".into(),
+            seconds: w.extract_s,
+            figures: vec![("triangles".into(), w.triangles.to_string())],
+        });
+    }
+    reports.push(StageReport {
+        stage: "write".into(),
+        seconds: w.write_s,
+        figures: vec![("files".into(), w.files.len().to_string())],
+    });
+    Ok((reports, w.files))
 }

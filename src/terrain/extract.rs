@@ -255,18 +255,24 @@ pub struct TileTriangulation {
     pub surface_triangles: usize,
 }
 
-/// Triangulates every tile; fails if the set has holes (a mesh needs a filled heightfield).
-pub fn extract(set: &TileSet, refiner: &Refiner<'_>) -> Result<Vec<TileTriangulation>> {
+/// The error for a set with masked holes: a mesh needs a filled heightfield.
+pub fn check_no_holes(set: &TileSet) -> Result<()> {
     let holes = set.holes();
     if holes > 0 {
         return Err(Error::Data {
             stage: "extract",
             message: format!(
                 "the heightfield has {holes} masked hole samples; meshes need a filled heightfield \
-                 (choose a fill fallback other than \"nodata\", or turn the meshes and the wireframe preview off)"
+                 (choose a fill fallback other than \"nodata\", or set output.meshes = [] and output.wireframe = false)"
             ),
         });
     }
+    Ok(())
+}
+
+/// Triangulates every tile; fails if the set has holes (a mesh needs a filled heightfield).
+pub fn extract(set: &TileSet, refiner: &Refiner<'_>) -> Result<Vec<TileTriangulation>> {
+    check_no_holes(set)?;
     Ok((0..set.tiles.len())
         .into_par_iter()
         .map(|t| extract_tile(set, t, refiner))

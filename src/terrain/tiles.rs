@@ -146,9 +146,22 @@ impl TileSet {
         ]
     }
 
-    /// Hole samples in all tiles' valid extents (shared borders counted once per tile).
+    /// Hole samples of the whole grid (a sample on a shared border counts once).
     pub fn holes(&self) -> usize {
-        self.tiles.iter().map(|t| t.holes).sum()
+        if self.tiles.iter().all(|t| t.holes == 0) {
+            return 0;
+        }
+        self.tiles
+            .par_iter()
+            .map(|t| {
+                // Each tile owns its valid extent minus the border it shares east and north.
+                let w = t.valid[0] - usize::from(t.col + 1 < self.grid[0]);
+                let h = t.valid[1] - usize::from(t.row + 1 < self.grid[1]);
+                (0..h)
+                    .map(|j| (0..w).filter(|&i| t.heights[[j, i]].is_nan()).count())
+                    .sum::<usize>()
+            })
+            .sum()
     }
 
     /// World z range over all non-hole samples.
@@ -436,6 +449,19 @@ mod tests {
         .unwrap();
         // Sample (69, 69) is inside tile (1,1) only; its replicas in the padding do not count.
         assert_eq!(set.holes(), 1);
+        // A hole on the shared border is in two tiles' valid extents but counts once.
+        hf.heights[[10, 64]] = f32::NAN;
+        hf.state[[10, 64]] = CellState::Empty;
+        let set = tile(
+            &hf,
+            &TileParams {
+                size: Some(65),
+                preset: Preset::None,
+            },
+        )
+        .unwrap();
+        assert_eq!(set.tiles.iter().map(|t| t.holes).sum::<usize>(), 3);
+        assert_eq!(set.holes(), 2);
         assert!(set.tile(1, 1).unwrap().heights[[10, 10]].is_nan());
     }
 
