@@ -8,7 +8,7 @@ mod tiles_support;
 
 use proptest::prelude::*;
 use terratile::terrain::extract::{self, Criterion, ExtractParams, Refiner, TileTriangulation};
-use terratile::terrain::quadtree::{self, build, QuadtreeParams};
+use terratile::terrain::quadtree::{self, build, NodeValues, QuadtreeParams};
 use terratile::terrain::tiles::{tile, TileParams, TileSet};
 use terratile::terrain::Heightfield;
 use tiles_support::*;
@@ -52,7 +52,7 @@ fn check_d2_against_brute_force(set: &TileSet, c: f64) {
     assert_eq!(checked, brute.len());
     // Every sample that is no node's centre holds 0.
     for (t, m) in qt.d2.iter().enumerate() {
-        for ((j, i), v) in m.indexed_iter() {
+        for ((j, i), v) in m.to_matrix().indexed_iter() {
             let last = set.tile_size - 1;
             let centre =
                 i > 0 && j > 0 && i < last && j < last && i.trailing_zeros() == j.trailing_zeros();
@@ -65,7 +65,7 @@ fn check_d2_against_brute_force(set: &TileSet, c: f64) {
 
 /// d2(N) ≥ K · d2(Q) for every node N and every node Q one level lower that N contains or
 /// borders, wherever Q is (this tile or a neighbour).
-fn check_propagation(set: &TileSet, m: &[ndarray::Array2<f32>], k: f32) -> usize {
+fn check_propagation(set: &TileSet, m: &[NodeValues], k: f32) -> usize {
     let mut pairs = 0;
     let mut d = 4;
     while d < set.tile_size {
@@ -92,7 +92,7 @@ fn check_propagation(set: &TileSet, m: &[ndarray::Array2<f32>], k: f32) -> usize
 fn refiner_for<'a>(
     set: &'a TileSet,
     qt: &'a quadtree::Quadtree,
-    err: &'a [ndarray::Array2<f32>],
+    err: &'a [NodeValues],
     crit: Criterion,
 ) -> Refiner<'a> {
     Refiner::new(set, qt, Some(err), crit).unwrap()

@@ -101,7 +101,9 @@ pub fn encode_tile(
         "height",
         FlatSamples::F32(flip(&tile.heights)),
     ));
-    channels.push(AnyChannel::new("d2", FlatSamples::F32(flip(&qt.d2[t]))));
+    let mut d2 = vec![0.0f32; n * n];
+    qt.d2[t].for_each(|ci, cj, v| d2[(n - 1 - cj) * n + ci] = v);
+    channels.push(AnyChannel::new("d2", FlatSamples::F32(d2)));
     if tile.heights.iter().any(|h| h.is_nan()) {
         let mask = tile.heights.mapv(|h| if h.is_nan() { 0.0 } else { 1.0 });
         channels.push(AnyChannel::new("mask", FlatSamples::F32(flip(&mask))));
@@ -311,7 +313,7 @@ mod tests {
                 for (x, y) in back.height.iter().zip(tl.heights.iter()) {
                     assert_eq!(x.to_bits(), y.to_bits());
                 }
-                assert_eq!(back.d2, qt.d2[t]);
+                assert_eq!(back.d2, qt.d2[t].to_matrix());
                 assert_eq!(back.mask.is_some(), t == 0);
                 assert_eq!(
                     back.attributes["tileIndex"],

@@ -28,7 +28,7 @@
 
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
-use crate::terrain::quadtree::{self, Quadtree};
+use crate::terrain::quadtree::{self, NodeValues, Quadtree};
 use crate::terrain::tiles::TileSet;
 use glam::Vec3;
 use ndarray::Array2;
@@ -181,8 +181,8 @@ impl Criterion {
 #[derive(Debug, Clone, Copy)]
 pub struct Refiner<'a> {
     set: &'a TileSet,
-    d2: &'a [Array2<f32>],
-    err: Option<&'a [Array2<f32>]>,
+    d2: &'a [NodeValues],
+    err: Option<&'a [NodeValues]>,
     criterion: Criterion,
     spacing: f64,
 }
@@ -193,7 +193,7 @@ impl<'a> Refiner<'a> {
     pub fn new(
         set: &'a TileSet,
         qt: &'a Quadtree,
-        err: Option<&'a [Array2<f32>]>,
+        err: Option<&'a [NodeValues]>,
         criterion: Criterion,
     ) -> Result<Refiner<'a>> {
         if criterion.needs_vertical_error() && err.is_none() {
@@ -217,7 +217,7 @@ impl<'a> Refiner<'a> {
         match self.criterion {
             Criterion::Tolerance { max_error } => {
                 let err = self.err.expect("checked in new");
-                err[t][[vj, vi]] as f64 > max_error
+                err[t].get(vi, vj) as f64 > max_error
             }
             Criterion::View {
                 eye,
@@ -233,7 +233,7 @@ impl<'a> Refiner<'a> {
                 let l =
                     ((eye[0] - x).powi(2) + (eye[1] - y).powi(2) + (eye[2] - z_ref).powi(2)).sqrt();
                 let d = (2 * r) as f64 * self.spacing;
-                let d2 = self.d2[t][[vj, vi]] as f64 / self.spacing;
+                let d2 = self.d2[t].get(vi, vj) as f64 / self.spacing;
                 l < d * min_resolution_c * (desired_resolution_c * d2).max(1.0)
             }
         }
@@ -615,7 +615,7 @@ fn normal_at(set: &TileSet, gi: f64, gj: f64) -> Vec3 {
 }
 
 /// Builds the vertical error tree when `criterion` needs it.
-pub fn error_tree(set: &TileSet, criterion: &Criterion) -> Option<Vec<Array2<f32>>> {
+pub fn error_tree(set: &TileSet, criterion: &Criterion) -> Option<Vec<NodeValues>> {
     criterion
         .needs_vertical_error()
         .then(|| quadtree::vertical_error(set))

@@ -392,13 +392,13 @@ pub fn nodes_of(set: &TileSet, d: usize) -> Vec<Node> {
 }
 
 /// The stored value of global node n in per-tile matrices.
-pub fn value_at(set: &TileSet, m: &[ndarray::Array2<f32>], n: Node) -> f32 {
+pub fn value_at(set: &TileSet, m: &[terratile::terrain::quadtree::NodeValues], n: Node) -> f32 {
     let step = set.tile_size - 1;
     let (x0, y0, d) = n;
     let (col, row) = (x0 / step, y0 / step);
     let t = set.index(col, row);
     let (ci, cj) = (x0 - col * step + d / 2, y0 - row * step + d / 2);
-    m[t][[cj, ci]]
+    m[t].get(ci, cj)
 }
 
 /// Brute force of the propagated, reconciled metric: level by level over global nodes, `raw`
