@@ -14,9 +14,15 @@ pub fn shared_data() -> Option<PathBuf> {
         return Some(dir);
     }
     if std::env::var("CI").is_ok_and(|v| v == "true") {
-        panic!("CI=true but the shared data directory {} is missing", dir.display());
+        panic!(
+            "CI=true but the shared data directory {} is missing",
+            dir.display()
+        );
     }
-    eprintln!("skipping: shared data not found at {} (set TERRATILE_DATA)", dir.display());
+    eprintln!(
+        "skipping: shared data not found at {} (set TERRATILE_DATA)",
+        dir.display()
+    );
     None
 }
 
@@ -35,7 +41,9 @@ pub fn data_file(rel: &str) -> Option<PathBuf> {
 
 /// Every LAS/LAZ file in the shared `lidar/` folder, sorted.
 pub fn lidar_files() -> Vec<PathBuf> {
-    let Some(dir) = shared_data() else { return Vec::new() };
+    let Some(dir) = shared_data() else {
+        return Vec::new();
+    };
     let mut v: Vec<PathBuf> = std::fs::read_dir(dir.join("lidar"))
         .map(|rd| rd.filter_map(|e| e.ok().map(|e| e.path())).collect())
         .unwrap_or_default();
