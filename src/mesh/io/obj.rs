@@ -1,0 +1,540 @@
+//! Wavefront OBJ: `v x y z [r g b]`, `vt`, `vn` and `f` (any polygon, triangulated by ear
+//! clipping in its Newell plane; `v`, `v/vt`, `v//vn`, `v/vt/vn` corners; 1-based and
+//! negative indices). Groups, objects, materials, smoothing groups, lines and points are
+//! not geometry a triangle mesh carries and are skipped.
+//!
+//! Vertices: a [`TriMesh`] has one index per vertex, an OBJ face corner up to three. Position
+//! `k` keeps index `k` (so unreferenced vertices and the file's order survive a round trip);
+//! the same position used with another texture coordinate or normal (a seam) becomes an
+//! extra vertex appended at the end. An unreferenced vertex takes `vt`/`vn` of its own index
+//! when the file has one of those per `v` (files written per vertex, like ours).
+//!
+//! Index 0 is invalid in OBJ, but some exporters write 0-based files. A file in which index
+//! 0 occurs is read as 0-based (the only reading that uses every face) and a warning says
+//! so; an index past the end under that reading is an error, never a dropped face.
+
+use super::{MeshFormat, ReadInfo};
+use crate::error::{Error, Result};
+use crate::mesh::polygon::Triangulator;
+use crate::mesh::{linear_to_srgb, srgb_to_linear, TriMesh};
+use glam::{Vec2, Vec3};
+use std::collections::HashMap;
+use std::io::Write;
+use std::path::Path;
+
+/// No attribute index at this corner.
+const NONE: i64 = i64::MIN;
+/// Unassigned (texture, normal) combination.
+const UNSET: (u32, u32) = (u32::MAX - 1, u32::MAX - 1);
+
+/// A face corner's raw index: `>= 0` as written (a positive 1-based index, or 0);
+/// negative: an already resolved relative index `k` stored as `-(k + 1)`.
+fn raw_index(tok: &[u8], count: usize, line: u64, path: &Path, what: &str) -> Result<i64> {
+    if tok.is_empty() {
+        return Ok(NONE);
+    }
+    let (neg, digits) = match tok[0] {
+        b'-' => (true, &tok[1..]),
+        b'+' => (false, &tok[1..]),
+        _ => (false, tok),
+    };
+    if digits.is_empty() || digits.len() > 18 || !digits.iter().all(u8::is_ascii_digit) {
+        return Err(Error::text(
+            path,
+            line,
+            format!("`{}` is not a {what} index", String::from_utf8_lossy(tok)),
+        ));
+    }
+    let n = digits.iter().fold(0i64, |a, &d| a * 10 + (d - b'0') as i64);
+    if !neg {
+        return Ok(n);
+    }
+    let k = count as i64 - n;
+    if n == 0 || k < 0 {
+        return Err(Error::text(
+            path,
+            line,
+            format!("relative {what} index -{n} reaches before the first of the {count} {what}s defined so far"),
+        ));
+    }
+    Ok(-(k + 1))
+}
+
+fn parse_f32(tok: &[u8], line: u64, path: &Path) -> Result<f32> {
+    let v: f32 = fast_float2::parse(tok).map_err(|_| {
+        Error::text(
+            path,
+            line,
+            format!("`{}` is not a number", String::from_utf8_lossy(tok)),
+        )
+    })?;
+    if !v.is_finite() {
+        return Err(Error::text(
+            path,
+            line,
+            format!(
+                "`{}` is not a finite number (NaN or infinite coordinates are not allowed)",
+                String::from_utf8_lossy(tok)
+            ),
+        ));
+    }
+    Ok(v)
+}
+
+/// Parses OBJ text (`path` is for messages).
+pub fn parse_obj(path: &Path, text: &[u8]) -> Result<(TriMesh, ReadInfo)> {
+    let mut positions: Vec<Vec3> = Vec::new();
+    let mut colors: Vec<[f32; 3]> = Vec::new();
+    let mut any_color = false;
+    let mut texcoords: Vec<Vec2> = Vec::new();
+    let mut normals: Vec<Vec3> = Vec::new();
+    // Polygon corners as raw (v, vt, vn); polygon p is corners[starts[p]..starts[p + 1]].
+    let mut corners: Vec<[i64; 3]> = Vec::new();
+    let mut starts: Vec<usize> = vec![0];
+    let mut lines: Vec<u64> = Vec::new();
+    let mut zero_line: Option<u64> = None;
+    let mut skipped_elements = 0usize;
+    let mut toks: Vec<&[u8]> = Vec::with_capacity(16);
+
+    for (i, raw) in text.split(|&b| b == b'\n').enumerate() {
+        let line_no = i as u64 + 1;
+        let line = match raw.iter().position(|&b| b == b'#') {
+            Some(p) => &raw[..p],
+            None => raw,
+        };
+        toks.clear();
+        toks.extend(
+            line.split(|b| b.is_ascii_whitespace())
+                .filter(|t| !t.is_empty()),
+        );
+        let Some((&key, args)) = toks.split_first() else {
+            continue;
+        };
+        match key {
+            b"v" => {
+                if args.len() < 3 {
+                    return Err(Error::text(path, line_no, "a vertex needs x, y and z"));
+                }
+                let p = Vec3::new(
+                    parse_f32(args[0], line_no, path)?,
+                    parse_f32(args[1], line_no, path)?,
+                    parse_f32(args[2], line_no, path)?,
+                );
+                positions.push(p);
+                // `v x y z w` has a weight, `v x y z r g b` a colour.
+                if args.len() >= 6 {
+                    let c = [
+                        parse_f32(args[3], line_no, path)?,
+                        parse_f32(args[4], line_no, path)?,
+                        parse_f32(args[5], line_no, path)?,
+                    ];
+                    if colors.len() < positions.len() - 1 {
+                        colors.resize(positions.len() - 1, [1.0; 3]);
+                    }
+                    colors.push(c);
+                    any_color = true;
+                }
+            }
+            b"vt" => {
+                if args.is_empty() {
+                    return Err(Error::text(path, line_no, "a texture coordinate needs u"));
+                }
+                let u = parse_f32(args[0], line_no, path)?;
+                let v = match args.get(1) {
+                    Some(t) => parse_f32(t, line_no, path)?,
+                    None => 0.0,
+                };
+                texcoords.push(Vec2::new(u, v));
+            }
+            b"vn" => {
+                if args.len() < 3 {
+                    return Err(Error::text(path, line_no, "a normal needs x, y and z"));
+                }
+                normals.push(Vec3::new(
+                    parse_f32(args[0], line_no, path)?,
+                    parse_f32(args[1], line_no, path)?,
+                    parse_f32(args[2], line_no, path)?,
+                ));
+            }
+            b"f" | b"fo" => {
+                if args.len() < 3 {
+                    return Err(Error::text(
+                        path,
+                        line_no,
+                        format!(
+                            "a face needs at least 3 vertices, this one has {}",
+                            args.len()
+                        ),
+                    ));
+                }
+                for tok in args {
+                    let mut parts = tok.splitn(3, |&b| b == b'/');
+                    let v = raw_index(
+                        parts.next().unwrap_or(b""),
+                        positions.len(),
+                        line_no,
+                        path,
+                        "vertex",
+                    )?;
+                    if v == NONE {
+                        return Err(Error::text(
+                            path,
+                            line_no,
+                            format!(
+                                "face corner `{}` has no vertex index",
+                                String::from_utf8_lossy(tok)
+                            ),
+                        ));
+                    }
+                    let t = raw_index(
+                        parts.next().unwrap_or(b""),
+                        texcoords.len(),
+                        line_no,
+                        path,
+                        "texture coordinate",
+                    )?;
+                    let n = raw_index(
+                        parts.next().unwrap_or(b""),
+                        normals.len(),
+                        line_no,
+                        path,
+                        "normal",
+                    )?;
+                    if (v == 0 || t == 0 || n == 0) && zero_line.is_none() {
+                        zero_line = Some(line_no);
+                    }
+                    corners.push([v, t, n]);
+                }
+                starts.push(corners.len());
+                lines.push(line_no);
+            }
+            b"l" | b"p" | b"curv" | b"curv2" | b"surf" => skipped_elements += 1,
+            _ => {}
+        }
+    }
+    if any_color && colors.len() < positions.len() {
+        colors.resize(positions.len(), [1.0; 3]);
+    }
+
+    let mut warnings = Vec::new();
+    let zero_based = zero_line.is_some();
+    if let Some(l) = zero_line {
+        warnings.push(format!(
+            "{}:{l}: face index 0 is invalid in OBJ (indices start at 1); the file is read as 0-based",
+            path.display()
+        ));
+    }
+    if skipped_elements > 0 {
+        warnings.push(format!(
+            "{}: {skipped_elements} line/point/curve elements skipped (not triangles)",
+            path.display()
+        ));
+    }
+    // Resolve raw indices; every corner is checked against its array's final length.
+    let resolve = |raw: i64, len: usize, line: u64, what: &str| -> Result<u32> {
+        if raw == NONE {
+            return Ok(u32::MAX);
+        }
+        let (idx, shown) = if raw >= 0 {
+            (if zero_based { raw } else { raw - 1 }, raw)
+        } else {
+            (-raw - 1, -raw - 1 - len as i64)
+        };
+        if idx < 0 || idx >= len as i64 {
+            let base = if zero_based {
+                " (the file uses index 0, so it is read as 0-based)"
+            } else {
+                ""
+            };
+            return Err(Error::text(
+                path,
+                line,
+                format!(
+                    "face {what} index {shown} is out of range: the file has {len} {what}s{base}"
+                ),
+            ));
+        }
+        Ok(idx as u32)
+    };
+
+    let has_vt = corners.iter().any(|c| c[1] != NONE);
+    let has_vn = corners.iter().any(|c| c[2] != NONE);
+    let npos = positions.len();
+    let mut mesh = TriMesh {
+        positions,
+        colors: any_color.then(|| {
+            let scale = if colors.iter().flatten().any(|&c| c > 1.0) {
+                warnings.push(format!(
+                    "{}: vertex colours above 1 read as 0–255 values",
+                    path.display()
+                ));
+                1.0 / 255.0
+            } else {
+                1.0
+            };
+            colors
+                .iter()
+                .map(|c| {
+                    let l = |x: f32| srgb_to_linear((x * scale).clamp(0.0, 1.0));
+                    [l(c[0]), l(c[1]), l(c[2]), 1.0]
+                })
+                .collect()
+        }),
+        uvs: has_vt.then(|| vec![Vec2::ZERO; npos]),
+        normals: has_vn.then(|| vec![Vec3::ZERO; npos]),
+        indices: Vec::with_capacity(corners.len().saturating_sub(2 * lines.len())),
+    };
+
+    // Corner → vertex id.
+    let mut ids: Vec<u32> = Vec::with_capacity(corners.len());
+    let mut combo = if has_vt || has_vn {
+        vec![UNSET; npos]
+    } else {
+        Vec::new()
+    };
+    let mut extra: HashMap<(u32, u32, u32), u32> = HashMap::new();
+    for (p, &line) in lines.iter().enumerate() {
+        for c in &corners[starts[p]..starts[p + 1]] {
+            let v = resolve(c[0], npos, line, "vertex")?;
+            if !(has_vt || has_vn) {
+                ids.push(v);
+                continue;
+            }
+            let t = resolve(c[1], texcoords.len(), line, "texture coordinate")?;
+            let n = resolve(c[2], normals.len(), line, "normal")?;
+            let id = if combo[v as usize] == UNSET {
+                combo[v as usize] = (t, n);
+                set_attrs(&mut mesh, v, t, n, &texcoords, &normals);
+                v
+            } else if combo[v as usize] == (t, n) {
+                v
+            } else {
+                *extra.entry((v, t, n)).or_insert_with(|| {
+                    let id = mesh.positions.len() as u32;
+                    mesh.positions.push(mesh.positions[v as usize]);
+                    if let Some(c) = mesh.colors.as_mut() {
+                        c.push(c[v as usize]);
+                    }
+                    if let Some(u) = mesh.uvs.as_mut() {
+                        u.push(Vec2::ZERO);
+                    }
+                    if let Some(nn) = mesh.normals.as_mut() {
+                        nn.push(Vec3::ZERO);
+                    }
+                    set_attrs(&mut mesh, id, t, n, &texcoords, &normals);
+                    id
+                })
+            };
+            ids.push(id);
+        }
+    }
+    // Files written per vertex (one `vt`/`vn` per `v`, as terratile writes them) give
+    // unreferenced vertices their attributes too, so such files round-trip exactly.
+    for (k, c) in combo.iter().enumerate() {
+        if *c == UNSET {
+            let t = if texcoords.len() == npos {
+                k as u32
+            } else {
+                u32::MAX
+            };
+            let n = if normals.len() == npos {
+                k as u32
+            } else {
+                u32::MAX
+            };
+            set_attrs(&mut mesh, k as u32, t, n, &texcoords, &normals);
+        }
+    }
+    if mesh.positions.len() > u32::MAX as usize {
+        return Err(Error::format(path, 0, "more than 2^32 - 1 vertices"));
+    }
+    let mut tri = Triangulator::default();
+    for p in 0..lines.len() {
+        tri.triangulate(
+            &mesh.positions,
+            &ids[starts[p]..starts[p + 1]],
+            &mut mesh.indices,
+        );
+    }
+    let info = ReadInfo {
+        format: MeshFormat::Obj,
+        faces_in_file: lines.len(),
+        warnings,
+    };
+    Ok((mesh, info))
+}
+
+fn set_attrs(mesh: &mut TriMesh, id: u32, t: u32, n: u32, texcoords: &[Vec2], normals: &[Vec3]) {
+    if t != u32::MAX {
+        if let Some(u) = mesh.uvs.as_mut() {
+            u[id as usize] = texcoords[t as usize];
+        }
+    }
+    if n != u32::MAX {
+        if let Some(nn) = mesh.normals.as_mut() {
+            nn[id as usize] = normals[n as usize];
+        }
+    }
+}
+
+/// Writes `mesh` as OBJ: one `v` (with `r g b` when it has colours), `vt` and `vn` per
+/// vertex, and `f` lines with shared indices. Numbers are printed in the shortest form that
+/// reads back to the same f32, so a round trip is exact (colours up to the sRGB conversion;
+/// alpha is not representable in OBJ).
+pub fn write_obj(mesh: &TriMesh, w: &mut dyn Write) -> std::io::Result<()> {
+    writeln!(
+        w,
+        "# terratile mesh: {} vertices, {} triangles",
+        mesh.vertex_count(),
+        mesh.triangle_count()
+    )?;
+    for (i, p) in mesh.positions.iter().enumerate() {
+        match &mesh.colors {
+            Some(c) => {
+                let s = |x: f32| linear_to_srgb(x);
+                let c = c[i];
+                writeln!(
+                    w,
+                    "v {} {} {} {} {} {}",
+                    p.x,
+                    p.y,
+                    p.z,
+                    s(c[0]),
+                    s(c[1]),
+                    s(c[2])
+                )?;
+            }
+            None => writeln!(w, "v {} {} {}", p.x, p.y, p.z)?,
+        }
+    }
+    if let Some(uv) = &mesh.uvs {
+        for t in uv {
+            writeln!(w, "vt {} {}", t.x, t.y)?;
+        }
+    }
+    if let Some(n) = &mesh.normals {
+        for n in n {
+            writeln!(w, "vn {} {} {}", n.x, n.y, n.z)?;
+        }
+    }
+    let (t, n) = (mesh.uvs.is_some(), mesh.normals.is_some());
+    for tri in &mesh.indices {
+        let [a, b, c] = tri.map(|v| v + 1);
+        match (t, n) {
+            (false, false) => writeln!(w, "f {a} {b} {c}")?,
+            (true, false) => writeln!(w, "f {a}/{a} {b}/{b} {c}/{c}")?,
+            (false, true) => writeln!(w, "f {a}//{a} {b}//{b} {c}//{c}")?,
+            (true, true) => writeln!(w, "f {a}/{a}/{a} {b}/{b}/{b} {c}/{c}/{c}")?,
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(s: &str) -> Result<(TriMesh, ReadInfo)> {
+        parse_obj(Path::new("t.obj"), s.as_bytes())
+    }
+
+    #[test]
+    fn quads_negative_indices_and_attributes() {
+        let (m, info) = parse(
+            "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\n\
+             f -4/-4/1 -3/-3/1 -2/-2/1 -1/-1/1\n",
+        )
+        .unwrap();
+        assert_eq!(info.faces_in_file, 1);
+        assert_eq!(m.indices.len(), 2);
+        assert_eq!(m.uvs.as_ref().unwrap()[2], Vec2::new(1.0, 1.0));
+        assert_eq!(m.normals.as_ref().unwrap()[3], Vec3::Z);
+        assert!((m.area() - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn seams_split_vertices_but_keep_order() {
+        let (m, _) = parse("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 5 5 5\nvt 0 0\nvt 1 0\nvt 0 1\nvt 9 9\nf 1/1 2/2 3/3\nf 1/4 3/3 2/2\n")
+            .unwrap();
+        assert_eq!(
+            m.positions.len(),
+            5,
+            "vertex 1 with a second uv is appended"
+        );
+        assert_eq!(m.positions[4], Vec3::ZERO);
+        assert_eq!(m.uvs.as_ref().unwrap()[4], Vec2::new(9.0, 9.0));
+        assert_eq!(m.indices, vec![[0, 1, 2], [4, 2, 1]]);
+        assert_eq!(
+            m.positions[3],
+            Vec3::splat(5.0),
+            "unreferenced vertex kept in place"
+        );
+    }
+
+    #[test]
+    fn colours_are_read_as_srgb() {
+        let (m, _) = parse("v 0 0 0 1 0.5 0\nv 1 0 0\nv 0 1 0 0 0 1\nf 1 2 3\n").unwrap();
+        let c = m.colors.unwrap();
+        assert_eq!(c[1], [1.0, 1.0, 1.0, 1.0]);
+        assert!((c[0][1] - srgb_to_linear(0.5)).abs() < 1e-7);
+    }
+
+    #[test]
+    fn zero_based_files_are_read_with_a_warning() {
+        let (m, info) = parse("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n").unwrap();
+        assert_eq!(m.indices, vec![[0, 1, 2]]);
+        assert!(info.warnings[0].contains("0-based"), "{:?}", info.warnings);
+        let e = parse("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\nf 1 2 3\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("t.obj:5: face vertex index 3 is out of range"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn bad_files_name_the_line() {
+        let cases = [
+            (
+                "v 0 0 0\nv 1 0 0\nf 1 2\n",
+                "t.obj:3: a face needs at least 3 vertices",
+            ),
+            (
+                "v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 4\n",
+                "t.obj:4: face vertex index 4 is out of range",
+            ),
+            (
+                "v 0 0 0\nv nan 0 0\n",
+                "t.obj:2: `nan` is not a finite number",
+            ),
+            ("v 0 0\n", "t.obj:1: a vertex needs x, y and z"),
+            ("v 0 0 0\nf 1 -2 1\n", "t.obj:2: relative vertex index -2"),
+            ("v 0 0 x\n", "t.obj:1: `x` is not a number"),
+            ("v 0 0 0\nf 1 a 1\n", "t.obj:2: `a` is not a vertex index"),
+        ];
+        for (text, want) in cases {
+            let e = parse(text).unwrap_err().to_string();
+            assert!(e.starts_with(want), "{text:?}: got {e}");
+        }
+    }
+
+    #[test]
+    fn write_then_read_is_exact() {
+        let m = TriMesh {
+            positions: vec![
+                Vec3::new(0.1, -2.5e-7, 3.0e6),
+                Vec3::new(1.0 / 3.0, 0.0, -0.0),
+                Vec3::new(7.0, 8.0, 9.5),
+            ],
+            indices: vec![[0, 1, 2]],
+            normals: Some(vec![Vec3::X, Vec3::Y, Vec3::new(0.6, 0.0, 0.8)]),
+            colors: None,
+            uvs: Some(vec![Vec2::new(0.25, 0.5), Vec2::ZERO, Vec2::ONE]),
+        };
+        let mut buf = Vec::new();
+        write_obj(&m, &mut buf).unwrap();
+        let (back, _) = parse_obj(Path::new("x.obj"), &buf).unwrap();
+        assert_eq!(back, m);
+    }
+}

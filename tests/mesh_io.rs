@@ -1,0 +1,218 @@
+//! Every mesh in the shared data loads with the counts SOURCES.md gives, and survives OBJ and
+//! PLY round trips with everything it carries.
+
+mod common;
+
+use proptest::prelude::*;
+use std::path::Path;
+use terratile::mesh::io::{self, MeshFormat};
+use terratile::mesh::{Adjacency, TriMesh};
+
+/// (file, positions in the file, triangles, referenced vertices)
+const MESHES: &[(&str, usize, usize, usize)] = &[
+    ("bunny.obj", 35_947, 69_451, 34_834),
+    ("triceratops.obj", 2_832, 5_660, 2_832),
+    ("triceratops_source_polygons.obj", 2_832, 5_660, 2_832),
+    ("cow.obj", 2_903, 5_804, 2_903),
+    ("fandisk.obj", 6_475, 12_946, 6_475),
+    ("spot.obj", 2_930, 5_856, 2_930),
+    ("armadillo.obj", 49_999, 99_994, 49_999),
+    ("dragon_10k.obj", 10_002, 20_000, 10_002),
+    ("igea.ply", 134_345, 268_686, 134_345),
+    ("pirate.obj", 2_889, 5_010, 2_889),
+    ("colored_airplane.ply", 7_017, 10_796, 5_400),
+];
+
+fn distinct_positions(m: &TriMesh) -> usize {
+    let w = m.weld_map();
+    w.iter()
+        .enumerate()
+        .filter(|(i, &r)| *i as u32 == r)
+        .count()
+}
+
+#[test]
+fn every_shared_mesh_loads_with_its_documented_counts() {
+    let Some(dir) = common::shared_data() else {
+        return;
+    };
+    let dir = dir.join("meshes");
+    let mut listed: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".obj") || n.ends_with(".ply"))
+        .collect();
+    listed.sort();
+    let mut known: Vec<String> = MESHES.iter().map(|m| m.0.to_string()).collect();
+    known.sort();
+    assert_eq!(
+        listed, known,
+        "a mesh was added to the shared data: add it here"
+    );
+    for &(name, positions, triangles, referenced) in MESHES {
+        let path = dir.join(name);
+        let (m, info) = io::read_with_info(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+        m.validate(name).unwrap();
+        assert_eq!(m.triangle_count(), triangles, "{name}");
+        // Seams split vertices (spot, pirate): count distinct positions instead.
+        assert!(m.vertex_count() >= positions, "{name}");
+        if m.uvs.is_none() && m.normals.is_none() {
+            assert_eq!(m.vertex_count(), positions, "{name}");
+        }
+        let used = m.referenced().iter().filter(|u| **u).count();
+        let used_positions = {
+            let w = m.weld_map();
+            let mut seen = vec![false; m.vertex_count()];
+            for t in &m.indices {
+                for &v in t {
+                    seen[w[v as usize] as usize] = true;
+                }
+            }
+            seen.iter().filter(|s| **s).count()
+        };
+        assert!(used >= referenced, "{name}");
+        assert!(used_positions <= referenced, "{name}: {used_positions}");
+        assert!(m.diagonal() > 0.0, "{name}");
+        match name {
+            "triceratops_source_polygons.obj" => {
+                assert!(
+                    info.warnings.iter().any(|w| w.contains("0-based")),
+                    "{:?}",
+                    info.warnings
+                );
+                assert_eq!(info.faces_in_file, 2_834);
+            }
+            "spot.obj" => assert!(m.uvs.is_some() && distinct_positions(&m) == 2_930),
+            "pirate.obj" => assert!(m.uvs.is_some() && m.normals.is_some()),
+            "colored_airplane.ply" => {
+                let c = m.colors.as_ref().expect("colours");
+                assert!(c.iter().any(|c| c[2] > c[0]), "the blue ramp");
+            }
+            _ => assert!(info.warnings.is_empty(), "{name}: {:?}", info.warnings),
+        }
+    }
+}
+
+#[test]
+fn zero_based_source_matches_the_converted_triceratops() {
+    let (Some(a), Some(b)) = (
+        common::data_file("meshes/triceratops.obj"),
+        common::data_file("meshes/triceratops_source_polygons.obj"),
+    ) else {
+        return;
+    };
+    let a = io::read(&a).unwrap();
+    let b = io::read(&b).unwrap();
+    assert_eq!(a.positions, b.positions);
+    assert!(
+        (a.area() - b.area()).abs() < 1e-6 * a.area(),
+        "{} vs {}",
+        a.area(),
+        b.area()
+    );
+    // Same surface: the same edges on the polygon borders, closed and manifold.
+    let adj = Adjacency::new(&b);
+    assert_eq!(adj.boundary_edge_count(), 0);
+    assert_eq!(adj.edge_faces.non_manifold_edges().count(), 0);
+}
+
+#[test]
+fn shared_meshes_round_trip_through_obj_and_ply() {
+    let Some(dir) = common::shared_data() else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    for name in ["pirate.obj", "colored_airplane.ply", "spot.obj", "cow.obj"] {
+        let m = io::read(&dir.join("meshes").join(name)).unwrap();
+        for (ext, format) in [
+            ("obj", MeshFormat::Obj),
+            ("ply", MeshFormat::PlyBinaryLe),
+            ("be.ply", MeshFormat::PlyBinaryBe),
+            ("txt.ply", MeshFormat::PlyAscii),
+        ] {
+            let out = tmp.path().join(format!("{name}.{ext}"));
+            io::write_as(&m, &out, format).unwrap();
+            let back = io::read(&out).unwrap();
+            assert_same(&m, &back, format, &format!("{name} as {ext}"));
+        }
+    }
+}
+
+fn assert_same(a: &TriMesh, b: &TriMesh, format: MeshFormat, what: &str) {
+    assert_eq!(a.positions, b.positions, "{what}");
+    assert_eq!(a.indices, b.indices, "{what}");
+    assert_eq!(a.normals, b.normals, "{what}");
+    assert_eq!(a.uvs, b.uvs, "{what}");
+    assert_eq!(a.colors.is_some(), b.colors.is_some(), "{what}");
+    if let (Some(x), Some(y)) = (&a.colors, &b.colors) {
+        for (p, q) in x.iter().zip(y) {
+            for k in 0..3 {
+                assert!((p[k] - q[k]).abs() < 1e-6, "{what}: {p:?} {q:?}");
+            }
+            // OBJ has no alpha.
+            if format != MeshFormat::Obj {
+                assert!((p[3] - q[3]).abs() < 1e-6, "{what}: {p:?} {q:?}");
+            }
+        }
+    }
+}
+
+fn arb_mesh() -> impl Strategy<Value = TriMesh> {
+    (3usize..40, any::<[bool; 3]>()).prop_flat_map(|(n, [with_n, with_c, with_t])| {
+        let coord = -1.0e4f32..1.0e4;
+        (
+            prop::collection::vec((coord.clone(), coord.clone(), coord), n),
+            prop::collection::vec(prop::array::uniform3(0..n as u32), 1..60),
+            prop::collection::vec(prop::array::uniform4(0u8..=255), n),
+            prop::collection::vec((-2.0f32..2.0, -2.0f32..2.0), n),
+        )
+            .prop_map(move |(p, t, c, uv)| TriMesh {
+                positions: p
+                    .iter()
+                    .map(|&(x, y, z)| glam::Vec3::new(x, y, z))
+                    .collect(),
+                indices: t,
+                normals: with_n.then(|| {
+                    p.iter()
+                        .map(|&(x, y, z)| glam::Vec3::new(z, x, y))
+                        .collect()
+                }),
+                colors: with_c.then(|| {
+                    c.iter()
+                        .map(|c| {
+                            let l = |x: u8| terratile::mesh::srgb_to_linear(x as f32 / 255.0);
+                            [l(c[0]), l(c[1]), l(c[2]), c[3] as f32 / 255.0]
+                        })
+                        .collect()
+                }),
+                uvs: with_t.then(|| uv.iter().map(|&(u, v)| glam::Vec2::new(u, v)).collect()),
+            })
+    })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+    #[test]
+    fn any_mesh_round_trips(m in arb_mesh()) {
+        let tmp = tempfile::tempdir().unwrap();
+        for (ext, format) in [("obj", MeshFormat::Obj), ("ply", MeshFormat::PlyBinaryLe), ("a.ply", MeshFormat::PlyAscii)] {
+            let out = tmp.path().join(format!("m.{ext}"));
+            io::write_as(&m, &out, format).unwrap();
+            let back = io::read(&out).unwrap();
+            assert_same(&m, &back, format, ext);
+        }
+    }
+}
+
+#[test]
+fn unknown_extension_is_a_usage_error() {
+    let m = TriMesh {
+        positions: vec![glam::Vec3::ZERO; 3],
+        indices: vec![[0, 1, 2]],
+        ..Default::default()
+    };
+    let e = io::write(&m, Path::new("/tmp/x.stl")).unwrap_err();
+    assert_eq!(e.exit_code(), 2);
+    assert!(e.to_string().contains(".obj or .ply"), "{e}");
+}
