@@ -155,6 +155,19 @@ fn real_tiles_round_trip_through_every_output() {
         .all(|n| (n[0] * n[0] + n[1] * n[1] + n[2] * n[2] - 1.0).abs() < 1e-4));
     let tri_count = reader.read_indices().unwrap().into_u32().count() / 3;
     assert_eq!(Some(tri_count as u64), m["tiles"][0]["triangles"].as_u64());
+    // PLY and OBJ read back through the mesh module: same triangles, positions (z up) and
+    // normals as the glb (y up).
+    let glb_pos: Vec<[f32; 3]> = reader.read_positions().unwrap().collect();
+    for ext in ["ply", "obj"] {
+        let mesh =
+            terratile::mesh::io::read(&dir.path().join(format!("meshes/tile_000_000.{ext}")))
+                .unwrap();
+        assert_eq!(mesh.triangle_count(), tri_count, "{ext}");
+        assert!(mesh.normals.is_some(), "{ext}");
+        for (p, g) in mesh.positions.iter().zip(&glb_pos) {
+            assert_eq!([p.x, p.z, -p.y], *g, "{ext}");
+        }
+    }
     // Previews.
     let relief = image::open(dir.path().join("preview/relief.png")).unwrap();
     assert_eq!(relief.width().max(relief.height()), 600);

@@ -10,6 +10,7 @@
 //! heightmaps/tile_CCC_RRR.png    16-bit greyscale, north up
 //! heightmaps/tile_CCC_RRR.raw    16-bit little-endian, south row first (Unity)
 //! heightmaps/landscape.png|.r16  whole landscape (unreal preset)
+//! meshes/tile_CCC_RRR.ply|.obj   binary PLY and OBJ with normals, z up
 //! meshes/tile_CCC_RRR.glb        glTF binary, y up
 //! preview/relief.png             shaded relief
 //! preview/wireframe.png          the CLOD mesh over the relief
@@ -39,19 +40,40 @@ use std::time::Instant;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Deserialize, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum MeshFormat {
+    /// Stanford PLY, binary little endian (the mesh module's writer).
+    Ply,
+    /// Wavefront OBJ (the mesh module's writer).
+    Obj,
     /// glTF 2.0 binary.
     Glb,
 }
 
 impl MeshFormat {
     /// The formats written by default.
-    pub const DEFAULT: [MeshFormat; 1] = [MeshFormat::Glb];
+    pub const DEFAULT: [MeshFormat; 3] = [MeshFormat::Ply, MeshFormat::Obj, MeshFormat::Glb];
 
     /// File extension.
     pub fn ext(self) -> &'static str {
         match self {
+            MeshFormat::Ply => "ply",
+            MeshFormat::Obj => "obj",
             MeshFormat::Glb => "glb",
         }
+    }
+
+    /// `mesh` encoded in this format (`name` labels it where the format has names).
+    pub fn encode(self, mesh: &crate::mesh::TriMesh, name: &str) -> Result<Vec<u8>> {
+        use crate::mesh::io::{obj, ply};
+        let mut out = Vec::new();
+        let io = |e: std::io::Error| Error::Internal(format!("{name}: {e}"));
+        match self {
+            MeshFormat::Ply => {
+                ply::write_ply(mesh, &mut out, ply::Encoding::BinaryLittleEndian).map_err(io)?
+            }
+            MeshFormat::Obj => obj::write_obj(mesh, &mut out).map_err(io)?,
+            MeshFormat::Glb => out = glb::glb_bytes(mesh, name)?,
+        }
+        Ok(out)
     }
 }
 
@@ -206,10 +228,7 @@ pub fn write_terrain(
                     let mesh = extract::to_trimesh(set, &tris[t]);
                     for f in &out.meshes {
                         let rel = format!("meshes/{name}.{}", f.ext());
-                        let bytes = match f {
-                            MeshFormat::Glb => glb::glb_bytes(&mesh, &name)?,
-                        };
-                        put(dir, &rel, &bytes)?;
+                        put(dir, &rel, &f.encode(&mesh, &name)?)?;
                         files.insert(f.ext().to_string(), rel);
                     }
                 }
