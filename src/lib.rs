@@ -7,7 +7,7 @@
 #![deny(missing_docs)]
 #![deny(unsafe_code)]
 
-
+pub mod assets;
 pub mod bench;
 pub mod config;
 pub mod error;

@@ -9,7 +9,7 @@
 //! buckets holds at most one centre per bucket and a vertex finds every candidate among its
 //! 27 neighbouring buckets.
 
-use super::{count_surviving, search_scale, uniform, Clustering, Prepared, Target};
+use super::{search_target, uniform, Clustering, Prepared, Target};
 use glam::DVec3;
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
@@ -125,14 +125,14 @@ pub fn cluster(prep: &Prepared, target: Target) -> (Clustering, f64, usize) {
     let (s, evals) = match target {
         Target::Scale(s) => (s.max(min_s), 1),
         Target::Triangles(t) => {
-            let (s, _, evals) = search_scale(
-                |s| count_surviving(&prep.dense_faces, &pass(prep, &order, s).of),
+            search_target(
+                &prep.dense_faces,
+                |s| pass(prep, &order, s).of,
                 t,
                 // Centres pack closer than grid cells: start from a larger cell.
                 1.5 * uniform::initial_cell(prep, t),
                 min_s,
-            );
-            (s, evals)
+            )
         }
     };
     let p = pass(prep, &order, s);

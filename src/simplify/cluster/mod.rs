@@ -197,8 +197,7 @@ impl SimplifyParams {
                     "must be a positive number",
                 ));
             }
-            if (0..3)
-                .any(|k| r.min[k] > r.max[k] || !r.min[k].is_finite() || !r.max[k].is_finite())
+            if (0..3).any(|k| r.min[k] > r.max[k] || !r.min[k].is_finite() || !r.max[k].is_finite())
             {
                 return Err(Error::param(
                     S,
@@ -624,6 +623,57 @@ pub fn count_surviving<K: PartialEq + Sync>(faces: &[[u32; 3]], key: &[K]) -> us
             a != b && b != c && a != c
         })
         .count()
+}
+
+/// Triangles that survive with three different keys, counting a triple of keys once: the
+/// output count (before the rare zero-area check).
+pub fn count_distinct<K: Copy + Ord + std::hash::Hash>(faces: &[[u32; 3]], key: &[K]) -> usize {
+    let mut seen: FxHashSet<[K; 3]> = FxHashSet::default();
+    for t in faces {
+        let mut k = t.map(|v| key[v as usize]);
+        if k[0] == k[1] || k[1] == k[2] || k[0] == k[2] {
+            continue;
+        }
+        k.sort_unstable();
+        seen.insert(k);
+    }
+    seen.len()
+}
+
+/// [`search_scale`] on the fast count, then up to two corrections for the duplicate
+/// triangles (two sheets collapsing onto the same clusters) the fast count includes: the
+/// search is repeated for a target scaled by fast/exact. Returns (scale, evaluations).
+pub fn search_target<K: Copy + Ord + std::hash::Hash + Sync>(
+    faces: &[[u32; 3]],
+    mut keys_at: impl FnMut(f64) -> Vec<K>,
+    target: u64,
+    start: f64,
+    min_scale: f64,
+) -> (f64, usize) {
+    let mut goal = target.max(1);
+    let mut start = start;
+    let mut evals = 0;
+    let mut best = (start, f64::INFINITY);
+    for _round in 0..3 {
+        let (s, fast, e) = search_scale(
+            |s| count_surviving(faces, &keys_at(s)),
+            goal,
+            start,
+            min_scale,
+        );
+        evals += e + 1;
+        let exact = count_distinct(faces, &keys_at(s));
+        let miss = (exact as f64 - target as f64).abs();
+        if miss < best.1 {
+            best = (s, miss);
+        }
+        if miss <= 0.01 * target as f64 || exact == 0 || fast == 0 {
+            break;
+        }
+        goal = ((goal as f64 * target as f64 / exact as f64).round() as u64).max(1);
+        start = s;
+    }
+    (best.0, evals)
 }
 
 /// Finds the scale parameter (cell size) whose `count` is closest to `target`, assuming the

@@ -403,88 +403,115 @@ pub fn cluster(prep: &Prepared, target: Target, opts: &OctreeOptions) -> (Cluste
     let mut touched: Vec<u32> = Vec::new();
     let mut splits = 0usize;
     // The last split, to undo it when the state before was closer to the target.
-    let mut last: Option<(u32, usize, f64)> = None;
+    let mut last: Option<(u32, f64)> = None;
     let mut reached = f64::INFINITY;
-    while let Some(&top) = heap.peek() {
-        match target {
-            Target::Scale(t) if top.score <= t => break,
-            Target::Triangles(t) if count as u64 >= t => break,
-            _ => {}
-        }
-        if top.score <= 0.0 {
-            break;
-        }
-        heap.pop();
-        reached = top.score;
-        let node = tree.nodes[top.node as usize];
-        // Only triangles with two or more corners in the node can change: before the
-        // split they are degenerate (two corners in one leaf); a triangle with one corner
-        // here keeps its three distinct leaves. List each once, from its first corner here.
-        // Far from the target, the count is not needed yet (estimated as two triangles per
-        // leaf) and this pass, a sweep over the mesh per level at the top, is skipped.
-        touched.clear();
-        if exact {
-            for &d in &tree.perm[node.start..node.end] {
-                for &f in tree.vd.faces.of(d) {
-                    let t = faces[f as usize];
-                    let mut inside = 0;
-                    let mut first = u32::MAX;
-                    for &x in &t {
-                        if leaf_of[x as usize] == top.node {
-                            inside += 1;
-                            if first == u32::MAX {
-                                first = x;
+    // The fast count includes duplicate triangles (two sheets collapsing onto the same
+    // leaves); after each pass the exact count corrects the goal, at most three times.
+    let mut goal = match target {
+        Target::Triangles(t) => t,
+        Target::Scale(_) => 0,
+    };
+    let mut rounds = 0;
+    loop {
+        while let Some(&top) = heap.peek() {
+            match target {
+                Target::Scale(t) if top.score <= t => break,
+                Target::Triangles(_) if count as u64 >= goal => break,
+                _ => {}
+            }
+            if top.score <= 0.0 {
+                break;
+            }
+            heap.pop();
+            reached = top.score;
+            let node = tree.nodes[top.node as usize];
+            // Only triangles with two or more corners in the node can change: before the
+            // split they are degenerate (two corners in one leaf); a triangle with one corner
+            // here keeps its three distinct leaves. List each once, from its first corner here.
+            // Far from the target, the count is not needed yet (estimated as two triangles per
+            // leaf) and this pass, a sweep over the mesh per level at the top, is skipped.
+            touched.clear();
+            if exact {
+                for &d in &tree.perm[node.start..node.end] {
+                    for &f in tree.vd.faces.of(d) {
+                        let t = faces[f as usize];
+                        let mut inside = 0;
+                        let mut first = u32::MAX;
+                        for &x in &t {
+                            if leaf_of[x as usize] == top.node {
+                                inside += 1;
+                                if first == u32::MAX {
+                                    first = x;
+                                }
                             }
                         }
-                    }
-                    if inside >= 2 && first == d {
-                        touched.push(f);
+                        if inside >= 2 && first == d {
+                            touched.push(f);
+                        }
                     }
                 }
             }
-        }
-        let (before_count, was_exact) = (count, exact);
-        let kids = tree.split(top.node);
-        let kid_nodes: Vec<Node> = kids.iter().map(|&k| tree.nodes[k as usize]).collect();
-        for (&k, kn) in kids.iter().zip(&kid_nodes) {
-            for &d in &tree.perm[kn.start..kn.end] {
-                leaf_of[d as usize] = k;
+            let was_exact = exact;
+            let kids = tree.split(top.node);
+            let kid_nodes: Vec<Node> = kids.iter().map(|&k| tree.nodes[k as usize]).collect();
+            for (&k, kn) in kids.iter().zip(&kid_nodes) {
+                for &d in &tree.perm[kn.start..kn.end] {
+                    leaf_of[d as usize] = k;
+                }
+            }
+            leaves += kids.len() - 1;
+            if exact {
+                for &f in &touched {
+                    count += survives(&leaf_of, f) as usize;
+                }
+            } else if let Target::Triangles(_) = target {
+                if 4 * leaves as u64 >= goal {
+                    exact = true;
+                    count = super::count_surviving(faces, &leaf_of);
+                }
+            }
+            // Undoing is only sound when the count before is known.
+            last = was_exact.then_some((top.node, top.score));
+            splits += 1;
+            let scores: Vec<f64> = if node.end - node.start > 20_000 {
+                kid_nodes.par_iter().map(|kn| tree.score(kn)).collect()
+            } else {
+                kid_nodes.iter().map(|kn| tree.score(kn)).collect()
+            };
+            for (&k, s) in kids.iter().zip(scores) {
+                heap.push(Entry { score: s, node: k });
             }
         }
-        leaves += kids.len() - 1;
-        if exact {
-            for &f in &touched {
-                count += survives(&leaf_of, f) as usize;
-            }
-        } else if let Target::Triangles(t) = target {
-            if 4 * leaves as u64 >= t {
-                exact = true;
-                count = super::count_surviving(faces, &leaf_of);
-            }
+        let Target::Triangles(t) = target else { break };
+        rounds += 1;
+        let exact_now = super::count_distinct(faces, &leaf_of);
+        if rounds >= 3 || heap.is_empty() || exact_now as f64 >= 0.99 * t as f64 {
+            break;
         }
-        // Undoing is only sound when the count before is known.
-        last = was_exact.then_some((top.node, before_count, top.score));
-        splits += 1;
-        let scores: Vec<f64> = if node.end - node.start > 20_000 {
-            kid_nodes.par_iter().map(|kn| tree.score(kn)).collect()
-        } else {
-            kid_nodes.iter().map(|kn| tree.score(kn)).collect()
-        };
-        for (&k, s) in kids.iter().zip(scores) {
-            heap.push(Entry { score: s, node: k });
-        }
+        goal = (goal as f64 * t as f64 / exact_now.max(1) as f64).round() as u64 + 1;
     }
     // The threshold this state stands for: the best score left unsplit.
     let mut threshold = heap.peek().map_or(reached, |e| e.score);
-    if let (Target::Triangles(t), Some((node_id, before, score))) = (target, last) {
+    // Undo the last split when the state before it is closer to the target.
+    if let (Target::Triangles(t), Some((node_id, score))) = (target, last) {
         let t = t as i64;
-        if (before as i64 - t).abs() < (count as i64 - t).abs() {
+        let now = super::count_distinct(faces, &leaf_of) as i64;
+        let node = tree.nodes[node_id as usize];
+        let kids: Vec<u32> = tree.perm[node.start..node.end]
+            .iter()
+            .map(|&d| leaf_of[d as usize])
+            .collect();
+        for &d in &tree.perm[node.start..node.end] {
+            leaf_of[d as usize] = node_id;
+        }
+        let before = super::count_distinct(faces, &leaf_of) as i64;
+        if (before - t).abs() < (now - t).abs() {
             threshold = score;
-            let node = tree.nodes[node_id as usize];
-            for &d in &tree.perm[node.start..node.end] {
-                leaf_of[d as usize] = node_id;
-            }
             splits -= 1;
+        } else {
+            for (&d, &k) in tree.perm[node.start..node.end].iter().zip(&kids) {
+                leaf_of[d as usize] = k;
+            }
         }
     }
     (Clustering::from_keys(&leaf_of), threshold, splits)

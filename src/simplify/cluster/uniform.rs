@@ -5,7 +5,7 @@
 //! and counts the triangles whose corners have three different keys, both in parallel, so a
 //! pass costs two streaming loops over the vertices and triangles.
 
-use super::{count_surviving, search_scale, Clustering, Prepared, Target};
+use super::{search_target, Clustering, Prepared, Target};
 use rayon::prelude::*;
 
 /// Cells per axis at most (keys pack three 21-bit coordinates).
@@ -46,18 +46,17 @@ pub fn cluster(prep: &Prepared, target: Target) -> (Clustering, f64, usize) {
     let min_s = min_cell(prep);
     let (s, evals) = match target {
         Target::Scale(s) => (s.max(min_s), 1),
-        Target::Triangles(t) => {
-            let (s, _, evals) = search_scale(
-                |s| {
-                    keys(prep, s, &mut buf);
-                    count_surviving(&prep.dense_faces, &buf)
-                },
-                t,
-                initial_cell(prep, t),
-                min_s,
-            );
-            (s, evals)
-        }
+        Target::Triangles(t) => search_target(
+            &prep.dense_faces,
+            |s| {
+                let mut k = Vec::with_capacity(prep.dense_pos.len());
+                keys(prep, s, &mut k);
+                k
+            },
+            t,
+            initial_cell(prep, t),
+            min_s,
+        ),
     };
     keys(prep, s, &mut buf);
     (Clustering::from_keys(&buf), s, evals)
