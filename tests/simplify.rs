@@ -241,3 +241,47 @@ proptest! {
         prop_assert!(ab.max >= ab.mean);
     }
 }
+
+/// The table of notes/mesh.md: four meshes, 33 % and 10 %, every method and representative.
+/// Run: `cargo test --release --test simplify -- --ignored --nocapture clustering_table`.
+#[test]
+#[ignore]
+fn clustering_table() {
+    let reps: Vec<Representative> = match std::env::var("REPS").as_deref() {
+        Ok("all") => vec![
+            Representative::Quadric,
+            Representative::Centroid,
+            Representative::Important,
+        ],
+        _ => vec![Representative::Quadric],
+    };
+    println!(
+        "| mesh | ratio | rep | method | triangles | ms | max % | mean (E_avg) % | Metro mean % |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|");
+    for name in ["triceratops.obj", "bunny.obj", "cow.obj", "fandisk.obj"] {
+        let Some(m) = load(name) else { return };
+        for ratio in [0.33, 0.10] {
+            for &rep in &reps {
+                for method in METHODS {
+                    let mut p = SimplifyParams::ratio(method, ratio);
+                    if name == "triceratops.obj" && ratio == 0.33 {
+                        p = SimplifyParams::triangles(method, 1850);
+                    }
+                    p.representative = Some(rep);
+                    let t = std::time::Instant::now();
+                    let s = simplify(&m, &p).unwrap();
+                    let ms = t.elapsed().as_secs_f64() * 1e3;
+                    let e = hausdorff(&m, &s.mesh, &HausdorffParams::default()).unwrap();
+                    println!(
+                        "| {name} | {ratio} | {rep} | {method} | {} | {ms:.1} | {:.3} | {:.4} | {:.4} |",
+                        s.mesh.triangle_count(),
+                        e.max_pct,
+                        e.mean_pct,
+                        e.sample_mean_pct
+                    );
+                }
+            }
+        }
+    }
+}

@@ -96,24 +96,22 @@ impl VertexData {
         let theta_max: Vec<f32> = (0..n as u32)
             .into_par_iter()
             .with_min_len(1024)
-            .map(|d| {
-                let fs = faces.of(d);
-                let others = |f: u32| {
+            .map_init(Vec::new, |fan: &mut Vec<(u32, u32, glam::Vec3)>, d| {
+                // The vertex's triangles as (the two other corners, normal).
+                fan.clear();
+                for &f in faces.of(d) {
                     let t = prep.dense_faces[f as usize];
                     let k = t.iter().position(|&x| x == d).unwrap_or(0);
-                    (t[(k + 1) % 3], t[(k + 2) % 3])
-                };
+                    fan.push((t[(k + 1) % 3], t[(k + 2) % 3], normal(f)));
+                }
                 let mut worst = 0.0f32;
-                for (i, &f) in fs.iter().enumerate() {
-                    let (a, b) = others(f);
-                    let nf = normal(f);
-                    for &g in &fs[i + 1..] {
-                        let (c, e) = others(g);
-                        if (a == c || a == e || b == c || b == e) && g != f {
-                            let ng = normal(g);
-                            if nf != glam::Vec3::ZERO && ng != glam::Vec3::ZERO {
-                                worst = worst.max(fast_acos_f32(nf.dot(ng)));
-                            }
+                for (i, &(a, b, nf)) in fan.iter().enumerate() {
+                    if nf == glam::Vec3::ZERO {
+                        continue;
+                    }
+                    for &(c, e, ng) in &fan[i + 1..] {
+                        if (a == c || a == e || b == c || b == e) && ng != glam::Vec3::ZERO {
+                            worst = worst.max(fast_acos_f32(nf.dot(ng)));
                         }
                     }
                 }
