@@ -38,6 +38,9 @@ pub struct RunSummary {
     pub output_dir: PathBuf,
     /// Files written, relative to the output directory.
     pub files: Vec<String>,
+    /// Every `[[assets]]` entry: what was simplified, its error and where it was placed.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub assets: Vec<crate::assets::AssetReport>,
 }
 
 impl std::fmt::Display for RunSummary {
@@ -78,6 +81,38 @@ impl std::fmt::Display for RunSummary {
                 figs.join(", ")
             )?;
         }
+        if !self.assets.is_empty() {
+            writeln!(f, "assets:")?;
+        }
+        for a in &self.assets {
+            write!(
+                f,
+                "  {} → {}: {} → {} triangles",
+                a.input.display(),
+                a.output.display(),
+                a.triangles_in,
+                a.triangles_out
+            )?;
+            if let (Some(m), Some(e)) = (a.method, &a.error) {
+                write!(
+                    f,
+                    " ({m}), error max {:.3} % mean {:.3} % of its diagonal",
+                    e.max_pct, e.mean_pct
+                )?;
+            }
+            writeln!(
+                f,
+                ", at ({:.2}, {:.2}, {:.2}){}",
+                a.position[0],
+                a.position[1],
+                a.position[2],
+                if a.on_terrain {
+                    ""
+                } else {
+                    " (no terrain: base at z = 0)"
+                }
+            )?;
+        }
         writeln!(
             f,
             "output: {} ({} files)",
@@ -94,6 +129,9 @@ pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSumm
     let cfg = &pipeline.config;
     let opts = cfg.input.read_options();
     let out_dir = pipeline.output_dir();
+    // Cheap checks of the asset entries before any work.
+    crate::assets::validate(&cfg.assets, &pipeline.base_dir())
+        .map_err(|(key, message)| pipeline.key_error(&key, message))?;
 
     let t = Instant::now();
     let cloud = points::read_all(&files, &opts, progress)?;
@@ -105,7 +143,7 @@ pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSumm
         });
     }
     let bounds = cloud.bounds();
-    let summary = RunSummary {
+    let mut summary = RunSummary {
         inputs: cloud.sources.clone(),
         points: cloud.len() as u64,
         bounds: Some(bounds),
@@ -120,7 +158,42 @@ pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSumm
         }],
         output_dir: out_dir.clone(),
         files: Vec::new(),
+        assets: Vec::new(),
     };
+    if !cfg.assets.is_empty() {
+        // No terrain stage exists yet, so there is no heightfield: assets stand on z = 0.
+        // When the terrain stages land, pass the run's filled Heightfield here (and its
+        // corner and z offset as the origin).
+        let heightfield: Option<&crate::terrain::heightfield::Heightfield> = None;
+        let origin = heightfield.map_or([0.0; 3], |h| [h.corner[0], h.corner[1], h.z_offset]);
+        let t = Instant::now();
+        let staged = crate::fsutil::StagedDir::new(&out_dir)?;
+        for a in &cfg.assets {
+            let r = crate::assets::run_asset(
+                a,
+                &pipeline.base_dir(),
+                staged.path(),
+                heightfield,
+                origin,
+            )?;
+            summary.files.push(r.output.display().to_string());
+            summary.assets.push(r);
+        }
+        staged.commit()?;
+        let tris: usize = summary.assets.iter().map(|a| a.triangles_out).sum();
+        summary.stages.push(StageReport {
+            stage: "assets".into(),
+            seconds: t.elapsed().as_secs_f64(),
+            figures: vec![
+                ("assets".into(), summary.assets.len().to_string()),
+                ("triangles".into(), tris.to_string()),
+                (
+                    "origin".into(),
+                    format!("({}, {}, {})", origin[0], origin[1], origin[2]),
+                ),
+            ],
+        });
+    }
     Ok(summary)
 }
 
