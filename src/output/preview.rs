@@ -75,40 +75,61 @@ fn tint(t: f32) -> [f32; 3] {
     TINT[TINT.len() - 1].1
 }
 
-/// Bilinear value of `a` at fractional (i, j), clamped to the grid, over the corners that are
-/// not NaN (weights renormalised); NaN when the nearest sample is NaN, so holes keep their
-/// shape instead of growing by a sample.
-fn bilinear(a: &Array2<f32>, i: f64, j: f64) -> f32 {
-    let (rows, cols) = a.dim();
-    let i = i.clamp(0.0, (cols - 1) as f64);
-    let j = j.clamp(0.0, (rows - 1) as f64);
-    if a[[j.round() as usize, i.round() as usize]].is_nan() {
-        return f32::NAN;
-    }
-    let (i0, j0) = (
-        (i.floor() as usize).min(cols.saturating_sub(2)),
-        (j.floor() as usize).min(rows.saturating_sub(2)),
-    );
-    let (i1, j1) = ((i0 + 1).min(cols - 1), (j0 + 1).min(rows - 1));
-    let (fi, fj) = ((i - i0 as f64) as f32, (j - j0 as f64) as f32);
-    let mut sum = 0.0f32;
-    let mut weight = 0.0f32;
-    for (ii, jj, w) in [
-        (i0, j0, (1.0 - fi) * (1.0 - fj)),
-        (i1, j0, fi * (1.0 - fj)),
-        (i0, j1, (1.0 - fi) * fj),
-        (i1, j1, fi * fj),
-    ] {
-        let v = a[[jj, ii]];
-        if !v.is_nan() && w > 0.0 {
-            sum += v * w;
-            weight += w;
+/// Bilinear weights at fractional sample coordinates, clamped to the grid: computed once per
+/// pixel and applied to the height and shade grids.
+struct Bilinear {
+    idx: [usize; 4],
+    w: [f32; 4],
+    nearest: usize,
+}
+
+impl Bilinear {
+    fn at(cols: usize, rows: usize, i: f64, j: f64) -> Bilinear {
+        let i = i.clamp(0.0, (cols - 1) as f64);
+        let j = j.clamp(0.0, (rows - 1) as f64);
+        let (i0, j0) = (
+            (i.floor() as usize).min(cols.saturating_sub(2)),
+            (j.floor() as usize).min(rows.saturating_sub(2)),
+        );
+        let (i1, j1) = ((i0 + 1).min(cols - 1), (j0 + 1).min(rows - 1));
+        let (fi, fj) = ((i - i0 as f64) as f32, (j - j0 as f64) as f32);
+        Bilinear {
+            idx: [
+                j0 * cols + i0,
+                j0 * cols + i1,
+                j1 * cols + i0,
+                j1 * cols + i1,
+            ],
+            w: [
+                (1.0 - fi) * (1.0 - fj),
+                fi * (1.0 - fj),
+                (1.0 - fi) * fj,
+                fi * fj,
+            ],
+            nearest: j.round() as usize * cols + i.round() as usize,
         }
     }
-    if weight > 0.0 {
-        sum / weight
-    } else {
-        a[[j.round() as usize, i.round() as usize]]
+
+    /// The value over the corners that are not NaN (weights renormalised); NaN when the
+    /// nearest sample is NaN, so holes keep their shape instead of growing by a sample.
+    fn apply(&self, a: &[f32]) -> f32 {
+        if a[self.nearest].is_nan() {
+            return f32::NAN;
+        }
+        let mut sum = 0.0f32;
+        let mut weight = 0.0f32;
+        for k in 0..4 {
+            let v = a[self.idx[k]];
+            if !v.is_nan() && self.w[k] > 0.0 {
+                sum += v * self.w[k];
+                weight += self.w[k];
+            }
+        }
+        if weight > 0.0 {
+            sum / weight
+        } else {
+            a[self.nearest]
+        }
     }
 }
 
@@ -142,17 +163,21 @@ pub fn relief(set: &TileSet, max_size: usize) -> Picture {
         ((cols as f64 * scale).round() as usize).max(1),
         ((rows as f64 * scale).round() as usize).max(1),
     );
-    // Normals per sample (central differences, one-sided at the edge and next to holes).
+    // Lambert shade per sample (central differences, one-sided at the edge and next to
+    // holes), light from the north-west at 45°; pixels interpolate shade and height.
     let [cx, cy] = set.cell_size;
-    let mut nx = Array2::<f32>::zeros((rows, cols));
-    let mut ny = Array2::<f32>::zeros((rows, cols));
-    let mut nz = Array2::<f32>::zeros((rows, cols));
-    for j in 0..rows {
-        for i in 0..cols {
+    let alt = 45f64.to_radians();
+    let az = 315f64.to_radians();
+    let light = [alt.cos() * az.sin(), alt.cos() * az.cos(), alt.sin()];
+    let zs = z.as_slice().expect("assembled grid is contiguous");
+    let mut shade = vec![0.0f32; cols * rows];
+    shade.par_chunks_mut(cols).enumerate().for_each(|(j, row)| {
+        for (i, out) in row.iter_mut().enumerate() {
+            let here = zs[j * cols + i];
             let h = |a: usize, b: usize| {
-                let v = z[[b, a]];
+                let v = zs[b * cols + a];
                 if v.is_nan() {
-                    z[[j, i]]
+                    here
                 } else {
                     v
                 }
@@ -161,17 +186,17 @@ pub fn relief(set: &TileSet, max_size: usize) -> Picture {
             let (j0, j1) = (j.saturating_sub(1), (j + 1).min(rows - 1));
             let dx = (h(i1, j) - h(i0, j)) as f64 / ((i1 - i0).max(1) as f64 * cx);
             let dy = (h(i, j1) - h(i, j0)) as f64 / ((j1 - j0).max(1) as f64 * cy);
-            let len = (dx * dx + dy * dy + 1.0).sqrt();
-            nx[[j, i]] = (-dx / len) as f32;
-            ny[[j, i]] = (-dy / len) as f32;
-            nz[[j, i]] = (1.0 / len) as f32;
+            let dot =
+                (-dx * light[0] - dy * light[1] + light[2]) / (dx * dx + dy * dy + 1.0).sqrt();
+            *out = if here.is_nan() {
+                f32::NAN
+            } else {
+                dot.max(0.0) as f32
+            };
         }
-    }
+    });
     let (lo, hi) = tint_range(&z).unwrap_or((0.0, 1.0));
     let span = (hi - lo).max(f32::EPSILON);
-    let alt = 45f32.to_radians();
-    let az = 315f32.to_radians();
-    let light = [alt.cos() * az.sin(), alt.cos() * az.cos(), alt.sin()];
     let mut rgb = vec![0u8; width * height * 3];
     rgb.par_chunks_mut(width * 3)
         .enumerate()
@@ -179,20 +204,14 @@ pub fn relief(set: &TileSet, max_size: usize) -> Picture {
             let gj = rows as f64 - (py as f64 + 0.5) / scale - 0.5;
             for px in 0..width {
                 let gi = (px as f64 + 0.5) / scale - 0.5;
-                let h = bilinear(&z, gi, gj);
+                let b = Bilinear::at(cols, rows, gi, gj);
+                let h = b.apply(zs);
                 let c = if h.is_nan() {
                     HOLE
                 } else {
-                    let n = [
-                        bilinear(&nx, gi, gj),
-                        bilinear(&ny, gi, gj),
-                        bilinear(&nz, gi, gj),
-                    ];
-                    let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().max(1e-6);
-                    let shade =
-                        ((n[0] * light[0] + n[1] * light[1] + n[2] * light[2]) / len).max(0.0);
                     let t = tint((h - lo) / span);
-                    t.map(|v| v * (0.3 + 0.85 * shade))
+                    let sh = b.apply(&shade);
+                    t.map(|v| v * (0.3 + 0.85 * sh))
                 };
                 for k in 0..3 {
                     row[px * 3 + k] = c[k].round().clamp(0.0, 255.0) as u8;
