@@ -93,7 +93,8 @@ pub struct Tile {
     pub valid: [usize; 2],
     /// Heights relative to the set's `z_offset`, `[row j, col i]`, NaN at holes.
     pub heights: Array2<f32>,
-    /// Number of hole samples inside the valid extent.
+    /// Number of hole samples inside the valid extent (0: no NaN anywhere in `heights`,
+    /// padding included, which the quadtree's fast path relies on).
     pub holes: usize,
 }
 
