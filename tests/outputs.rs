@@ -171,6 +171,17 @@ fn real_tiles_round_trip_through_every_output() {
     // Previews.
     let relief = image::open(dir.path().join("preview/relief.png")).unwrap();
     assert_eq!(relief.width().max(relief.height()), 600);
+    // North up, the terrain's proportions kept (autzen_trim's cells are not square).
+    let (ew, eh) = (
+        hf.cols() as f64 * hf.cell_size[0],
+        hf.rows() as f64 * hf.cell_size[1],
+    );
+    let aspect = relief.width() as f64 / relief.height() as f64;
+    assert!(
+        (aspect / (ew / eh) - 1.0).abs() < 0.01,
+        "{aspect} vs {}",
+        ew / eh
+    );
     assert!(dir.path().join("preview/wireframe.png").is_file());
     // The file list is what is on disk.
     let on_disk: Vec<String> = common::walk(dir.path())

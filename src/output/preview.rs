@@ -21,8 +21,9 @@ pub struct Picture {
     pub width: usize,
     /// Height in pixels.
     pub height: usize,
-    /// Pixels per sample.
-    pub scale: f64,
+    /// Pixels per sample along x and y (they differ when cells are not square: the picture
+    /// keeps the terrain's proportions).
+    pub scale: [f64; 2],
     /// Rows of the grid (to flip y).
     rows: usize,
     /// RGB bytes, row 0 at the top (north).
@@ -33,8 +34,8 @@ impl Picture {
     /// Continuous pixel coordinates of global sample (i, j).
     pub fn to_pixel(&self, i: f64, j: f64) -> [f64; 2] {
         [
-            (i + 0.5) * self.scale,
-            (self.rows as f64 - j - 0.5) * self.scale,
+            (i + 0.5) * self.scale[0],
+            (self.rows as f64 - j - 0.5) * self.scale[1],
         ]
     }
 
@@ -158,14 +159,17 @@ fn tint_range(z: &Array2<f32>) -> Option<(f32, f32)> {
 pub fn relief(set: &TileSet, max_size: usize) -> Picture {
     let z = set.assemble();
     let [cols, rows] = set.samples;
-    let scale = (max_size as f64 / cols.max(rows) as f64).min(4.0);
+    // Pixels per world unit: the longer side gets max_size pixels, a sample at most 4.
+    let [cx, cy] = set.cell_size;
+    let (ew, eh) = (cols as f64 * cx, rows as f64 * cy);
+    let per_unit = (max_size as f64 / ew.max(eh)).min(4.0 / cx.min(cy));
     let (width, height) = (
-        ((cols as f64 * scale).round() as usize).max(1),
-        ((rows as f64 * scale).round() as usize).max(1),
+        ((ew * per_unit).round() as usize).max(1),
+        ((eh * per_unit).round() as usize).max(1),
     );
+    let scale = [width as f64 / cols as f64, height as f64 / rows as f64];
     // Lambert shade per sample (central differences, one-sided at the edge and next to
     // holes), light from the north-west at 45°; pixels interpolate shade and height.
-    let [cx, cy] = set.cell_size;
     let alt = 45f64.to_radians();
     let az = 315f64.to_radians();
     let light = [alt.cos() * az.sin(), alt.cos() * az.cos(), alt.sin()];
@@ -201,9 +205,9 @@ pub fn relief(set: &TileSet, max_size: usize) -> Picture {
     rgb.par_chunks_mut(width * 3)
         .enumerate()
         .for_each(|(py, row)| {
-            let gj = rows as f64 - (py as f64 + 0.5) / scale - 0.5;
+            let gj = rows as f64 - (py as f64 + 0.5) / scale[1] - 0.5;
             for px in 0..width {
-                let gi = (px as f64 + 0.5) / scale - 0.5;
+                let gi = (px as f64 + 0.5) / scale[0] - 0.5;
                 let b = Bilinear::at(cols, rows, gi, gj);
                 let h = b.apply(zs);
                 let c = if h.is_nan() {
