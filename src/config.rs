@@ -4,6 +4,7 @@
 
 use crate::error::{Error, Result};
 use crate::points::{ClassFilter, Format, ReadOptions};
+use crate::terrain::{DenoiseParams, FillParams, ResampleParams};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -16,6 +17,15 @@ pub struct Pipeline {
     /// `[output]`: where results go.
     #[serde(default)]
     pub output: OutputConfig,
+    /// `[denoise]`: the voxel-count noise filter (on by default).
+    #[serde(default)]
+    pub denoise: DenoiseParams,
+    /// `[resample]`: the regular grid (√N × √N by default).
+    #[serde(default)]
+    pub resample: ResampleParams,
+    /// `[fill]`: hole filling (on by default).
+    #[serde(default)]
+    pub fill: FillParams,
 }
 
 /// `[input]`
@@ -177,11 +187,33 @@ impl LoadedPipeline {
 pub fn load(path: &Path) -> Result<LoadedPipeline> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let config = parse(path, &text)?;
-    Ok(LoadedPipeline {
+    let loaded = LoadedPipeline {
         config,
         path: path.to_path_buf(),
         text,
-    })
+    };
+    loaded.check_stages()?;
+    Ok(loaded)
+}
+
+impl LoadedPipeline {
+    /// Checks the stage parameters serde cannot (ranges, combinations) before any data is
+    /// read; an error names the file, line and dotted key, then the value and what is wrong.
+    pub fn check_stages(&self) -> Result<()> {
+        let c = &self.config;
+        let at_key = |e: Error| match e {
+            Error::Param {
+                stage,
+                param,
+                value,
+                message,
+            } => self.key_error(&format!("{stage}.{param}"), format!("{value}: {message}")),
+            other => other,
+        };
+        c.denoise.validate().map_err(at_key)?;
+        c.resample.validate().map_err(at_key)?;
+        c.fill.validate().map_err(at_key)
+    }
 }
 
 /// Parses pipeline text; `path` is only used in error messages.

@@ -4,8 +4,10 @@
 
 use crate::config::LoadedPipeline;
 use crate::error::{Error, Result};
-use crate::points::{self, Bounds, SourceInfo};
+use crate::fsutil::StagedDir;
+use crate::points::{self, Bounds, LasWriteOptions, PointCloud, SourceInfo};
 use crate::progress::Progress;
+use crate::terrain::{self, Heightfield};
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -87,8 +89,47 @@ impl std::fmt::Display for RunSummary {
     }
 }
 
-/// Runs `pipeline`, reporting progress to `progress`.
+/// What a run leaves for the stages that follow the grid (tiles, outputs, the Delaunay
+/// baseline, assets) and for library users.
+#[derive(Debug)]
+pub struct RunContext {
+    /// All points read (after the class filter and the cap), in file order.
+    pub cloud: PointCloud,
+    /// Per point of `cloud`: kept by noise removal (None when `[denoise]` is off).
+    pub keep: Option<Vec<bool>>,
+    /// The filled grid.
+    pub grid: Heightfield,
+}
+
+impl RunContext {
+    /// The points that survived noise removal, as a new cloud.
+    pub fn denoised(&self) -> PointCloud {
+        match &self.keep {
+            Some(k) => self.cloud.select(k),
+            None => self.cloud.clone(),
+        }
+    }
+}
+
+/// A finished run: its summary and what it computed.
+#[derive(Debug)]
+pub struct RunOutput {
+    /// What each stage did.
+    pub summary: RunSummary,
+    /// The data the stages produced.
+    pub context: RunContext,
+}
+
+/// Runs `pipeline`, reporting progress to `progress`, and returns the summary.
 pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSummary> {
+    run_with_context(pipeline, progress).map(|o| o.summary)
+}
+
+/// Runs `pipeline` and returns the summary with the data: read → denoise → resample → fill.
+/// Outputs are written into a staged directory that replaces the output directory only when
+/// every stage succeeded.
+pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunOutput> {
+    pipeline.check_stages()?;
     let files = pipeline.input_files()?;
     let cfg = &pipeline.config;
     let opts = cfg.input.read_options();
@@ -104,7 +145,7 @@ pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSumm
         });
     }
     let bounds = cloud.bounds();
-    let summary = RunSummary {
+    let mut summary = RunSummary {
         inputs: cloud.sources.clone(),
         points: cloud.len() as u64,
         bounds: Some(bounds),
@@ -120,5 +161,114 @@ pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSumm
         output_dir: out_dir.clone(),
         files: Vec::new(),
     };
-    Ok(summary)
+    let staged = StagedDir::new(&out_dir)?;
+    let fig = |k: &str, v: String| (k.to_string(), v);
+
+    // Noise removal.
+    let keep = if cfg.denoise.enabled {
+        progress.start("denoise", 0);
+        let t = Instant::now();
+        let mpu = cloud.crs().map_or(1.0, |c| c.metres_per_unit());
+        let d = terrain::denoise(&cloud, &cfg.denoise, mpu);
+        let seconds = t.elapsed().as_secs_f64();
+        progress.finish();
+        let d = d?;
+        let st = &d.settings;
+        let mut figures = vec![
+            fig("points in", cloud.len().to_string()),
+            fig("points out", d.kept.to_string()),
+            fig("removed", d.removed().to_string()),
+            fig("sparse", d.removed_sparse.to_string()),
+            fig("low layers", d.removed_low.to_string()),
+            fig(
+                "voxel",
+                format!("{:.3} × {:.3}", st.voxel_size, st.voxel_height),
+            ),
+            fig("min_points", st.min_points.to_string()),
+        ];
+        if cfg.denoise.write_removed {
+            let removed: Vec<bool> = d.keep.iter().map(|k| !k).collect();
+            let noise = cloud.select(&removed);
+            let opts = LasWriteOptions {
+                crs: cloud.crs().cloned(),
+                classification: Some(7),
+                ..Default::default()
+            };
+            points::write_las(&staged.path().join(NOISE_FILE), &noise, &opts)?;
+            summary.files.push(NOISE_FILE.into());
+            figures.push(fig("written", NOISE_FILE.into()));
+        }
+        summary.stages.push(StageReport {
+            stage: "denoise".into(),
+            seconds,
+            figures,
+        });
+        Some(d.keep)
+    } else {
+        None
+    };
+
+    // Resampling.
+    progress.start("resample", 0);
+    let t = Instant::now();
+    let r = terrain::resample(&cloud, keep.as_deref(), &cfg.resample);
+    let seconds = t.elapsed().as_secs_f64();
+    progress.finish();
+    let r = r?;
+    let mut grid = r.grid;
+    let [_, measured, _, _] = grid.census();
+    let cells = grid.cols() * grid.rows();
+    summary.stages.push(StageReport {
+        stage: "resample".into(),
+        seconds,
+        figures: vec![
+            fig("points", r.points.to_string()),
+            fig("grid", format!("{} × {}", r.spec.cols, r.spec.rows)),
+            fig(
+                "cell",
+                format!("{:.3} × {:.3}", r.spec.cell_size[0], r.spec.cell_size[1]),
+            ),
+            fig("measured", measured.to_string()),
+            fig(
+                "empty",
+                format!(
+                    "{} ({:.1} %)",
+                    cells - measured,
+                    100.0 * (cells - measured) as f64 / cells as f64
+                ),
+            ),
+        ],
+    });
+
+    // Hole filling.
+    if cfg.fill.enabled {
+        progress.start("fill", 0);
+        let t = Instant::now();
+        let f = terrain::fill(&mut grid, &cfg.fill);
+        let seconds = t.elapsed().as_secs_f64();
+        progress.finish();
+        let f = f?;
+        summary.stages.push(StageReport {
+            stage: "fill".into(),
+            seconds,
+            figures: vec![
+                fig("measured", f.measured.to_string()),
+                fig("interpolated", f.interpolated.to_string()),
+                fig(
+                    "fallback",
+                    format!("{} ({:?})", f.fallback, cfg.fill.fallback).to_lowercase(),
+                ),
+                fig("left empty", f.empty.to_string()),
+            ],
+        });
+    }
+
+    staged.commit()?;
+    Ok(RunOutput {
+        summary,
+        context: RunContext { cloud, keep, grid },
+    })
 }
+
+/// The removed-noise file written with `denoise.write_removed = true`.
+pub const NOISE_FILE: &str = "noise.las";
