@@ -26,6 +26,9 @@ pub struct Pipeline {
     /// `[fill]`: hole filling (on by default).
     #[serde(default)]
     pub fill: FillParams,
+    /// `[[assets]]`: model meshes simplified and placed on the terrain (see `assets`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub assets: Vec<crate::assets::AssetConfig>,
 }
 
 /// `[input]`
@@ -271,6 +274,13 @@ fn line_col(text: &str, offset: usize) -> (usize, usize) {
 /// Line and column of `key = …` for a dotted key `table.key` (line 1 if not written, i.e.
 /// a default value is at fault).
 pub fn locate_key(text: &str, dotted: &str) -> (usize, usize) {
+    if let Some((array, rest)) = dotted.split_once('[') {
+        if let Some((index, path)) = rest.split_once(']') {
+            if let Ok(index) = index.parse::<usize>() {
+                return locate_array_key(text, array, index, path.trim_start_matches('.'));
+            }
+        }
+    }
     let (table, key) = dotted.rsplit_once('.').unwrap_or(("", dotted));
     let mut current = String::new();
     let mut table_line = None;
@@ -301,6 +311,58 @@ pub fn locate_key(text: &str, dotted: &str) -> (usize, usize) {
     (table_line.unwrap_or(1), 1)
 }
 
+/// Line and column of `path` (e.g. `simplify.ratio`) inside the `index`-th `[[array]]`
+/// entry: a `key =` line under `[array.simplify]`, or inside an inline table
+/// `simplify = { … ratio = … }`; else the entry's header line.
+fn locate_array_key(text: &str, array: &str, index: usize, path: &str) -> (usize, usize) {
+    let (table, key) = path.rsplit_once('.').unwrap_or(("", path));
+    let header = format!("[[{array}]]");
+    let sub = format!("[{array}.{table}]");
+    let mut seen = 0usize;
+    let mut entry_line = None;
+    let mut section = String::new();
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if line.starts_with('[') {
+            if line.starts_with(&header) {
+                seen += 1;
+                if seen == index + 1 {
+                    entry_line = Some(i + 1);
+                } else if entry_line.is_some() {
+                    break;
+                }
+                section.clear();
+            } else {
+                section = line.to_string();
+            }
+            continue;
+        }
+        if entry_line.is_none() || key.is_empty() {
+            continue;
+        }
+        let col = raw.len() - raw.trim_start().len() + 1;
+        let starts = |l: &str, k: &str| {
+            l.strip_prefix(k)
+                .is_some_and(|r| r.trim_start().starts_with('='))
+        };
+        if (table.is_empty() && section.is_empty()
+            || !table.is_empty() && section.starts_with(&sub))
+            && starts(line, key)
+        {
+            return (i + 1, col);
+        }
+        if !table.is_empty() && section.is_empty() && starts(line, table) {
+            let inner = format!("{key} ");
+            let inner_eq = format!("{key}=");
+            if let Some(p) = raw.find(&inner).or_else(|| raw.find(&inner_eq)) {
+                return (i + 1, p + 1);
+            }
+            return (i + 1, col);
+        }
+    }
+    (entry_line.unwrap_or(1), 1)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -323,6 +385,17 @@ mod tests {
             e.starts_with("p.toml:3:14: input.max_points: invalid type"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn locate_finds_keys_in_array_entries() {
+        let text =
+            "[input]\npaths = []\n[[assets]]\ninput = \"a.obj\"\n[[assets]]\ninput = \"b.obj\"\n\
+                    simplify = { method = \"octree\", ratio = 3 }\n[assets.place]\nx = 1\n";
+        assert_eq!(locate_key(text, "assets[1].input"), (6, 1));
+        assert_eq!(locate_key(text, "assets[1].simplify.ratio"), (7, 33));
+        assert_eq!(locate_key(text, "assets[1].place.x"), (9, 1));
+        assert_eq!(locate_key(text, "assets[0].place.x"), (3, 1));
     }
 
     #[test]

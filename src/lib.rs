@@ -7,6 +7,7 @@
 #![deny(missing_docs)]
 #![deny(unsafe_code)]
 
+pub mod assets;
 pub mod bench;
 pub mod config;
 pub mod error;
@@ -17,6 +18,7 @@ pub mod pipeline;
 pub mod points;
 pub mod progress;
 pub mod rng;
+pub mod simplify;
 pub mod terrain;
 
 pub use error::{Error, Result};

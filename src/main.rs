@@ -69,6 +69,98 @@ enum Command {
     /// Measure terratile against references in the same process.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Simplify a mesh (OBJ or PLY) by vertex clustering; prints triangles in/out, the time
+    /// and the Hausdorff error against the input.
+    Simplify(SimplifyArgs),
+    /// Measure the Metro-style Hausdorff error between two meshes (OBJ or PLY): both
+    /// one-sided errors and the symmetric one, max and mean, absolute and in % of the
+    /// original's bounding-box diagonal.
+    Compare {
+        /// The original mesh.
+        original: PathBuf,
+        /// The simplified mesh.
+        simplified: PathBuf,
+        /// Area samples per direction (default: 10 per triangle, at least 200,000).
+        #[arg(long, value_name = "N")]
+        samples: Option<u64>,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Args, Debug)]
+#[command(group(clap::ArgGroup::new("target").required(true).args(["ratio", "triangles", "cell_size", "threshold"])))]
+struct SimplifyArgs {
+    /// Input mesh (.obj or .ply).
+    input: PathBuf,
+    /// Output mesh (.obj, or .ply for binary PLY).
+    output: PathBuf,
+    /// Clustering method.
+    #[arg(long, value_enum, default_value = "octree")]
+    method: MethodArg,
+    /// Keep this fraction of the triangles, in (0, 1].
+    #[arg(long, value_name = "R", allow_negative_numbers = true)]
+    ratio: Option<f64>,
+    /// Keep about this many triangles.
+    #[arg(long, value_name = "T")]
+    triangles: Option<u64>,
+    /// Uniform/floating: cell edge length in model units.
+    #[arg(long, value_name = "S", allow_negative_numbers = true)]
+    cell_size: Option<f64>,
+    /// Octree: split threshold in model units.
+    #[arg(long, value_name = "T", allow_negative_numbers = true)]
+    threshold: Option<f64>,
+    /// Where each cluster's vertex goes (default quadric).
+    #[arg(long, value_enum)]
+    representative: Option<RepresentativeArg>,
+    /// Octree: refine this box more finely, XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX[,FACTOR] (repeatable).
+    #[arg(long, value_name = "BOX", value_parser = parse_refine_box)]
+    refine: Vec<terratile::simplify::RefineBox>,
+    /// Area samples per direction for the error (default: 10 per triangle, at least 200,000).
+    #[arg(long, value_name = "N")]
+    samples: Option<u64>,
+    /// Do not measure the error.
+    #[arg(long)]
+    no_error: bool,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum MethodArg {
+    Uniform,
+    Floating,
+    Octree,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum RepresentativeArg {
+    Centroid,
+    Important,
+    Quadric,
+}
+
+fn parse_refine_box(s: &str) -> std::result::Result<terratile::simplify::RefineBox, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| {
+            x.trim()
+                .parse::<f64>()
+                .map_err(|_| format!("`{x}` is not a number"))
+        })
+        .collect::<std::result::Result<_, _>>()?;
+    if v.len() != 6 && v.len() != 7 {
+        return Err(format!(
+            "`{s}`: expected XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX[,FACTOR]"
+        ));
+    }
+    Ok(terratile::simplify::RefineBox {
+        min: [v[0], v[1], v[2]],
+        max: [v[3], v[4], v[5]],
+        factor: v.get(6).copied().unwrap_or(4.0),
+    })
 }
 
 #[derive(Subcommand, Debug)]
@@ -321,6 +413,61 @@ fn run(cli: Cli) -> Result<()> {
                 println!("{r}");
             }
         }
+        Command::Simplify(a) => simplify(a, cli.quiet)?,
+        Command::Compare {
+            original,
+            simplified,
+            samples,
+            json,
+        } => {
+            let params = terratile::mesh::HausdorffParams {
+                samples: samples.unwrap_or(0),
+            };
+            let r = terratile::mesh::hausdorff::compare_files(&original, &simplified, &params)?;
+            if json {
+                print_json(&r)?;
+            } else {
+                print!("{r}");
+            }
+        }
+    }
+    Ok(())
+}
+
+fn simplify(a: SimplifyArgs, quiet: bool) -> Result<()> {
+    use terratile::simplify::{Method, Representative, SimplifyParams};
+    let params = SimplifyParams {
+        method: match a.method {
+            MethodArg::Uniform => Method::Uniform,
+            MethodArg::Floating => Method::Floating,
+            MethodArg::Octree => Method::Octree,
+        },
+        ratio: a.ratio,
+        triangles: a.triangles,
+        cell_size: a.cell_size,
+        threshold: a.threshold,
+        representative: a.representative.map(|r| match r {
+            RepresentativeArg::Centroid => Representative::Centroid,
+            RepresentativeArg::Important => Representative::Important,
+            RepresentativeArg::Quadric => Representative::Quadric,
+        }),
+        refine: a.refine,
+        theta_avg_weight: None,
+        theta_max_weight: None,
+    };
+    let error = (!a.no_error).then(|| terratile::mesh::HausdorffParams {
+        samples: a.samples.unwrap_or(0),
+    });
+    let r = terratile::simplify::simplify_file(&a.input, &a.output, &params, error.as_ref())?;
+    if !quiet {
+        for w in &r.warnings {
+            eprintln!("terratile: warning: {w}");
+        }
+    }
+    if a.json {
+        print_json(&r)?;
+    } else if !quiet {
+        print!("{r}");
     }
     Ok(())
 }

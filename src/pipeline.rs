@@ -40,6 +40,9 @@ pub struct RunSummary {
     pub output_dir: PathBuf,
     /// Files written, relative to the output directory.
     pub files: Vec<String>,
+    /// Every `[[assets]]` entry: what was simplified, its error and where it was placed.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub assets: Vec<crate::assets::AssetReport>,
 }
 
 impl std::fmt::Display for RunSummary {
@@ -78,6 +81,38 @@ impl std::fmt::Display for RunSummary {
                 s.stage,
                 s.seconds,
                 figs.join(", ")
+            )?;
+        }
+        if !self.assets.is_empty() {
+            writeln!(f, "assets:")?;
+        }
+        for a in &self.assets {
+            write!(
+                f,
+                "  {} → {}: {} → {} triangles",
+                a.input.display(),
+                a.output.display(),
+                a.triangles_in,
+                a.triangles_out
+            )?;
+            if let (Some(m), Some(e)) = (a.method, &a.error) {
+                write!(
+                    f,
+                    " ({m}), error max {:.3} % mean {:.3} % of its diagonal",
+                    e.max_pct, e.mean_pct
+                )?;
+            }
+            writeln!(
+                f,
+                ", at ({:.2}, {:.2}, {:.2}){}",
+                a.position[0],
+                a.position[1],
+                a.position[2],
+                if a.on_terrain {
+                    ""
+                } else {
+                    " (no terrain: base at z = 0)"
+                }
             )?;
         }
         writeln!(
@@ -134,6 +169,9 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
     let cfg = &pipeline.config;
     let opts = cfg.input.read_options();
     let out_dir = pipeline.output_dir();
+    // Cheap checks of the asset entries before any work.
+    crate::assets::validate(&cfg.assets, &pipeline.base_dir())
+        .map_err(|(key, message)| pipeline.key_error(&key, message))?;
 
     let t = Instant::now();
     let cloud = points::read_all(&files, &opts, progress)?;
@@ -160,6 +198,7 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
         }],
         output_dir: out_dir.clone(),
         files: Vec::new(),
+        assets: Vec::new(),
     };
     let staged = StagedDir::new(&out_dir)?;
     let fig = |k: &str, v: String| (k.to_string(), v);
@@ -259,6 +298,36 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
                     format!("{} ({:?})", f.fallback, cfg.fill.fallback).to_lowercase(),
                 ),
                 fig("left empty", f.empty.to_string()),
+            ],
+        });
+    }
+
+    // Assets stand on the filled grid ([[assets]], issue 6).
+    if !cfg.assets.is_empty() {
+        let origin = [grid.corner[0], grid.corner[1], grid.z_offset];
+        let t = Instant::now();
+        for a in &cfg.assets {
+            let r = crate::assets::run_asset(
+                a,
+                &pipeline.base_dir(),
+                staged.path(),
+                Some(&grid),
+                origin,
+            )?;
+            summary.files.push(r.output.display().to_string());
+            summary.assets.push(r);
+        }
+        let tris: usize = summary.assets.iter().map(|a| a.triangles_out).sum();
+        summary.stages.push(StageReport {
+            stage: "assets".into(),
+            seconds: t.elapsed().as_secs_f64(),
+            figures: vec![
+                ("assets".into(), summary.assets.len().to_string()),
+                ("triangles".into(), tris.to_string()),
+                (
+                    "origin".into(),
+                    format!("({}, {}, {})", origin[0], origin[1], origin[2]),
+                ),
             ],
         });
     }

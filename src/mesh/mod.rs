@@ -1,18 +1,22 @@
 //! Triangle meshes for model assets (and terrain tile meshes): the indexed [`TriMesh`], its
 //! bounds, validation and cleaning; adjacency on demand ([`adjacency`]), OBJ/PLY I/O
 //! ([`io`]), a BVH for closest-point queries ([`bvh`]) and the Metro-style error
-//! ([`hausdorff`], SPEC §8).
+//! ([`mod@hausdorff`], SPEC §8).
 
 pub mod adjacency;
+pub mod bvh;
+pub mod hausdorff;
 pub mod io;
 pub mod polygon;
 
 pub use adjacency::{Adjacency, EdgeFaces, VertexFaces};
+pub use bvh::Bvh;
+pub use hausdorff::{hausdorff, HausdorffParams, HausdorffReport};
 
 use crate::error::{Error, Result};
 use glam::{DVec3, Vec2, Vec3};
 use rayon::prelude::*;
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 /// An indexed triangle mesh: flat arrays, no per-element heap objects. Optional attributes
 /// are per vertex and, when present, have one entry per position.
@@ -226,7 +230,8 @@ impl TriMesh {
     /// kept) and unreferenced vertices. Order of what remains is kept.
     pub fn clean(&mut self) -> CleanReport {
         let mut report = CleanReport::default();
-        let mut seen: HashMap<[u32; 3], ()> = HashMap::with_capacity(self.indices.len());
+        let mut seen: FxHashMap<[u32; 3], ()> = FxHashMap::default();
+        seen.reserve(self.indices.len());
         let mut keep = Vec::with_capacity(self.indices.len());
         for f in 0..self.indices.len() {
             let t = self.indices[f];
@@ -285,7 +290,8 @@ impl TriMesh {
     /// at UV or normal seams; topology (adjacency, vertex weights) is about the surface, so
     /// the simplifiers work on these welded ids.
     pub fn weld_map(&self) -> Vec<u32> {
-        let mut first: HashMap<[u32; 3], u32> = HashMap::with_capacity(self.positions.len());
+        let mut first: FxHashMap<[u32; 3], u32> = FxHashMap::default();
+        first.reserve(self.positions.len());
         self.positions
             .iter()
             .enumerate()

@@ -111,6 +111,19 @@ pub fn read_with_info(path: &Path) -> Result<(TriMesh, ReadInfo)> {
     }
 }
 
+/// Reads a mesh that a stage will work on: it must have triangles. Returns the mesh and the
+/// reader's warnings.
+pub fn read_surface(path: &Path) -> Result<(TriMesh, Vec<String>)> {
+    let (m, info) = read_with_info(path)?;
+    if m.triangle_count() == 0 {
+        return Err(Error::Data {
+            stage: "mesh",
+            message: format!("{}: the mesh has no triangles", path.display()),
+        });
+    }
+    Ok((m, info.warnings))
+}
+
 /// Writes `mesh` to `path`, OBJ or binary PLY by extension, atomically.
 pub fn write(mesh: &TriMesh, path: &Path) -> Result<()> {
     write_as(mesh, path, MeshFormat::for_output(path)?)

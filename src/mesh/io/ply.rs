@@ -1,6 +1,6 @@
 //! Stanford PLY (Turk's format): ASCII and binary little/big endian; every scalar type
 //! (`char uchar short ushort int uint float double` and their `int8`… aliases). Read from
-//! the `vertex` element: x y z, normals (nx ny nz), colours (red green blue [alpha], or
+//! the `vertex` element: x y z, normals (nx ny nz), colours (red green blue, optional alpha, or
 //! r g b / diffuse_*), texture coordinates (u v, s t, texture_u texture_v); from `face`:
 //! the `vertex_indices` (or `vertex_index`) list, polygons triangulated by ear clipping; from
 //! `tristrips`: strips with −1 restarts. Other elements and properties are skipped.

@@ -1,0 +1,1042 @@
+//! Vertex clustering simplifiers (SPEC §7, seed 000): every vertex of a cluster is replaced
+//! by one representative, triangles with two corners in one cluster vanish, and duplicate
+//! triangles are dropped. Three ways to form the clusters:
+//!
+//! - [`uniform`]: a cubic grid over the bounding box (Rossignac & Borrel 1993);
+//! - [`floating`]: cells centred on the visually most important vertices (Low & Tan 1997);
+//! - [`octree`]: the paper's adaptive octree, splitting where the normals vary and the
+//!   vertices spread (Kim et al., seed 000 §III), with selective refinement.
+//!
+//! Each reaches a target triangle count by searching its one scale parameter (cell size or
+//! split threshold), or runs at a given parameter. The representative is the centroid, the
+//! most important vertex (Low's weight) or the quadric-optimal position (Lindstrom 2000);
+//! the default, chosen by measurement (notes/mesh.md), is the quadric.
+//!
+//! Topology is taken on *welded* vertices (the same position = one vertex), so UV and normal
+//! seams do not look like holes. Colours, normals and UVs are carried over: each output
+//! vertex averages them over the input vertices it replaces; when the input splits vertices
+//! at seams, the output keeps one vertex per seam side (same position, own attributes).
+
+pub mod floating;
+pub mod octree;
+pub mod uniform;
+
+use crate::error::{Error, Result};
+use crate::mesh::adjacency::{Csr, VertexFaces};
+use crate::mesh::{Aabb, TriMesh};
+use crate::simplify::quadric::Quadric;
+use glam::{DVec3, Vec2, Vec3};
+use rayon::prelude::*;
+use rustc_hash::{FxHashMap, FxHashSet};
+use serde::{Deserialize, Serialize};
+
+/// Which clustering.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Uniform grid clustering.
+    Uniform,
+    /// Floating-cell clustering.
+    Floating,
+    /// Adaptive octree clustering (the paper's method).
+    Octree,
+}
+
+impl std::fmt::Display for Method {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Method::Uniform => "uniform",
+            Method::Floating => "floating",
+            Method::Octree => "octree",
+        })
+    }
+}
+
+/// How a cluster's single vertex is placed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Representative {
+    /// The mean of the cluster's vertices.
+    Centroid,
+    /// The cluster's vertex with the largest Low weight (longest edge · cos(θ/2)).
+    Important,
+    /// The point minimising the summed squared distance to the cluster's triangle planes.
+    Quadric,
+}
+
+impl std::fmt::Display for Representative {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Representative::Centroid => "centroid",
+            Representative::Important => "important",
+            Representative::Quadric => "quadric",
+        })
+    }
+}
+
+/// A box to simplify less (octree only): nodes touching it split as if their score were
+/// `factor` times larger (the paper's selective refinement, Fig. 8).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RefineBox {
+    /// Smallest corner, in the mesh's coordinates.
+    pub min: [f64; 3],
+    /// Largest corner.
+    pub max: [f64; 3],
+    /// Score multiplier inside (default 4: about 4× finer cells there).
+    #[serde(default = "default_refine_factor")]
+    pub factor: f64,
+}
+
+fn default_refine_factor() -> f64 {
+    4.0
+}
+
+/// Parameters of a clustering simplification (TOML keys = field names). Give exactly one
+/// target: `ratio`, `triangles`, `cell_size` (uniform, floating) or `threshold` (octree).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimplifyParams {
+    /// `uniform`, `floating` or `octree`.
+    pub method: Method,
+    /// Keep this fraction of the triangles, in (0, 1].
+    #[serde(default)]
+    pub ratio: Option<f64>,
+    /// Keep about this many triangles (at least 1).
+    #[serde(default)]
+    pub triangles: Option<u64>,
+    /// Uniform and floating: the cell edge length, in model units.
+    #[serde(default)]
+    pub cell_size: Option<f64>,
+    /// Octree: split nodes whose score (vertex spread Dv × normal-variation factor) exceeds
+    /// this, in model units.
+    #[serde(default)]
+    pub threshold: Option<f64>,
+    /// `centroid`, `important` or `quadric` (default `quadric`).
+    #[serde(default)]
+    pub representative: Option<Representative>,
+    /// Octree: boxes refined more finely.
+    #[serde(default)]
+    pub refine: Vec<RefineBox>,
+    /// Octree: weight of θavg (radians) in the normal-variation factor (default 2).
+    #[serde(default)]
+    pub theta_avg_weight: Option<f64>,
+    /// Octree: weight of θmax (radians) in the normal-variation factor (default 0.5).
+    #[serde(default)]
+    pub theta_max_weight: Option<f64>,
+}
+
+impl SimplifyParams {
+    /// Parameters for `method` reaching `ratio` of the triangles, other fields default.
+    pub fn ratio(method: Method, ratio: f64) -> SimplifyParams {
+        SimplifyParams {
+            method,
+            ratio: Some(ratio),
+            ..SimplifyParams::new(method)
+        }
+    }
+
+    /// Parameters for `method` reaching `triangles`, other fields default.
+    pub fn triangles(method: Method, triangles: u64) -> SimplifyParams {
+        SimplifyParams {
+            method,
+            triangles: Some(triangles),
+            ..SimplifyParams::new(method)
+        }
+    }
+
+    fn new(method: Method) -> SimplifyParams {
+        SimplifyParams {
+            method,
+            ratio: None,
+            triangles: None,
+            cell_size: None,
+            threshold: None,
+            representative: None,
+            refine: Vec::new(),
+            theta_avg_weight: None,
+            theta_max_weight: None,
+        }
+    }
+
+    /// The representative in effect.
+    pub fn representative(&self) -> Representative {
+        self.representative.unwrap_or(Representative::Quadric)
+    }
+
+    /// Checks the values and returns the target for a mesh of `triangles_in` triangles.
+    pub fn target(&self, triangles_in: usize) -> Result<Target> {
+        const S: &str = "simplify";
+        let given = [
+            self.ratio.is_some(),
+            self.triangles.is_some(),
+            self.cell_size.is_some(),
+            self.threshold.is_some(),
+        ]
+        .iter()
+        .filter(|g| **g)
+        .count();
+        if given != 1 {
+            return Err(Error::param(
+                S,
+                "ratio",
+                if given == 0 {
+                    "(none)".into()
+                } else {
+                    format!("{given} targets")
+                },
+                "give exactly one of ratio, triangles, cell_size or threshold",
+            ));
+        }
+        for r in &self.refine {
+            if !(r.factor.is_finite() && r.factor > 0.0) {
+                return Err(Error::param(
+                    S,
+                    "refine.factor",
+                    r.factor,
+                    "must be a positive number",
+                ));
+            }
+            if (0..3).any(|k| r.min[k] > r.max[k] || !r.min[k].is_finite() || !r.max[k].is_finite())
+            {
+                return Err(Error::param(
+                    S,
+                    "refine",
+                    format!("min {:?} max {:?}", r.min, r.max),
+                    "min must not exceed max, and both must be finite",
+                ));
+            }
+        }
+        if !self.refine.is_empty() && self.method != Method::Octree {
+            return Err(Error::param(
+                S,
+                "refine",
+                format!("{} boxes", self.refine.len()),
+                format!(
+                    "selective refinement needs method = \"octree\", not \"{}\"",
+                    self.method
+                ),
+            ));
+        }
+        for (name, w) in [
+            ("theta_avg_weight", self.theta_avg_weight),
+            ("theta_max_weight", self.theta_max_weight),
+        ] {
+            if let Some(w) = w {
+                if !(w.is_finite() && w >= 0.0) {
+                    return Err(Error::param(S, name, w, "must be a number >= 0"));
+                }
+            }
+        }
+        if let Some(r) = self.ratio {
+            if !(r > 0.0 && r <= 1.0) {
+                return Err(Error::param(S, "ratio", r, "must be in (0, 1]"));
+            }
+            return Ok(Target::Triangles(
+                ((r * triangles_in as f64).round() as u64).max(1),
+            ));
+        }
+        if let Some(t) = self.triangles {
+            if t == 0 {
+                return Err(Error::param(S, "triangles", t, "must be at least 1"));
+            }
+            return Ok(Target::Triangles(t));
+        }
+        if let Some(c) = self.cell_size {
+            if self.method == Method::Octree {
+                return Err(Error::param(
+                    S,
+                    "cell_size",
+                    c,
+                    "the octree method takes `threshold`, not `cell_size`",
+                ));
+            }
+            if !(c.is_finite() && c > 0.0) {
+                return Err(Error::param(S, "cell_size", c, "must be a positive number"));
+            }
+            return Ok(Target::Scale(c));
+        }
+        let t = self.threshold.unwrap_or_default();
+        if self.method != Method::Octree {
+            return Err(Error::param(
+                S,
+                "threshold",
+                t,
+                "only the octree method takes `threshold`; use `cell_size`",
+            ));
+        }
+        if !(t.is_finite() && t > 0.0) {
+            return Err(Error::param(S, "threshold", t, "must be a positive number"));
+        }
+        Ok(Target::Scale(t))
+    }
+}
+
+/// What a clustering aims at.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Target {
+    /// About this many output triangles (the closest the method's scale parameter reaches).
+    Triangles(u64),
+    /// This cell size (uniform, floating) or split threshold (octree).
+    Scale(f64),
+}
+
+/// What a simplification did.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SimplifyReport {
+    /// The method.
+    pub method: Method,
+    /// The representative rule.
+    pub representative: Representative,
+    /// Input triangles.
+    pub triangles_in: usize,
+    /// Output triangles.
+    pub triangles_out: usize,
+    /// Input vertices (as stored, seams split).
+    pub vertices_in: usize,
+    /// Output vertices.
+    pub vertices_out: usize,
+    /// Clusters formed.
+    pub clusters: usize,
+    /// The cell size or threshold used (found by the search, or given).
+    pub scale: f64,
+    /// Clusterings evaluated while searching for the target.
+    pub evaluations: usize,
+}
+
+/// A simplified mesh and what was done.
+#[derive(Debug, Clone)]
+pub struct Simplified {
+    /// The result.
+    pub mesh: TriMesh,
+    /// Figures.
+    pub report: SimplifyReport,
+}
+
+/// Simplifies `mesh` by vertex clustering as `params` say.
+pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
+    mesh.validate("the input mesh")?;
+    if mesh.triangle_count() == 0 {
+        return Err(Error::Data {
+            stage: "simplify",
+            message: "the mesh has no triangles".into(),
+        });
+    }
+    let target = params.target(mesh.triangle_count())?;
+    let prep = Prepared::new(mesh);
+    let rep = params.representative();
+    let (clustering, scale, evaluations) = match params.method {
+        Method::Uniform => uniform::cluster(&prep, target),
+        Method::Floating => floating::cluster(&prep, target),
+        Method::Octree => {
+            octree::cluster(&prep, target, &octree::OctreeOptions::from_params(params))
+        }
+    };
+    let out = build_output(&prep, &clustering, rep);
+    if out.triangle_count() == 0 {
+        return Err(Error::Data {
+            stage: "simplify",
+            message: format!(
+                "no triangle is left at this target ({} clusters): ask for more triangles or a smaller cell",
+                clustering.count
+            ),
+        });
+    }
+    let report = SimplifyReport {
+        method: params.method,
+        representative: rep,
+        triangles_in: mesh.triangle_count(),
+        triangles_out: out.triangle_count(),
+        vertices_in: mesh.vertex_count(),
+        vertices_out: out.vertex_count(),
+        clusters: clustering.count,
+        scale,
+        evaluations,
+    };
+    Ok(Simplified { mesh: out, report })
+}
+
+/// A mesh made ready for clustering: welded topology and the active vertex set, with the
+/// per-vertex quantities some methods need computed on first use.
+pub struct Prepared<'a> {
+    /// The input.
+    pub mesh: &'a TriMesh,
+    /// Vertex → its welded (canonical) vertex.
+    pub weld: Vec<u32>,
+    /// True when some vertex was welded to another (seams).
+    pub has_seams: bool,
+    /// Triangles over welded vertices.
+    pub faces: Vec<[u32; 3]>,
+    /// Canonical vertices that triangles use, ascending: the vertices being clustered,
+    /// numbered densely (dense index → vertex).
+    pub active: Vec<u32>,
+    /// Vertex → dense index (`u32::MAX` when not active).
+    pub dense_of: Vec<u32>,
+    /// Positions of the active vertices, by dense index.
+    pub dense_pos: Vec<Vec3>,
+    /// Triangles over dense indices.
+    pub dense_faces: Vec<[u32; 3]>,
+    /// Bounds of the active vertices.
+    pub bounds: Aabb,
+    /// Surface area.
+    pub area: f64,
+    vertex_faces: std::sync::OnceLock<VertexFaces>,
+    weights: std::sync::OnceLock<Vec<f64>>,
+    quadrics: std::sync::OnceLock<Vec<Quadric>>,
+}
+
+impl<'a> Prepared<'a> {
+    /// Welds `mesh` and finds the active vertices.
+    pub fn new(mesh: &'a TriMesh) -> Prepared<'a> {
+        let weld = mesh.weld_map();
+        let has_seams = weld.iter().enumerate().any(|(i, &w)| i as u32 != w);
+        let faces = mesh.welded_indices(&weld);
+        let mut used = vec![false; mesh.vertex_count()];
+        for t in &faces {
+            for &v in t {
+                used[v as usize] = true;
+            }
+        }
+        let active: Vec<u32> = (0..mesh.vertex_count() as u32)
+            .filter(|&v| used[v as usize])
+            .collect();
+        let mut dense_of = vec![u32::MAX; mesh.vertex_count()];
+        for (d, &v) in active.iter().enumerate() {
+            dense_of[v as usize] = d as u32;
+        }
+        let dense_pos: Vec<Vec3> = active.iter().map(|&v| mesh.positions[v as usize]).collect();
+        let dense_faces: Vec<[u32; 3]> = faces
+            .iter()
+            .map(|t| t.map(|v| dense_of[v as usize]))
+            .collect();
+        let bounds = Aabb::of(dense_pos.iter().copied()).unwrap_or(Aabb {
+            min: Vec3::ZERO,
+            max: Vec3::ZERO,
+        });
+        let area = mesh.area();
+        Prepared {
+            mesh,
+            weld,
+            has_seams,
+            faces,
+            active,
+            dense_of,
+            dense_pos,
+            dense_faces,
+            bounds,
+            area,
+            vertex_faces: Default::default(),
+            weights: Default::default(),
+            quadrics: Default::default(),
+        }
+    }
+
+    /// Position of vertex `v` in f64.
+    #[inline]
+    pub fn pos(&self, v: u32) -> DVec3 {
+        self.mesh.positions[v as usize].as_dvec3()
+    }
+
+    /// Vertex → triangles of the welded mesh.
+    pub fn vertex_faces(&self) -> &VertexFaces {
+        self.vertex_faces
+            .get_or_init(|| VertexFaces::new(&self.faces, self.mesh.vertex_count()))
+    }
+
+    /// Calls `visit(g)` for every other triangle on edge `k` of triangle `f` (corners `k`
+    /// and `k + 1`) of the welded mesh. A local search around one corner: cheaper than
+    /// building an edge table by sorting, which dominated the uniform method's time.
+    #[inline]
+    pub fn across(&self, f: u32, k: usize, mut visit: impl FnMut(u32)) {
+        let t = self.faces[f as usize];
+        let (a, b) = (t[k], t[(k + 1) % 3]);
+        for &g in self.vertex_faces().of(a) {
+            if g != f && self.faces[g as usize].contains(&b) {
+                visit(g);
+            }
+        }
+    }
+
+    /// Low's visual importance per vertex: (longest incident edge) · cos(θ/2), θ the
+    /// largest angle between two incident edges (0 for inactive vertices).
+    pub fn weights(&self) -> &[f64] {
+        self.weights.get_or_init(|| {
+            let vf = self.vertex_faces();
+            (0..self.mesh.vertex_count() as u32)
+                .into_par_iter()
+                .with_min_len(256)
+                .map_init(Vec::new, |nb: &mut Vec<u32>, v| {
+                    nb.clear();
+                    for &f in vf.of(v) {
+                        nb.extend(self.faces[f as usize].iter().filter(|&&u| u != v));
+                    }
+                    nb.sort_unstable();
+                    nb.dedup();
+                    if nb.is_empty() {
+                        return 0.0;
+                    }
+                    let p = self.pos(v);
+                    let mut longest = 0.0f64;
+                    let mut min_cos = 1.0f64;
+                    for (i, &a) in nb.iter().enumerate() {
+                        let ea = self.pos(a) - p;
+                        let la = ea.length();
+                        longest = longest.max(la);
+                        for &b in &nb[i + 1..] {
+                            let eb = self.pos(b) - p;
+                            let lb = eb.length();
+                            if la > 0.0 && lb > 0.0 {
+                                min_cos = min_cos.min(ea.dot(eb) / (la * lb));
+                            }
+                        }
+                    }
+                    let theta = min_cos.clamp(-1.0, 1.0).acos();
+                    longest * (theta * 0.5).cos()
+                })
+                .collect()
+        })
+    }
+
+    /// Per-vertex quadric: the area-weighted planes of the incident triangles, plus, on
+    /// border edges, a plane through the edge perpendicular to its triangle (weighted by
+    /// the squared edge length) so that holes and open borders keep their shape.
+    pub fn quadrics(&self) -> &[Quadric] {
+        self.quadrics.get_or_init(|| {
+            let vf = self.vertex_faces();
+            // Per triangle: its plane (unit normal, offset, area), computed once.
+            let planes: Vec<(DVec3, f64, f64)> = self
+                .faces
+                .par_iter()
+                .with_min_len(4096)
+                .map(|t| {
+                    let p0 = self.pos(t[0]);
+                    let c = (self.pos(t[1]) - p0).cross(self.pos(t[2]) - p0);
+                    let len = c.length();
+                    let n = if len > 0.0 { c / len } else { DVec3::ZERO };
+                    (n, -n.dot(p0), 0.5 * len)
+                })
+                .collect();
+            (0..self.mesh.vertex_count() as u32)
+                .into_par_iter()
+                .with_min_len(1024)
+                .map_init(Vec::new, |edges: &mut Vec<u64>, v| {
+                    let mut s = Quadric::ZERO;
+                    // Inside a surface every neighbour of v is the far end of exactly two
+                    // of its triangles' edges. The XOR of a hash of the far ends is then 0,
+                    // and the exact (sorting) border search below is skipped: it would
+                    // otherwise cost a third of the uniform method's time.
+                    let mut parity = 0u64;
+                    for &f in vf.of(v) {
+                        let (n, d, area) = planes[f as usize];
+                        if area > 0.0 {
+                            s += Quadric::plane(n, d, area);
+                        }
+                        let t = self.faces[f as usize];
+                        for &u in &t {
+                            if u != v {
+                                parity ^= (u as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+                            }
+                        }
+                    }
+                    if parity == 0 {
+                        return s;
+                    }
+                    edges.clear();
+                    for &f in vf.of(v) {
+                        // The two edges of f at v, as (other end << 32 | triangle).
+                        let t = self.faces[f as usize];
+                        for k in 0..3 {
+                            if t[k] == v {
+                                edges.push((t[(k + 1) % 3] as u64) << 32 | f as u64);
+                                edges.push((t[(k + 2) % 3] as u64) << 32 | f as u64);
+                            }
+                        }
+                    }
+                    // An edge at v that only one triangle has is a border: add the plane
+                    // through it, perpendicular to that triangle.
+                    edges.sort_unstable();
+                    let mut i = 0;
+                    while i < edges.len() {
+                        let u = (edges[i] >> 32) as u32;
+                        let mut j = i + 1;
+                        while j < edges.len() && (edges[j] >> 32) as u32 == u {
+                            j += 1;
+                        }
+                        let n = planes[edges[i] as u32 as usize].0;
+                        if j - i == 1 && u != v && n != DVec3::ZERO {
+                            let (pa, pb) = (self.pos(v), self.pos(u));
+                            let e = pb - pa;
+                            let m = e.cross(n).normalize_or_zero();
+                            if m != DVec3::ZERO {
+                                s += Quadric::plane(m, -m.dot(pa), e.length_squared());
+                            }
+                        }
+                        i = j;
+                    }
+                    s
+                })
+                .collect()
+        })
+    }
+}
+
+/// An assignment of active vertices to clusters.
+#[derive(Debug, Clone)]
+pub struct Clustering {
+    /// Cluster of each active vertex, by dense index.
+    pub of: Vec<u32>,
+    /// Number of clusters (ids 0..count, numbered by first active vertex).
+    pub count: usize,
+}
+
+impl Clustering {
+    /// Clusters from one key per active vertex (by dense index): equal keys, one cluster.
+    pub fn from_keys<K: std::hash::Hash + Eq + Copy>(keys: &[K]) -> Clustering {
+        let mut ids: FxHashMap<K, u32> = FxHashMap::default();
+        ids.reserve(keys.len() / 2);
+        let of = keys
+            .iter()
+            .map(|k| {
+                let n = ids.len() as u32;
+                *ids.entry(*k).or_insert(n)
+            })
+            .collect();
+        Clustering {
+            count: ids.len(),
+            of,
+        }
+    }
+}
+
+/// Triangles whose three corners have three different keys (the search's estimate of the
+/// output count: duplicates are only removed at the end).
+pub fn count_surviving<K: PartialEq + Sync>(faces: &[[u32; 3]], key: &[K]) -> usize {
+    faces
+        .par_iter()
+        .with_min_len(16384)
+        .filter(|t| {
+            let (a, b, c) = (
+                &key[t[0] as usize],
+                &key[t[1] as usize],
+                &key[t[2] as usize],
+            );
+            a != b && b != c && a != c
+        })
+        .count()
+}
+
+/// Triangles that survive with three different keys, counting a triple of keys once: the
+/// output count (before the rare zero-area check).
+pub fn count_distinct<K: Copy + Ord + std::hash::Hash>(faces: &[[u32; 3]], key: &[K]) -> usize {
+    let mut seen: FxHashSet<[K; 3]> = FxHashSet::default();
+    for t in faces {
+        let mut k = t.map(|v| key[v as usize]);
+        if k[0] == k[1] || k[1] == k[2] || k[0] == k[2] {
+            continue;
+        }
+        k.sort_unstable();
+        seen.insert(k);
+    }
+    seen.len()
+}
+
+/// [`search_scale`] on the fast count, then up to two corrections for the duplicate
+/// triangles (two sheets collapsing onto the same clusters) the fast count includes: the
+/// search is repeated for a target scaled by fast/exact. Returns (scale, evaluations).
+pub fn search_target<K: Copy + Ord + std::hash::Hash + Sync>(
+    faces: &[[u32; 3]],
+    mut keys_at: impl FnMut(f64) -> Vec<K>,
+    target: u64,
+    start: f64,
+    min_scale: f64,
+) -> (f64, usize) {
+    let mut goal = target.max(1);
+    let mut start = start;
+    let mut evals = 0;
+    let mut best = (start, f64::INFINITY);
+    for _round in 0..3 {
+        let (s, fast, e) = search_scale(
+            |s| count_surviving(faces, &keys_at(s)),
+            goal,
+            start,
+            min_scale,
+        );
+        evals += e + 1;
+        let exact = count_distinct(faces, &keys_at(s));
+        let miss = (exact as f64 - target as f64).abs();
+        if miss < best.1 {
+            best = (s, miss);
+        }
+        if miss <= 0.01 * target as f64 || exact == 0 || fast == 0 {
+            break;
+        }
+        goal = ((goal as f64 * target as f64 / exact as f64).round() as u64).max(1);
+        start = s;
+    }
+    (best.0, evals)
+}
+
+/// Finds the scale parameter (cell size) whose `count` is closest to `target`, assuming the
+/// count falls roughly as scale⁻² (a surface cut into cells). Returns (scale, count,
+/// evaluations).
+pub fn search_scale(
+    mut count: impl FnMut(f64) -> usize,
+    target: u64,
+    start: f64,
+    min_scale: f64,
+) -> (f64, usize, usize) {
+    let t = target.max(1) as f64;
+    let mut evals = 0;
+    let mut best = (start, usize::MAX, f64::INFINITY);
+    let mut eval = |s: f64, best: &mut (f64, usize, f64)| {
+        let c = count(s);
+        let miss = (c as f64 - t).abs();
+        if miss < best.2 || (miss == best.2 && c < best.1) {
+            *best = (s, c, miss);
+        }
+        c
+    };
+    // Too many triangles at `lo`, too few at `hi`.
+    let (mut lo, mut hi) = (None::<f64>, None::<f64>);
+    let mut s = start.max(min_scale);
+    while evals < 40 {
+        let c = eval(s, &mut best);
+        evals += 1;
+        // Within 0.5 % of the target is as good as exact for a clustering (each pass
+        // costs a sweep over the mesh).
+        if (c as f64 - t).abs() <= (0.005 * t).max(0.5) {
+            break;
+        }
+        if c as f64 > t {
+            lo = Some(lo.map_or(s, |l: f64| l.max(s)));
+        } else {
+            hi = Some(hi.map_or(s, |h: f64| h.min(s)));
+        }
+        let next = match (lo, hi) {
+            (Some(l), Some(h)) => {
+                if h / l < 1.0 + 1e-4 {
+                    break;
+                }
+                (l * h).sqrt()
+            }
+            _ => {
+                let f = ((c.max(1) as f64) / t).sqrt().clamp(0.25, 4.0);
+                let f = if (f - 1.0).abs() < 0.02 {
+                    if c as f64 > t {
+                        1.02
+                    } else {
+                        0.98
+                    }
+                } else {
+                    f
+                };
+                s * f
+            }
+        };
+        if next < min_scale {
+            if s <= min_scale {
+                break;
+            }
+            s = min_scale;
+        } else {
+            s = next;
+        }
+    }
+    (best.0, best.1, evals)
+}
+
+/// Builds the simplified mesh from a clustering: representatives, remapped triangles without
+/// degenerate or duplicate ones, attributes averaged per output vertex.
+pub fn build_output(prep: &Prepared, cl: &Clustering, rep: Representative) -> TriMesh {
+    let mesh = prep.mesh;
+    let nc = cl.count;
+    // Cluster → members (canonical active vertices, ascending).
+    let members = Csr::from_pairs(
+        nc,
+        prep.active.iter().enumerate().map(|(d, &v)| (cl.of[d], v)),
+    );
+    let weights = (rep == Representative::Important).then(|| prep.weights());
+    let quadrics = (rep == Representative::Quadric).then(|| prep.quadrics());
+    let reps: Vec<Vec3> = (0..nc)
+        .into_par_iter()
+        .map(|c| {
+            let m = members.row(c);
+            let centroid = m.iter().map(|&v| prep.pos(v)).sum::<DVec3>() / m.len() as f64;
+            let p = match rep {
+                Representative::Centroid => centroid,
+                Representative::Important => {
+                    let w = weights.unwrap_or(&[]);
+                    let best = m
+                        .iter()
+                        .copied()
+                        .max_by(|&a, &b| w[a as usize].total_cmp(&w[b as usize]).then(b.cmp(&a)))
+                        .unwrap_or(m[0]);
+                    prep.pos(best)
+                }
+                Representative::Quadric => {
+                    let qs = quadrics.unwrap_or(&[]);
+                    let mut q = Quadric::ZERO;
+                    let (mut lo, mut hi) =
+                        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+                    for &v in m {
+                        q += qs[v as usize];
+                        lo = lo.min(prep.pos(v));
+                        hi = hi.max(prep.pos(v));
+                    }
+                    // Keep the optimum near the cluster (within its vertices' box grown by
+                    // its own size): a crease's planes may meet far away when the cluster
+                    // holds a sliver of them.
+                    // Eigenvalues below 1 % of the largest count as flat (Lindstrom uses
+                    // 0.1 %; 1 % measured slightly better on our test meshes).
+                    let pad = hi - lo;
+                    q.minimizer(centroid, 1e-2).clamp(lo - pad, hi + pad)
+                }
+            };
+            p.as_vec3()
+        })
+        .collect();
+
+    // Output vertices: one per cluster, or one per seam side when the input splits
+    // vertices for their attributes (connected pieces of the cluster in the unwelded mesh).
+    let split = prep.has_seams && (mesh.uvs.is_some() || mesh.normals.is_some());
+    let nv = mesh.vertex_count();
+    let cluster_of_vertex = |v: usize| match prep.dense_of[prep.weld[v] as usize] {
+        u32::MAX => u32::MAX,
+        d => cl.of[d as usize],
+    };
+    let mut root: Vec<u32> = (0..nv as u32).collect();
+    if split {
+        fn find(r: &mut [u32], mut x: u32) -> u32 {
+            while r[x as usize] != x {
+                r[x as usize] = r[r[x as usize] as usize];
+                x = r[x as usize];
+            }
+            x
+        }
+        for t in &mesh.indices {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                if cluster_of_vertex(a as usize) == cluster_of_vertex(b as usize) {
+                    let (ra, rb) = (find(&mut root, a), find(&mut root, b));
+                    if ra != rb {
+                        let (lo, hi) = (ra.min(rb), ra.max(rb));
+                        root[hi as usize] = lo;
+                    }
+                }
+            }
+        }
+        for v in 0..nv as u32 {
+            root[v as usize] = find(&mut root, v);
+        }
+    }
+    let mut out_of = vec![u32::MAX; nv];
+    let mut out_cluster: Vec<u32> = Vec::new();
+    if split {
+        let mut key_to_out: FxHashMap<u64, u32> = FxHashMap::default();
+        for v in 0..nv {
+            let c = cluster_of_vertex(v);
+            if c == u32::MAX {
+                continue;
+            }
+            let key = ((c as u64) << 32) | root[v] as u64;
+            let next = out_cluster.len() as u32;
+            let id = *key_to_out.entry(key).or_insert(next);
+            if id == next {
+                out_cluster.push(c);
+            }
+            out_of[v] = id;
+        }
+    } else {
+        let mut first = vec![u32::MAX; nc];
+        for (v, o) in out_of.iter_mut().enumerate() {
+            let c = cluster_of_vertex(v);
+            if c == u32::MAX {
+                continue;
+            }
+            if first[c as usize] == u32::MAX {
+                first[c as usize] = out_cluster.len() as u32;
+                out_cluster.push(c);
+            }
+            *o = first[c as usize];
+        }
+    }
+    let no = out_cluster.len();
+
+    // Triangles: drop those with two corners in one cluster and repeats of a cluster triple.
+    let mut seen: FxHashSet<[u32; 3]> = FxHashSet::default();
+    seen.reserve(mesh.triangle_count() / 2);
+    let mut indices = Vec::new();
+    for t in &mesh.indices {
+        let c = t.map(|v| cluster_of_vertex(v as usize));
+        if c[0] == c[1] || c[1] == c[2] || c[0] == c[2] {
+            continue;
+        }
+        let mut key = c;
+        key.sort_unstable();
+        if !seen.insert(key) {
+            continue;
+        }
+        let p = c.map(|c| reps[c as usize].as_dvec3());
+        if (p[1] - p[0]).cross(p[2] - p[0]) == DVec3::ZERO {
+            continue;
+        }
+        indices.push(t.map(|v| out_of[v as usize]));
+    }
+
+    // Attributes: averages over the input vertices each output vertex replaces.
+    let mut out = TriMesh {
+        positions: out_cluster.iter().map(|&c| reps[c as usize]).collect(),
+        indices,
+        normals: None,
+        colors: None,
+        uvs: None,
+    };
+    let mut count = vec![0u32; no];
+    for v in 0..nv {
+        if out_of[v] != u32::MAX {
+            count[out_of[v] as usize] += 1;
+        }
+    }
+    if let Some(n) = &mesh.normals {
+        let mut acc = vec![Vec3::ZERO; no];
+        for v in 0..nv {
+            if out_of[v] != u32::MAX {
+                acc[out_of[v] as usize] += n[v];
+            }
+        }
+        out.normals = Some(acc.into_iter().map(|n| n.normalize_or_zero()).collect());
+    }
+    if let Some(cols) = &mesh.colors {
+        let mut acc = vec![[0f32; 4]; no];
+        for v in 0..nv {
+            if out_of[v] != u32::MAX {
+                let a = &mut acc[out_of[v] as usize];
+                for k in 0..4 {
+                    a[k] += cols[v][k];
+                }
+            }
+        }
+        out.colors = Some(
+            acc.iter()
+                .zip(&count)
+                .map(|(a, &n)| a.map(|x| x / n.max(1) as f32))
+                .collect(),
+        );
+    }
+    if let Some(uv) = &mesh.uvs {
+        let mut acc = vec![Vec2::ZERO; no];
+        for v in 0..nv {
+            if out_of[v] != u32::MAX {
+                acc[out_of[v] as usize] += uv[v];
+            }
+        }
+        out.uvs = Some(
+            acc.iter()
+                .zip(&count)
+                .map(|(a, &n)| *a / n.max(1) as f32)
+                .collect(),
+        );
+    }
+    out.remove_unreferenced();
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(crate) fn grid(n: usize) -> TriMesh {
+        let mut m = TriMesh::default();
+        for j in 0..=n {
+            for i in 0..=n {
+                let (x, y) = (i as f32 / n as f32, j as f32 / n as f32);
+                m.positions
+                    .push(Vec3::new(x, y, 0.1 * (6.0 * x).sin() * (4.0 * y).cos()));
+            }
+        }
+        let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+        for j in 0..n {
+            for i in 0..n {
+                m.indices.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                m.indices.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        m
+    }
+
+    #[test]
+    fn params_are_checked() {
+        let p = |f: fn(&mut SimplifyParams)| {
+            let mut p = SimplifyParams::ratio(Method::Uniform, 0.5);
+            f(&mut p);
+            p.target(100).map_err(|e| e.to_string())
+        };
+        assert_eq!(p(|_| {}), Ok(Target::Triangles(50)));
+        assert!(p(|p| p.ratio = Some(0.0))
+            .unwrap_err()
+            .contains("ratio = 0: must be in (0, 1]"));
+        assert!(p(|p| p.ratio = Some(1.5))
+            .unwrap_err()
+            .contains("must be in (0, 1]"));
+        assert!(p(|p| p.ratio = Some(f64::NAN)).is_err());
+        assert!(p(|p| {
+            p.ratio = None;
+            p.triangles = Some(0)
+        })
+        .unwrap_err()
+        .contains("triangles = 0: must be at least 1"));
+        assert!(p(|p| p.triangles = Some(3))
+            .unwrap_err()
+            .contains("exactly one"));
+        assert!(p(|p| {
+            p.ratio = None;
+            p.threshold = Some(1.0)
+        })
+        .unwrap_err()
+        .contains("only the octree"));
+        assert!(p(|p| p.refine.push(RefineBox {
+            min: [0.0; 3],
+            max: [1.0; 3],
+            factor: 2.0
+        }))
+        .unwrap_err()
+        .contains("needs method = \"octree\""));
+    }
+
+    #[test]
+    fn search_hits_a_power_law_exactly_enough() {
+        let (s, c, evals) = search_scale(|s| (1000.0 / (s * s)) as usize, 250, 1.0, 1e-6);
+        assert!((c as i64 - 250).abs() <= 1, "{s} {c}");
+        assert!(evals < 20, "{evals}");
+    }
+
+    #[test]
+    fn representatives_on_a_flat_cluster() {
+        // One cluster of a flat square: all three rules stay in the plane.
+        let mut m = grid(4);
+        for p in &mut m.positions {
+            p.z = 0.5;
+        }
+        let prep = Prepared::new(&m);
+        let cl = Clustering {
+            of: vec![0; prep.active.len()],
+            count: 1,
+        };
+        for rep in [
+            Representative::Centroid,
+            Representative::Important,
+            Representative::Quadric,
+        ] {
+            // A single cluster leaves no triangle, so look at the representative directly.
+            let out = build_output(&prep, &cl, rep);
+            assert_eq!(out.triangle_count(), 0);
+        }
+        let q: Quadric = prep
+            .active
+            .iter()
+            .map(|&v| prep.quadrics()[v as usize])
+            .fold(Quadric::ZERO, |a, b| a + b);
+        let x = q.minimizer(DVec3::new(0.5, 0.5, 0.0), 1e-3);
+        assert!((x.z - 0.5).abs() < 1e-9, "{x}");
+    }
+}

@@ -1,0 +1,287 @@
+//! The clustering simplifiers on the shared meshes, the paper's comparison on its own model,
+//! and property tests of the output's invariants.
+
+mod common;
+
+use proptest::prelude::*;
+use terratile::mesh::{hausdorff, io, Adjacency, HausdorffParams, TriMesh};
+use terratile::simplify::{simplify, Method, Representative, SimplifyParams};
+
+const METHODS: [Method; 3] = [Method::Uniform, Method::Floating, Method::Octree];
+
+fn load(name: &str) -> Option<TriMesh> {
+    Some(io::read(&common::data_file(&format!("meshes/{name}"))?).unwrap())
+}
+
+/// What every output must satisfy.
+fn check_output(input: &TriMesh, out: &TriMesh, what: &str) {
+    out.validate(what).unwrap();
+    let mut clean = out.clone();
+    let r = clean.clean();
+    assert_eq!(
+        (r.degenerate, r.duplicate, r.unreferenced),
+        (0, 0, 0),
+        "{what}: {r:?}"
+    );
+    assert!(out.triangle_count() <= input.triangle_count(), "{what}");
+    assert_eq!(
+        out.normals.is_some(),
+        input.normals.is_some(),
+        "{what}: normals"
+    );
+    assert_eq!(
+        out.colors.is_some(),
+        input.colors.is_some(),
+        "{what}: colours"
+    );
+    assert_eq!(out.uvs.is_some(), input.uvs.is_some(), "{what}: uvs");
+    // Output vertices lie near the input surface's box.
+    let (bi, bo) = (input.bounds().unwrap(), out.bounds().unwrap());
+    let slack = 0.05 * bi.diagonal() as f32;
+    assert!(
+        bo.min.cmpge(bi.min - slack).all() && bo.max.cmple(bi.max + slack).all(),
+        "{what}: {bo:?} outside {bi:?}"
+    );
+}
+
+#[test]
+fn every_method_on_the_small_shared_meshes() {
+    let p = HausdorffParams { samples: 50_000 };
+    for name in [
+        "triceratops.obj",
+        "cow.obj",
+        "fandisk.obj",
+        "spot.obj",
+        "pirate.obj",
+        "colored_airplane.ply",
+    ] {
+        let Some(m) = load(name) else { return };
+        for method in METHODS {
+            let s = simplify(&m, &SimplifyParams::ratio(method, 0.1))
+                .unwrap_or_else(|e| panic!("{name} {method}: {e}"));
+            let what = format!("{name} {method}");
+            check_output(&m, &s.mesh, &what);
+            let target = (m.triangle_count() as f64 * 0.1).round();
+            let got = s.mesh.triangle_count() as f64;
+            assert!(
+                (got - target).abs() <= 0.15 * target,
+                "{what}: {got} for {target}"
+            );
+            let e = hausdorff(&m, &s.mesh, &p).unwrap();
+            assert!(e.max_pct.is_finite() && e.max_pct < 20.0, "{what}: {e:?}");
+            assert!(e.mean_pct < e.max_pct, "{what}: {e:?}");
+        }
+    }
+}
+
+#[test]
+fn attributes_are_carried_over() {
+    let Some(spot) = load("spot.obj") else { return };
+    let s = simplify(&spot, &SimplifyParams::ratio(Method::Octree, 0.2))
+        .unwrap()
+        .mesh;
+    let uv = s.uvs.as_ref().unwrap();
+    assert!(uv
+        .iter()
+        .all(|t| t.x >= 0.0 && t.x <= 1.0 && t.y >= 0.0 && t.y <= 1.0));
+    // Seams survive: some output positions carry two different uvs.
+    let w = s.weld_map();
+    assert!(
+        w.iter().enumerate().any(|(i, &r)| r as usize != i),
+        "seam vertices kept apart"
+    );
+    let Some(plane) = load("colored_airplane.ply") else {
+        return;
+    };
+    let s = simplify(&plane, &SimplifyParams::ratio(Method::Uniform, 0.2))
+        .unwrap()
+        .mesh;
+    let c = s.colors.as_ref().unwrap();
+    assert!(
+        c.iter().any(|c| c[2] > c[0] + 0.1),
+        "the blue ramp survives"
+    );
+    assert!(c.iter().all(|c| c.iter().all(|x| (0.0..=1.0).contains(x))));
+    let Some(pirate) = load("pirate.obj") else {
+        return;
+    };
+    let s = simplify(&pirate, &SimplifyParams::ratio(Method::Floating, 0.3))
+        .unwrap()
+        .mesh;
+    let n = s.normals.as_ref().unwrap();
+    assert!(
+        n.iter().all(|n| n.length() < 1.0001),
+        "unit or zero normals"
+    );
+}
+
+#[test]
+fn bunny_at_ten_percent_keeps_its_shape() {
+    let Some(m) = load("bunny.obj") else { return };
+    for method in [Method::Uniform, Method::Octree] {
+        let s = simplify(&m, &SimplifyParams::ratio(method, 0.1)).unwrap();
+        check_output(&m, &s.mesh, &format!("bunny {method}"));
+        let e = hausdorff(&m, &s.mesh, &HausdorffParams { samples: 200_000 }).unwrap();
+        // Unreferenced vertices are not part of the surface: the diagonal is the surface's.
+        assert!((e.diagonal - 0.2502).abs() < 5e-4, "{}", e.diagonal);
+        assert!(e.max_pct < 2.0 && e.mean_pct < 0.2, "bunny {method}: {e:?}");
+        // The base's holes stay open: border quadrics keep them.
+        assert!(
+            Adjacency::new(&s.mesh).boundary_edge_count() > 0,
+            "bunny {method}"
+        );
+    }
+}
+
+/// The paper's Table 1 redone (seed 000 §IV): triceratops, 5,660 → about 1,850 triangles,
+/// the same (quadric) representative for every method. What holds on our implementation:
+/// the adaptive octree has the smallest max error, at most 1 % of the diagonal. Its mean is
+/// not the smallest (floating cells win there): see notes/mesh.md.
+#[test]
+fn paper_comparison_on_triceratops() {
+    let Some(m) = load("triceratops.obj") else {
+        return;
+    };
+    let p = HausdorffParams::default();
+    let run = |method| {
+        let s = simplify(&m, &SimplifyParams::triangles(method, 1850)).unwrap();
+        let n = s.mesh.triangle_count();
+        assert!((1750..=1950).contains(&n), "{method}: {n}");
+        hausdorff(&m, &s.mesh, &p).unwrap()
+    };
+    let (u, f, o) = (
+        run(Method::Uniform),
+        run(Method::Floating),
+        run(Method::Octree),
+    );
+    assert!(o.max_pct <= 1.0, "octree max {:.3} %", o.max_pct);
+    assert!(
+        o.max_pct < u.max_pct && o.max_pct < f.max_pct,
+        "max: octree {} uniform {} floating {}",
+        o.max_pct,
+        u.max_pct,
+        f.max_pct
+    );
+    // All three are far below the paper's figures (max 2.78–3.10 %, mean 0.89–1.35 %).
+    for (name, e) in [("uniform", u), ("floating", f), ("octree", o)] {
+        assert!(e.max_pct < 2.78 && e.mean_pct < 0.89, "{name}: {e:?}");
+    }
+}
+
+#[test]
+fn quadric_representative_beats_the_centroid() {
+    // The measurement behind the default, on one mesh the tests can afford.
+    let Some(m) = load("cow.obj") else { return };
+    let p = HausdorffParams { samples: 100_000 };
+    let err = |rep| {
+        let mut params = SimplifyParams::ratio(Method::Uniform, 0.25);
+        params.representative = Some(rep);
+        let s = simplify(&m, &params).unwrap();
+        hausdorff(&m, &s.mesh, &p).unwrap()
+    };
+    let (c, q) = (err(Representative::Centroid), err(Representative::Quadric));
+    assert!(q.mean < c.mean, "quadric {} centroid {}", q.mean, c.mean);
+}
+
+/// A random bumpy grid, possibly with a hole and a duplicated seam.
+fn arb_mesh() -> impl Strategy<Value = TriMesh> {
+    (
+        4usize..14,
+        4usize..14,
+        prop::collection::vec(-0.3f32..0.3, 200),
+        any::<bool>(),
+    )
+        .prop_map(|(nx, ny, bumps, hole)| {
+            let mut m = TriMesh::default();
+            for j in 0..=ny {
+                for i in 0..=nx {
+                    let z = bumps[(i * 7 + j * 13) % bumps.len()];
+                    m.positions.push(glam::Vec3::new(i as f32, j as f32, z));
+                }
+            }
+            let id = |i: usize, j: usize| (j * (nx + 1) + i) as u32;
+            for j in 0..ny {
+                for i in 0..nx {
+                    if hole && i == nx / 2 && j == ny / 2 {
+                        continue;
+                    }
+                    m.indices.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                    m.indices.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+                }
+            }
+            m.uvs = Some(
+                m.positions
+                    .iter()
+                    .map(|p| glam::Vec2::new(p.x / nx as f32, p.y / ny as f32))
+                    .collect(),
+            );
+            m
+        })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+    #[test]
+    fn outputs_are_valid_for_any_mesh(m in arb_mesh(), ratio in 0.05f64..1.0, method in 0usize..3) {
+        let method = METHODS[method];
+        match simplify(&m, &SimplifyParams::ratio(method, ratio)) {
+            Ok(s) => check_output(&m, &s.mesh, &format!("{method} {ratio}")),
+            // A tiny target may collapse everything: that is a clear error, not a panic.
+            Err(e) => prop_assert!(e.to_string().contains("no triangle is left"), "{e}"),
+        }
+    }
+
+    #[test]
+    fn hausdorff_directions_swap(a in arb_mesh(), b in arb_mesh()) {
+        let p = HausdorffParams { samples: 2_000 };
+        let ab = hausdorff(&a, &b, &p).unwrap();
+        let ba = hausdorff(&b, &a, &p).unwrap();
+        prop_assert_eq!(ab.forward.max, ba.backward.max);
+        prop_assert_eq!(ab.forward.mean, ba.backward.mean);
+        prop_assert!(ab.max >= ab.mean);
+    }
+}
+
+/// The table of notes/mesh.md: four meshes, 33 % and 10 %, every method and representative.
+/// Run: `cargo test --release --test simplify -- --ignored --nocapture clustering_table`.
+#[test]
+#[ignore]
+fn clustering_table() {
+    let reps: Vec<Representative> = match std::env::var("REPS").as_deref() {
+        Ok("all") => vec![
+            Representative::Quadric,
+            Representative::Centroid,
+            Representative::Important,
+        ],
+        _ => vec![Representative::Quadric],
+    };
+    println!(
+        "| mesh | ratio | rep | method | triangles | ms | max % | mean (E_avg) % | Metro mean % |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|");
+    for name in ["triceratops.obj", "bunny.obj", "cow.obj", "fandisk.obj"] {
+        let Some(m) = load(name) else { return };
+        for ratio in [0.33, 0.10] {
+            for &rep in &reps {
+                for method in METHODS {
+                    let mut p = SimplifyParams::ratio(method, ratio);
+                    if name == "triceratops.obj" && ratio == 0.33 {
+                        p = SimplifyParams::triangles(method, 1850);
+                    }
+                    p.representative = Some(rep);
+                    let t = std::time::Instant::now();
+                    let s = simplify(&m, &p).unwrap();
+                    let ms = t.elapsed().as_secs_f64() * 1e3;
+                    let e = hausdorff(&m, &s.mesh, &HausdorffParams::default()).unwrap();
+                    println!(
+                        "| {name} | {ratio} | {rep} | {method} | {} | {ms:.1} | {:.3} | {:.4} | {:.4} |",
+                        s.mesh.triangle_count(),
+                        e.max_pct,
+                        e.mean_pct,
+                        e.sample_mean_pct
+                    );
+                }
+            }
+        }
+    }
+}
