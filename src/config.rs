@@ -4,6 +4,7 @@
 
 use crate::error::{Error, Result};
 use crate::points::{ClassFilter, Format, ReadOptions};
+use crate::terrain::{DenoiseParams, FillParams, ResampleParams};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -25,6 +26,15 @@ pub struct Pipeline {
     /// `[extract]`: how tile meshes and the wireframe preview are triangulated.
     #[serde(default)]
     pub extract: crate::terrain::extract::ExtractParams,
+    /// `[denoise]`: the voxel-count noise filter (on by default).
+    #[serde(default)]
+    pub denoise: DenoiseParams,
+    /// `[resample]`: the regular grid (√N × √N by default).
+    #[serde(default)]
+    pub resample: ResampleParams,
+    /// `[fill]`: hole filling (on by default).
+    #[serde(default)]
+    pub fill: FillParams,
     /// `[[assets]]`: model meshes simplified and placed on the terrain (see `assets`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub assets: Vec<crate::assets::AssetConfig>,
@@ -240,11 +250,37 @@ impl LoadedPipeline {
 pub fn load(path: &Path) -> Result<LoadedPipeline> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let config = parse(path, &text)?;
-    Ok(LoadedPipeline {
+    let loaded = LoadedPipeline {
         config,
         path: path.to_path_buf(),
         text,
-    })
+    };
+    loaded.check_stages()?;
+    Ok(loaded)
+}
+
+impl LoadedPipeline {
+    /// Checks the stage parameters serde cannot (ranges, combinations) before any data is
+    /// read; an error names the file, line and dotted key, then the value and what is wrong.
+    pub fn check_stages(&self) -> Result<()> {
+        let c = &self.config;
+        let at_key = |e: Error| match e {
+            Error::Param {
+                stage,
+                param,
+                value,
+                message,
+            } => self.key_error(&format!("{stage}.{param}"), format!("{value}: {message}")),
+            other => other,
+        };
+        c.denoise.validate().map_err(at_key)?;
+        c.resample.validate().map_err(at_key)?;
+        c.fill.validate().map_err(at_key)?;
+        c.tiles.validate().map_err(at_key)?;
+        c.quadtree.validate().map_err(at_key)?;
+        c.extract.validate().map_err(at_key)?;
+        crate::output::validate(&c.output).map_err(at_key)
+    }
 }
 
 /// Parses pipeline text; `path` is only used in error messages.

@@ -179,6 +179,19 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Time read, denoise, resample and fill on FILE against spade's Delaunay triangulation
+    /// of the same denoised points (bulk loading and incremental insertion), with the peak
+    /// memory of each side.
+    Terrain {
+        /// The file (LAS, LAZ or XYZ).
+        file: PathBuf,
+        /// Repetitions (the median is reported).
+        #[arg(long, default_value_t = 3)]
+        repeat: usize,
+        /// Print JSON (`stages_ratio` = Delaunay time / (denoise + resample + fill) time).
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Args, Debug, Clone)]
@@ -386,6 +399,14 @@ fn run(cli: Cli) -> Result<()> {
             json,
         }) => {
             let r = terratile::bench::read(&file, &ReadOptions::default(), repeat, las_rs)?;
+            if json {
+                print_json(&r)?;
+            } else {
+                println!("{r}");
+            }
+        }
+        Command::Bench(BenchCommand::Terrain { file, repeat, json }) => {
+            let r = terratile::bench::terrain(&file, repeat)?;
             if json {
                 print_json(&r)?;
             } else {

@@ -4,8 +4,10 @@
 
 use crate::config::LoadedPipeline;
 use crate::error::{Error, Result};
-use crate::points::{self, Bounds, SourceInfo};
+use crate::fsutil::StagedDir;
+use crate::points::{self, Bounds, LasWriteOptions, PointCloud, SourceInfo};
 use crate::progress::Progress;
+use crate::terrain::{self, Heightfield};
 use serde::Serialize;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -122,9 +124,48 @@ impl std::fmt::Display for RunSummary {
     }
 }
 
-/// Runs `pipeline`, reporting progress to `progress`.
+/// What a run leaves for the stages that follow the grid (tiles, outputs, the Delaunay
+/// baseline, assets) and for library users.
+#[derive(Debug)]
+pub struct RunContext {
+    /// All points read (after the class filter and the cap), in file order.
+    pub cloud: PointCloud,
+    /// Per point of `cloud`: kept by noise removal (None when `[denoise]` is off).
+    pub keep: Option<Vec<bool>>,
+    /// The filled grid.
+    pub grid: Heightfield,
+}
+
+impl RunContext {
+    /// The points that survived noise removal, as a new cloud.
+    pub fn denoised(&self) -> PointCloud {
+        match &self.keep {
+            Some(k) => self.cloud.select(k),
+            None => self.cloud.clone(),
+        }
+    }
+}
+
+/// A finished run: its summary and what it computed.
+#[derive(Debug)]
+pub struct RunOutput {
+    /// What each stage did.
+    pub summary: RunSummary,
+    /// The data the stages produced.
+    pub context: RunContext,
+}
+
+/// Runs `pipeline`, reporting progress to `progress`, and returns the summary.
 pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSummary> {
-    validate_tile_stages(pipeline)?;
+    run_with_context(pipeline, progress).map(|o| o.summary)
+}
+
+/// Runs `pipeline` and returns the summary with the data: read → denoise → resample → fill →
+/// tiles → quadtree → meshes and tile outputs (EXR, manifest, heightmaps, previews).
+/// Outputs are written into a staged directory that replaces the output directory only when
+/// every stage succeeded.
+pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunOutput> {
+    pipeline.check_stages()?;
     let files = pipeline.input_files()?;
     let cfg = &pipeline.config;
     let opts = cfg.input.read_options();
@@ -160,26 +201,128 @@ pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSumm
         files: Vec::new(),
         assets: Vec::new(),
     };
-    if !cfg.assets.is_empty() {
-        // No terrain stage exists yet, so there is no heightfield: assets stand on z = 0.
-        // When the terrain stages land, pass the run's filled Heightfield here (and its
-        // corner and z offset as the origin).
-        let heightfield: Option<&crate::terrain::heightfield::Heightfield> = None;
-        let origin = heightfield.map_or([0.0; 3], |h| [h.corner[0], h.corner[1], h.z_offset]);
+    let staged = StagedDir::new(&out_dir)?;
+    let fig = |k: &str, v: String| (k.to_string(), v);
+
+    // Noise removal.
+    let keep = if cfg.denoise.enabled {
+        progress.start("denoise", 0);
         let t = Instant::now();
-        let staged = crate::fsutil::StagedDir::new(&out_dir)?;
+        let mpu = cloud.crs().map_or(1.0, |c| c.metres_per_unit());
+        let d = terrain::denoise(&cloud, &cfg.denoise, mpu);
+        let seconds = t.elapsed().as_secs_f64();
+        progress.finish();
+        let d = d?;
+        let st = &d.settings;
+        let mut figures = vec![
+            fig("points in", cloud.len().to_string()),
+            fig("points out", d.kept.to_string()),
+            fig("removed", d.removed().to_string()),
+            fig("sparse", d.removed_sparse.to_string()),
+            fig("low layers", d.removed_low.to_string()),
+            fig(
+                "voxel",
+                format!("{:.3} × {:.3}", st.voxel_size, st.voxel_height),
+            ),
+            fig("min_points", st.min_points.to_string()),
+        ];
+        if cfg.denoise.write_removed {
+            let removed: Vec<bool> = d.keep.iter().map(|k| !k).collect();
+            let noise = cloud.select(&removed);
+            let opts = LasWriteOptions {
+                crs: cloud.crs().cloned(),
+                classification: Some(7),
+                ..Default::default()
+            };
+            points::write_las(&staged.path().join(NOISE_FILE), &noise, &opts)?;
+            summary.files.push(NOISE_FILE.into());
+            figures.push(fig("written", NOISE_FILE.into()));
+        }
+        summary.stages.push(StageReport {
+            stage: "denoise".into(),
+            seconds,
+            figures,
+        });
+        Some(d.keep)
+    } else {
+        None
+    };
+
+    // Resampling.
+    progress.start("resample", 0);
+    let t = Instant::now();
+    let r = terrain::resample(&cloud, keep.as_deref(), &cfg.resample);
+    let seconds = t.elapsed().as_secs_f64();
+    progress.finish();
+    let r = r?;
+    let mut grid = r.grid;
+    let [_, measured, _, _] = grid.census();
+    let cells = grid.cols() * grid.rows();
+    summary.stages.push(StageReport {
+        stage: "resample".into(),
+        seconds,
+        figures: vec![
+            fig("points", r.points.to_string()),
+            fig("grid", format!("{} × {}", r.spec.cols, r.spec.rows)),
+            fig(
+                "cell",
+                format!("{:.3} × {:.3}", r.spec.cell_size[0], r.spec.cell_size[1]),
+            ),
+            fig("measured", measured.to_string()),
+            fig(
+                "empty",
+                format!(
+                    "{} ({:.1} %)",
+                    cells - measured,
+                    100.0 * (cells - measured) as f64 / cells as f64
+                ),
+            ),
+        ],
+    });
+
+    // Hole filling.
+    if cfg.fill.enabled {
+        progress.start("fill", 0);
+        let t = Instant::now();
+        let f = terrain::fill(&mut grid, &cfg.fill);
+        let seconds = t.elapsed().as_secs_f64();
+        progress.finish();
+        let f = f?;
+        summary.stages.push(StageReport {
+            stage: "fill".into(),
+            seconds,
+            figures: vec![
+                fig("measured", f.measured.to_string()),
+                fig("interpolated", f.interpolated.to_string()),
+                fig(
+                    "fallback",
+                    format!("{} ({:?})", f.fallback, cfg.fill.fallback).to_lowercase(),
+                ),
+                fig("left empty", f.empty.to_string()),
+            ],
+        });
+    }
+
+    // Tiles, quadtree metrics, meshes and the tile outputs (issue 4).
+    let (reports, files) = tile_stages(pipeline, &grid, staged.path(), progress)?;
+    summary.stages.extend(reports);
+    summary.files.extend(files);
+
+    // Assets stand on the filled grid ([[assets]], issue 6).
+    if !cfg.assets.is_empty() {
+        let origin = [grid.corner[0], grid.corner[1], grid.z_offset];
+        let t = Instant::now();
         for a in &cfg.assets {
             let r = crate::assets::run_asset(
                 a,
                 &pipeline.base_dir(),
                 staged.path(),
-                heightfield,
+                Some(&grid),
                 origin,
             )?;
             summary.files.push(r.output.display().to_string());
             summary.assets.push(r);
         }
-        staged.commit()?;
         let tris: usize = summary.assets.iter().map(|a| a.triangles_out).sum();
         summary.stages.push(StageReport {
             stage: "assets".into(),
@@ -194,27 +337,12 @@ pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSumm
             ],
         });
     }
-    Ok(summary)
-}
 
-/// Checks the parameters of the tile stages and outputs before any work, naming the
-/// pipeline key of a bad value (`tiles.size`, `extract.tolerance`, …).
-pub fn validate_tile_stages(pipeline: &LoadedPipeline) -> Result<()> {
-    let cfg = &pipeline.config;
-    let at_key = |e: Error| match e {
-        Error::Param {
-            stage,
-            param,
-            value,
-            message,
-        } => pipeline.key_error(&format!("{stage}.{param}"), format!("{value}: {message}")),
-        other => other,
-    };
-    cfg.tiles.validate().map_err(at_key)?;
-    cfg.quadtree.validate().map_err(at_key)?;
-    cfg.extract.validate().map_err(at_key)?;
-    crate::output::validate(&cfg.output).map_err(at_key)?;
-    Ok(())
+    staged.commit()?;
+    Ok(RunOutput {
+        summary,
+        context: RunContext { cloud, keep, grid },
+    })
 }
 
 /// The stages after hole filling: tiles → quadtree → outputs (meshes, EXR, heightmaps,
@@ -272,3 +400,5 @@ pub fn tile_stages(
     });
     Ok((reports, w.files))
 }
+/// The removed-noise file written with `denoise.write_removed = true`.
+pub const NOISE_FILE: &str = "noise.las";

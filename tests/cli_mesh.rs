@@ -284,7 +284,7 @@ fn assets_are_simplified_placed_and_listed() {
     toml += "\n[[assets]]\ninput = \"ball.obj\"\noutput = \"assets/ball.ply\"\n\
              simplify = { method = \"octree\", ratio = 0.2 }\n\
              place = { x = 513050.0, y = 5403100.0, rotation = 45.0, up = \"z\", scale = 2.0 }\n\
-             \n[[assets]]\ninput = \"ball.obj\"\noutput = \"assets/raw.obj\"\nplace = { x = 1.0, y = 2.0 }\n";
+             \n[[assets]]\ninput = \"ball.obj\"\noutput = \"assets/raw.obj\"\nplace = { x = 513200.0, y = 5403150.0 }\n";
     std::fs::write(d.join("pipeline.toml"), &toml).unwrap();
     let r = terratile(d, &["run", "--json"]);
     r.ok();
@@ -298,12 +298,37 @@ fn assets_are_simplified_placed_and_listed() {
     assert!(assets[1]["error"].is_null());
     let m = terratile::mesh::io::read(&d.join("out/assets/ball.ply")).unwrap();
     let b = m.bounds().unwrap();
-    // Scale 2, base on z = 0 (no terrain stage yet), footprint centred on (x, y).
+    // Coordinates are local to the run's origin (the filled grid's corner and z offset, in
+    // the assets stage's figures); scale 2, base on the terrain, footprint centred on (x, y).
+    let stage = v["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["stage"] == "assets")
+        .unwrap_or_else(|| panic!("{}", r.context()));
+    let origin: Vec<f64> = stage["figures"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|f| f[0] == "origin")
+        .unwrap()[1]
+        .as_str()
+        .unwrap()
+        .trim_matches(|c| c == '(' || c == ')')
+        .split(", ")
+        .map(|t| t.parse().unwrap())
+        .collect();
+    let ground = assets[0]["position"][2].as_f64().unwrap();
+    assert!(ground > 100.0, "placed on the terrain: {ground}");
+    let base = ground - origin[2];
     assert!(
-        b.min.z.abs() < 1e-3 && (b.max.z - 4.0).abs() < 0.05,
+        (b.min.z as f64 - base).abs() < 1e-2 && (b.max.z as f64 - base - 4.0).abs() < 0.05,
+        "{b:?} base {base}"
+    );
+    assert!(
+        ((b.min.x + b.max.x) as f64 / 2.0 - (513050.0 - origin[0])).abs() < 1.0,
         "{b:?}"
     );
-    assert!(((b.min.x + b.max.x) / 2.0 - 513050.0).abs() < 1.0, "{b:?}");
     assert!(d.join("out/assets/raw.obj").is_file());
     let r = terratile(d, &["run"]);
     r.ok();

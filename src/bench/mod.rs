@@ -2,8 +2,10 @@
 //! reference measured in the same run, so the ratio means something on a noisy machine.
 
 mod read;
+mod terrain;
 
 pub use read::{copy_file_bytes, read, read_with_las_rs, ReadBench};
+pub use terrain::{current_rss, peak_rss, reset_peak_rss, terrain, TerrainBench};
 
 /// Median of a non-empty list of seconds.
 pub fn median(mut v: Vec<f64>) -> f64 {

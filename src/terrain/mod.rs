@@ -3,9 +3,49 @@
 //! Delaunay baseline they are measured against. Each stage is a plain function with a
 //! `…Params` struct; none reads files or prints.
 
+pub mod accuracy;
+pub mod delaunay;
+pub mod denoise;
 pub mod extract;
+pub mod fill;
 pub mod heightfield;
 pub mod quadtree;
+pub mod reference;
+pub mod resample;
 pub mod tiles;
 
+pub use denoise::{denoise, DenoiseParams, Denoised};
+pub use fill::{fill, Fallback, FillParams, FillReport};
 pub use heightfield::{CellState, Heightfield};
+pub use resample::{resample, CellMethod, ResampleParams, Resampled};
+
+use crate::points::Bounds;
+use rayon::prelude::*;
+
+/// Bounds and number of the points whose `keep` flag is set (all when `None`): a plain loop
+/// per fixed chunk (the compiler keeps the running min/max in registers), chunks merged in
+/// order.
+pub(crate) fn bounds_of(x: &[f64], y: &[f64], z: &[f64], keep: Option<&[bool]>) -> (Bounds, usize) {
+    const CHUNK: usize = 1 << 16;
+    (0..x.len().div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let r = c * CHUNK..((c + 1) * CHUNK).min(x.len());
+            let (mut lo, mut hi, mut n) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3], 0usize);
+            let (x, y, z) = (&x[r.clone()], &y[r.clone()], &z[r.clone()]);
+            let k = keep.map(|k| &k[r]);
+            for i in 0..x.len() {
+                if k.is_none_or(|k| k[i]) {
+                    n += 1;
+                    lo[0] = lo[0].min(x[i]);
+                    hi[0] = hi[0].max(x[i]);
+                    lo[1] = lo[1].min(y[i]);
+                    hi[1] = hi[1].max(y[i]);
+                    lo[2] = lo[2].min(z[i]);
+                    hi[2] = hi[2].max(z[i]);
+                }
+            }
+            (Bounds { min: lo, max: hi }, n)
+        })
+        .reduce(|| (Bounds::EMPTY, 0), |a, b| (a.0.union(b.0), a.1 + b.1))
+}

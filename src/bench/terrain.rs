@@ -1,0 +1,257 @@
+//! `bench terrain`: the grid stages of seed 003 (read, denoise, resample, fill) against the
+//! Delaunay triangulation of the same denoised points (spade, bulk loading and incremental
+//! insertion in file order), in one process, with the peak memory of each side.
+
+use super::median;
+use crate::error::{Error, Result};
+use crate::points::{self, PointCloud, ReadOptions};
+use crate::progress::NoProgress;
+use crate::terrain::delaunay::{self, TinMethod};
+use crate::terrain::{denoise, fill, resample, DenoiseParams, FillParams, ResampleParams};
+use serde::Serialize;
+use std::path::Path;
+use std::time::Instant;
+
+/// Result of `bench terrain`.
+#[derive(Debug, Clone, Serialize)]
+pub struct TerrainBench {
+    /// The file measured.
+    pub file: String,
+    /// Points read.
+    pub points: u64,
+    /// Bytes of the uncompressed point records (points × record length).
+    pub record_bytes: u64,
+    /// Points left after noise removal.
+    pub kept: u64,
+    /// Grid columns and rows.
+    pub grid: [usize; 2],
+    /// Median seconds to map and decode the file.
+    pub read_s: f64,
+    /// Median seconds of noise removal.
+    pub denoise_s: f64,
+    /// Median seconds of resampling.
+    pub resample_s: f64,
+    /// Median seconds of hole filling.
+    pub fill_s: f64,
+    /// Median seconds of denoise + resample + fill (summed per run, then the median).
+    pub stages_s: f64,
+    /// Seconds to centre the denoised points and merge those sharing x and y.
+    pub tin_prepare_s: f64,
+    /// Median seconds of spade's bulk loading.
+    pub delaunay_bulk_s: f64,
+    /// Median seconds of spade's incremental insertion in file order.
+    pub delaunay_incremental_s: f64,
+    /// The faster of the two ("Delaunay time").
+    pub delaunay_s: f64,
+    /// Which one was faster.
+    pub delaunay_method: String,
+    /// Delaunay time / (denoise + resample + fill) time.
+    pub stages_ratio: f64,
+    /// TIN vertices (distinct points).
+    pub tin_vertices: usize,
+    /// TIN triangles.
+    pub tin_triangles: usize,
+    /// Points merged into another one with the same x and y.
+    pub tin_merged: usize,
+    /// Peak resident memory of read + denoise + resample + fill (mapped file pages included),
+    /// in MB (10^6 bytes); None where /proc is unavailable.
+    pub grid_peak_mb: Option<f64>,
+    /// grid_peak_mb in units of the uncompressed point record bytes.
+    pub grid_peak_per_record_bytes: Option<f64>,
+    /// Peak resident memory while building the TIN (the point cloud it is built from
+    /// included), in MB.
+    pub delaunay_peak_mb: Option<f64>,
+    /// Repetitions (medians are reported).
+    pub repeats: usize,
+    /// Worker threads of the grid stages.
+    pub threads: usize,
+}
+
+/// Peak resident set size of this process in bytes (`VmHWM`), if /proc says.
+pub fn peak_rss() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Current resident set size in bytes (`VmRSS`).
+pub fn current_rss() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Resets the peak resident set size to the current one (Linux `clear_refs` 5); false if
+/// the kernel does not allow it, in which case peaks are over the whole process so far.
+pub fn reset_peak_rss() -> bool {
+    std::fs::write("/proc/self/clear_refs", "5").is_ok()
+}
+
+/// One run of the grid stages.
+struct GridRun {
+    cloud: PointCloud,
+    keep: Vec<bool>,
+    grid: [usize; 2],
+    t: [f64; 4],
+}
+
+fn grid_run(path: &Path) -> Result<GridRun> {
+    let t0 = Instant::now();
+    let cloud = points::read(path, &ReadOptions::default(), &NoProgress)?;
+    let t1 = Instant::now();
+    let mpu = cloud.crs().map_or(1.0, |c| c.metres_per_unit());
+    let d = denoise(&cloud, &DenoiseParams::default(), mpu)?;
+    let t2 = Instant::now();
+    let mut r = resample(&cloud, Some(&d.keep), &ResampleParams::default())?;
+    let t3 = Instant::now();
+    fill(&mut r.grid, &FillParams::default())?;
+    let t4 = Instant::now();
+    let s = |a: Instant, b: Instant| (b - a).as_secs_f64();
+    Ok(GridRun {
+        cloud,
+        keep: d.keep,
+        grid: [r.spec.cols, r.spec.rows],
+        t: [s(t0, t1), s(t1, t2), s(t2, t3), s(t3, t4)],
+    })
+}
+
+/// Runs the benchmark on `path`, `repeats` times each (medians reported).
+pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
+    let repeats = repeats.max(1);
+    // The first run also measures the grid side's peak memory, from a fresh start (without
+    // a reset, the peak is the process's so far, which at this point is the same run).
+    reset_peak_rss();
+    let mut runs = vec![grid_run(path)?];
+    let grid_peak = peak_rss();
+    for _ in 1..repeats {
+        let last = grid_run(path)?;
+        runs.push(last);
+    }
+    let last = runs.pop().ok_or_else(|| Error::Internal("no run".into()))?;
+    let mut times: Vec<[f64; 4]> = runs.iter().map(|r| r.t).collect();
+    times.push(last.t);
+    drop(runs);
+    let col = |k: usize| median(times.iter().map(|t| t[k]).collect());
+    let stages_s = median(times.iter().map(|t| t[1] + t[2] + t[3]).collect());
+    let points = last.cloud.len() as u64;
+    let record_length = last
+        .cloud
+        .sources
+        .first()
+        .and_then(|s| s.record_length)
+        .map(u64::from);
+    let kept = last.keep.iter().filter(|&&k| k).count() as u64;
+
+    // The Delaunay side, on the same denoised points.
+    reset_peak_rss();
+    let t = Instant::now();
+    let tin_points = delaunay::prepare(
+        &last.cloud.x,
+        &last.cloud.y,
+        &last.cloud.z,
+        Some(&last.keep),
+    )?;
+    let tin_prepare_s = t.elapsed().as_secs_f64();
+    let (mut bulk, mut incr) = (Vec::new(), Vec::new());
+    let (mut vertices, mut triangles) = (0, 0);
+    for _ in 0..repeats {
+        for (method, out) in [
+            (TinMethod::Bulk, &mut bulk),
+            (TinMethod::Incremental, &mut incr),
+        ] {
+            let t = Instant::now();
+            let tin = delaunay::triangulate(&tin_points, method)?;
+            out.push(t.elapsed().as_secs_f64());
+            vertices = tin.vertices();
+            triangles = tin.triangles();
+        }
+    }
+    let delaunay_peak = peak_rss();
+    let (b, i) = (median(bulk), median(incr));
+    let (delaunay_s, method) = if i <= b {
+        (i, "incremental")
+    } else {
+        (b, "bulk")
+    };
+    let mb = |v: u64| v as f64 / 1e6;
+    let record_bytes = record_length.map_or(0, |l| l * points);
+    Ok(TerrainBench {
+        file: path.display().to_string(),
+        points,
+        record_bytes,
+        kept,
+        grid: last.grid,
+        read_s: col(0),
+        denoise_s: col(1),
+        resample_s: col(2),
+        fill_s: col(3),
+        stages_s,
+        tin_prepare_s,
+        delaunay_bulk_s: b,
+        delaunay_incremental_s: i,
+        delaunay_s,
+        delaunay_method: method.into(),
+        stages_ratio: delaunay_s / stages_s,
+        tin_vertices: vertices,
+        tin_triangles: triangles,
+        tin_merged: tin_points.merged,
+        grid_peak_mb: grid_peak.map(mb),
+        grid_peak_per_record_bytes: grid_peak
+            .filter(|_| record_bytes > 0)
+            .map(|p| p as f64 / record_bytes as f64),
+        delaunay_peak_mb: delaunay_peak.map(mb),
+        repeats,
+        threads: rayon::current_num_threads(),
+    })
+}
+
+impl std::fmt::Display for TerrainBench {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "{}: {} points ({:.1} MB of point records), {} kept, grid {} × {}",
+            self.file,
+            self.points,
+            self.record_bytes as f64 / 1e6,
+            self.kept,
+            self.grid[0],
+            self.grid[1]
+        )?;
+        writeln!(f, "  read               {:>8.3} s", self.read_s)?;
+        writeln!(f, "  denoise            {:>8.3} s", self.denoise_s)?;
+        writeln!(f, "  resample           {:>8.3} s", self.resample_s)?;
+        writeln!(f, "  fill               {:>8.3} s", self.fill_s)?;
+        writeln!(f, "  denoise+resample+fill {:>5.3} s", self.stages_s)?;
+        writeln!(
+            f,
+            "  delaunay bulk      {:>8.3} s   incremental {:.3} s   ({} vertices, {} triangles, {} merged; prepare {:.3} s)",
+            self.delaunay_bulk_s,
+            self.delaunay_incremental_s,
+            self.tin_vertices,
+            self.tin_triangles,
+            self.tin_merged,
+            self.tin_prepare_s
+        )?;
+        writeln!(
+            f,
+            "  stages_ratio (Delaunay {} / grid stages): {:.1}",
+            self.delaunay_method, self.stages_ratio
+        )?;
+        if let (Some(p), Some(r)) = (self.grid_peak_mb, self.grid_peak_per_record_bytes) {
+            writeln!(
+                f,
+                "  peak memory of read+stages: {p:.1} MB = {r:.2} × the point record bytes"
+            )?;
+        }
+        if let Some(p) = self.delaunay_peak_mb {
+            writeln!(f, "  peak memory while triangulating: {p:.1} MB")?;
+        }
+        write!(
+            f,
+            "  (median of {} runs, {} threads)",
+            self.repeats, self.threads
+        )
+    }
+}

@@ -1,0 +1,972 @@
+//! Noise removal with the voxel-count pseudo-grid of seed 003 §2.1 (Kim & Shin, after Cho et
+//! al. 2004; SPEC §2), plus one per-column rule for detached low layers.
+//!
+//! **Pseudo-grid.** The bounding box is cut into voxels `voxel_size` wide (x and y) and
+//! `voxel_height` tall. A point is noise when its voxel holds fewer than `min_points` points,
+//! or, with `neighbourhood = true` (the default, as LAStools' `lasnoise` does), when the 3×3×3
+//! block of voxels around its voxel does: counting the block spares genuine points that sit
+//! near a voxel face, so the voxels can be small and the slab of space that passes the test
+//! around a surface stays thin.
+//!
+//! **Data-derived defaults.** With the mean spacing s = sqrt(bbox area / N): voxel_size =
+//! [`VOXEL_SIZE_FACTOR`]·s, so a flat, evenly sampled surface puts (voxel_size / s)² = 9
+//! points in each voxel and 81 in a 3×3×3 block, and `min_points` defaults to a third of the
+//! voxel's (a 27th of the block's) count: 3. The voxel height adapts to the survey's vertical
+//! structure: it is q·s for the smallest whole q from 1 to [`MAX_HEIGHT_STEPS`] at which the
+//! count test removes at most [`HEIGHT_LOSS`] of the points, not counting those isolated even
+//! in the tallest voxels (noise at any height). Bare ground, roofs and most surveys get q = 1
+//! (a thin slab passes around the surface); a dense forest, whose returns spread through the
+//! crowns, gets taller voxels instead of losing its canopy.
+//!
+//! **Detached low layers.** Multipath reflections put dense, flat patches of points tens of
+//! metres *below* the ground (CSite4 of the ISPRS test has a patch of 36 points 21 m under
+//! the ground around it): locally dense, so no count test can remove them. Nothing real is
+//! measured under the ground by an airborne scanner, so terratile also looks at the
+//! z-profile of each column of about `low_gap` × `low_gap` (with its 8 neighbours): points
+//! below an empty vertical gap of at least `low_gap` that hold less than `low_fraction` of
+//! the window's points are removed. Only *low* layers are judged so; high ones (birds, haze)
+//! are sparse and fail the count test, while detached high layers are often real (power
+//! lines, bridges). The profiles are built from the points that passed the count, so
+//! scattered noise cannot fill the gap that detaches a layer.
+//!
+//! **Speed.** One counting sort of the points by voxel column (parallel histogram, parallel
+//! stable scatter), a small sort by layer inside each column, then per column a walk over its
+//! voxels; only a voxel holding fewer than `min_points` looks at its 8 neighbour columns (a
+//! merge-walk, since layers only grow). O(N), integer arithmetic only, so the result is the
+//! same for every thread count. Memory: 8 bytes per point for the sorted keys, 2 for flags,
+//! and 4 bytes per column per worker for the histograms.
+
+use crate::error::{Error, Result};
+use crate::points::{Bounds, PointCloud};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
+
+/// Default horizontal voxel edge in units of the mean point spacing.
+pub const VOXEL_SIZE_FACTOR: f64 = 3.0;
+/// Default vertical voxel edge in units of the mean point spacing.
+pub const VOXEL_HEIGHT_FACTOR: f64 = 1.0;
+/// Default `min_points` = this fraction of the points a flat, evenly sampled surface puts in
+/// one voxel (with the neighbourhood, the same number is a 27th of its 3×3×3 block).
+pub const MIN_POINTS_FRACTION: f64 = 1.0 / 3.0;
+/// The automatic voxel height is at most this many mean spacings.
+pub const MAX_HEIGHT_STEPS: u32 = 8;
+/// The automatic voxel height is the smallest whole number of mean spacings at which the
+/// count test removes at most this fraction of all points, not counting the points that are
+/// isolated even in the tallest voxels (those are noise at any height).
+pub const HEIGHT_LOSS: f64 = 0.01;
+/// Default `low_gap` in metres (converted to the data's units through its CRS).
+pub const LOW_GAP_METRES: f64 = 10.0;
+/// Default `low_fraction`.
+pub const LOW_FRACTION: f64 = 0.1;
+
+/// `[denoise]`: the voxel-count noise filter.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DenoiseParams {
+    /// Run the stage (default true).
+    pub enabled: bool,
+    /// Horizontal voxel edge in the data's units (default 3 × mean point spacing).
+    pub voxel_size: Option<f64>,
+    /// Vertical voxel edge in the data's units (default 1 × mean point spacing).
+    pub voxel_height: Option<f64>,
+    /// A point is kept when its voxel (or 3×3×3 block) holds at least this many points
+    /// (default: a 27th of what a flat, evenly sampled surface puts there; 3 with the other
+    /// defaults).
+    pub min_points: Option<u32>,
+    /// Count the 3×3×3 block of voxels around a point's voxel instead of the voxel alone
+    /// (default true).
+    pub neighbourhood: bool,
+    /// Remove detached low layers (multipath below the ground; default true).
+    pub low_layers: bool,
+    /// Smallest empty vertical gap, in the data's units, that detaches a low layer
+    /// (default 10 m, converted through the CRS).
+    pub low_gap: Option<f64>,
+    /// A detached low layer is noise when it holds less than this fraction of the points of
+    /// its column window (default 0.1).
+    pub low_fraction: f64,
+    /// Write the removed points to `noise.las` in the output directory, class 7 (default
+    /// false).
+    pub write_removed: bool,
+}
+
+impl Default for DenoiseParams {
+    fn default() -> Self {
+        DenoiseParams {
+            enabled: true,
+            voxel_size: None,
+            voxel_height: None,
+            min_points: None,
+            neighbourhood: true,
+            low_layers: true,
+            low_gap: None,
+            low_fraction: LOW_FRACTION,
+            write_removed: false,
+        }
+    }
+}
+
+/// The settings a run used, after the data-derived defaults were filled in.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct DenoiseSettings {
+    /// Mean point spacing sqrt(bbox area / N), in data units.
+    pub spacing: f64,
+    /// Horizontal voxel edge.
+    pub voxel_size: f64,
+    /// Vertical voxel edge.
+    pub voxel_height: f64,
+    /// The automatic voxel height in mean spacings (1 when `voxel_height` was given).
+    pub height_steps: u32,
+    /// Minimum count of the voxel or block.
+    pub min_points: u32,
+    /// Whether the 3×3×3 block was counted.
+    pub neighbourhood: bool,
+    /// Gap that detaches a low layer (None: rule off).
+    pub low_gap: Option<f64>,
+    /// Fraction below which a detached low layer is noise.
+    pub low_fraction: f64,
+    /// Edge of the columns the low-layer rule looks at (a whole number of voxel columns).
+    pub low_column: f64,
+}
+
+/// What noise removal decided.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Denoised {
+    /// One flag per input point: true to keep.
+    pub keep: Vec<bool>,
+    /// Points kept.
+    pub kept: usize,
+    /// Points removed by the count test.
+    pub removed_sparse: usize,
+    /// Points removed as detached low layers (and not already by the count test).
+    pub removed_low: usize,
+    /// Occupied voxels.
+    pub voxels: usize,
+    /// The settings used.
+    pub settings: DenoiseSettings,
+}
+
+impl Denoised {
+    /// Points removed in all.
+    pub fn removed(&self) -> usize {
+        self.removed_sparse + self.removed_low
+    }
+}
+
+fn check_positive(param: &'static str, v: Option<f64>) -> Result<()> {
+    match v {
+        Some(x) if !(x > 0.0 && x.is_finite()) => Err(Error::param(
+            "denoise",
+            param,
+            x,
+            "must be a positive, finite length in the data's units",
+        )),
+        _ => Ok(()),
+    }
+}
+
+impl DenoiseParams {
+    /// Checks the values a user can get wrong, before any data is read.
+    pub fn validate(&self) -> Result<()> {
+        check_positive("voxel_size", self.voxel_size)?;
+        check_positive("voxel_height", self.voxel_height)?;
+        check_positive("low_gap", self.low_gap)?;
+        if self.min_points == Some(0) {
+            return Err(Error::param(
+                "denoise",
+                "min_points",
+                0,
+                "must be at least 1",
+            ));
+        }
+        if !(self.low_fraction > 0.0 && self.low_fraction <= 1.0) {
+            return Err(Error::param(
+                "denoise",
+                "low_fraction",
+                self.low_fraction,
+                "must be in (0, 1]",
+            ));
+        }
+        Ok(())
+    }
+
+    /// Fills in the data-derived defaults for `n` points in `bounds`, whose horizontal unit
+    /// is `metres_per_unit` metres.
+    pub fn resolve(
+        &self,
+        bounds: &Bounds,
+        n: usize,
+        metres_per_unit: f64,
+    ) -> Result<DenoiseSettings> {
+        self.validate()?;
+        let [w, h, _] = bounds.size();
+        let area = w * h;
+        let spacing = if n > 0 && area > 0.0 && area.is_finite() {
+            (area / n as f64).sqrt()
+        } else {
+            0.0
+        };
+        let derived = |param: &'static str, factor: f64, given: Option<f64>| -> Result<f64> {
+            match given {
+                Some(v) => Ok(v),
+                None if spacing > 0.0 => Ok(factor * spacing),
+                None => Err(Error::param(
+                    "denoise",
+                    param,
+                    "auto",
+                    format!(
+                        "the points span a zero-width range (x {w}, y {h}): no mean spacing to \
+                         derive it from; all points lie on one line or one spot"
+                    ),
+                )),
+            }
+        };
+        let voxel_size = derived("voxel_size", VOXEL_SIZE_FACTOR, self.voxel_size)?;
+        let voxel_height = derived("voxel_height", VOXEL_HEIGHT_FACTOR, self.voxel_height)?;
+        let min_points = self.min_points.unwrap_or_else(|| {
+            // What a flat surface sampled at the mean spacing puts in the counted block.
+            let per_voxel = if spacing > 0.0 {
+                (voxel_size / spacing).powi(2)
+            } else {
+                9.0
+            };
+            // A third of a flat voxel's points is a 27th of its 3×3×3 block (9 voxels' worth):
+            // one number serves both counting modes.
+            ((per_voxel * MIN_POINTS_FRACTION).round() as u32).max(2)
+        });
+        let low_gap = self.low_layers.then(|| {
+            self.low_gap
+                .unwrap_or(LOW_GAP_METRES / metres_per_unit.max(f64::MIN_POSITIVE))
+        });
+        let ratio = low_gap.map_or(1.0, |g| (g / voxel_size).round().max(1.0));
+        Ok(DenoiseSettings {
+            spacing,
+            voxel_size,
+            voxel_height,
+            height_steps: 1,
+            min_points,
+            neighbourhood: self.neighbourhood,
+            low_gap,
+            low_fraction: self.low_fraction,
+            low_column: ratio * voxel_size,
+        })
+    }
+}
+
+/// The voxel lattice over a bounding box.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Lattice {
+    origin: [f64; 3],
+    inv: [f64; 3],
+    /// Columns along x and y.
+    pub ncx: u32,
+    pub ncy: u32,
+    /// Voxel columns per low-layer column, along each axis.
+    pub ratio: u32,
+    /// Voxel layers per low-layer slab (half the gap).
+    pub slab: u32,
+}
+
+impl Lattice {
+    pub(crate) fn new(b: &Bounds, s: &DenoiseSettings) -> Result<Lattice> {
+        let [w, h, d] = b.size();
+        let cells = |ext: f64, size: f64| (ext / size).floor() + 1.0;
+        let (ncx, ncy, ncz) = (
+            cells(w, s.voxel_size),
+            cells(h, s.voxel_size),
+            cells(d, s.voxel_height),
+        );
+        if ncx * ncy > u32::MAX as f64 / 2.0 {
+            return Err(Error::param(
+                "denoise",
+                "voxel_size",
+                s.voxel_size,
+                format!("too small for an extent of {w} × {h}: more than 2^31 voxel columns"),
+            ));
+        }
+        if ncz > u32::MAX as f64 / 2.0 {
+            return Err(Error::param(
+                "denoise",
+                "voxel_height",
+                s.voxel_height,
+                format!("too small for a z range of {d}: more than 2^31 voxel layers"),
+            ));
+        }
+        let ratio = (s.low_column / s.voxel_size).round().max(1.0) as u32;
+        let slab = s.low_gap.map_or(1, |g| {
+            ((g / 2.0) / s.voxel_height).ceil().clamp(1.0, 1e9) as u32
+        });
+        Ok(Lattice {
+            origin: b.min,
+            inv: [1.0 / s.voxel_size, 1.0 / s.voxel_size, 1.0 / s.voxel_height],
+            ncx: ncx as u32,
+            ncy: ncy as u32,
+            ratio,
+            slab,
+        })
+    }
+
+    /// Column index (x fastest) of a point.
+    #[inline(always)]
+    fn column(&self, x: f64, y: f64) -> u32 {
+        let i = (((x - self.origin[0]) * self.inv[0]) as u32).min(self.ncx - 1);
+        let j = (((y - self.origin[1]) * self.inv[1]) as u32).min(self.ncy - 1);
+        j * self.ncx + i
+    }
+
+    /// Column index (x fastest) and layer of a point.
+    #[inline(always)]
+    pub(crate) fn locate(&self, x: f64, y: f64, z: f64) -> (u32, u32) {
+        (
+            self.column(x, y),
+            ((z - self.origin[2]) * self.inv[2]) as u32,
+        )
+    }
+
+    fn columns(&self) -> usize {
+        self.ncx as usize * self.ncy as usize
+    }
+
+    /// Low-layer columns along x.
+    fn groups_x(&self) -> u32 {
+        self.ncx.div_ceil(self.ratio)
+    }
+
+    /// The low-layer column holding voxel column `c`.
+    fn group_of(&self, c: usize) -> usize {
+        let (ci, cj) = (c as u32 % self.ncx, c as u32 / self.ncx);
+        ((cj / self.ratio) * self.groups_x() + ci / self.ratio) as usize
+    }
+}
+
+/// Runs the noise filter on `cloud`. `metres_per_unit` converts the default `low_gap`.
+pub fn denoise(
+    cloud: &PointCloud,
+    params: &DenoiseParams,
+    metres_per_unit: f64,
+) -> Result<Denoised> {
+    denoise_xyz(&cloud.x, &cloud.y, &cloud.z, params, metres_per_unit)
+}
+
+/// [`denoise`] on bare coordinate columns.
+pub fn denoise_xyz(
+    x: &[f64],
+    y: &[f64],
+    z: &[f64],
+    params: &DenoiseParams,
+    metres_per_unit: f64,
+) -> Result<Denoised> {
+    let n = x.len();
+    if n == 0 {
+        return Err(Error::Data {
+            stage: "denoise",
+            message: "no points to filter".into(),
+        });
+    }
+    if n > u32::MAX as usize {
+        return Err(Error::Data {
+            stage: "denoise",
+            message: format!("{n} points: at most 2^32 − 1 per run"),
+        });
+    }
+    let (bounds, _) = super::bounds_of(x, y, z, None);
+    let settings = params.resolve(&bounds, n, metres_per_unit)?;
+    let lat = Lattice::new(&bounds, &settings)?;
+    let sorted = sort_by_column(x, y, z, &lat);
+
+    // The count test, at the chosen (or adapted) voxel height; flags follow the sorted keys.
+    let mut dense = vec![false; n];
+    let mut settings = settings;
+    let (sparse, voxels) = if params.voxel_height.is_some() {
+        let (failing, _, voxels) = count_pass(&sorted, &lat, &settings, 1, None, &mut dense);
+        (failing, voxels)
+    } else {
+        // Points isolated even in voxels MAX_HEIGHT_STEPS·s tall are noise at any height;
+        // the others decide how tall the voxels must be. The coarse pass is only needed when
+        // the count removes more than the budget in all.
+        let budget = (HEIGHT_LOSS * n as f64).floor() as usize;
+        let mut coarse: Option<Vec<bool>> = None;
+        let mut q = 1;
+        loop {
+            let (mut failing, mut lost, mut voxels) =
+                count_pass(&sorted, &lat, &settings, q, coarse.as_deref(), &mut dense);
+            if failing > budget && coarse.is_none() && q < MAX_HEIGHT_STEPS {
+                let mut c = vec![false; n];
+                count_pass(&sorted, &lat, &settings, MAX_HEIGHT_STEPS, None, &mut c);
+                coarse = Some(c);
+                (failing, lost, voxels) =
+                    count_pass(&sorted, &lat, &settings, q, coarse.as_deref(), &mut dense);
+            } else if coarse.is_none() {
+                lost = failing;
+            }
+            if lost <= budget || q == MAX_HEIGHT_STEPS {
+                settings.height_steps = q;
+                settings.voxel_height *= q as f64;
+                break (failing, voxels);
+            }
+            q += 1;
+        }
+    };
+
+    // The low-layer floors, from the points that passed the count (scattered noise would
+    // otherwise fill the very gaps that detach a low layer).
+    let floors = if settings.low_gap.is_some() {
+        low_floors(&sorted, &dense, &lat, settings.low_fraction)
+    } else {
+        Vec::new()
+    };
+
+    // The flags back in input order.
+    let keep: Vec<AtomicBool> = (0..n)
+        .into_par_iter()
+        .map(|_| AtomicBool::new(false))
+        .collect();
+    let low: usize = (0..lat.columns())
+        .into_par_iter()
+        .with_min_len(256)
+        .map(|c| {
+            // Points below the floor's first layer are a detached low layer.
+            let floor = if floors.is_empty() {
+                0
+            } else {
+                floors[lat.group_of(c)].saturating_mul(lat.slab)
+            };
+            let range = sorted.starts[c] as usize..sorted.starts[c + 1] as usize;
+            let mut low = 0;
+            for (&key, &d) in sorted.keys[range.clone()].iter().zip(&dense[range]) {
+                if !d {
+                    continue;
+                }
+                if layer(key) < floor {
+                    low += 1;
+                } else {
+                    keep[(key & 0xFFFF_FFFF) as usize].store(true, Relaxed);
+                }
+            }
+            low
+        })
+        .sum();
+    let keep: Vec<bool> = keep.into_iter().map(AtomicBool::into_inner).collect();
+    let kept = n - sparse - low;
+    if kept == 0 {
+        return Err(Error::Data {
+            stage: "denoise",
+            message: format!(
+                "every one of the {n} points was removed as noise (voxel_size {:.4}, voxel_height {:.4}, \
+                 min_points {}): lower denoise.min_points, enlarge the voxels or set denoise.enabled = false",
+                settings.voxel_size, settings.voxel_height, settings.min_points
+            ),
+        });
+    }
+    Ok(Denoised {
+        keep,
+        kept,
+        removed_sparse: sparse,
+        removed_low: low,
+        voxels,
+        settings,
+    })
+}
+
+/// The count test with voxels `q` layers tall: sets `flags` (one per sorted key) to true
+/// where the point's voxel, or its 3×3×3 block, holds at least `min_points` points.
+/// Returns (points failing, points failing here but passing in `coarse`, occupied voxels).
+fn count_pass(
+    t: &ColumnSort,
+    lat: &Lattice,
+    s: &DenoiseSettings,
+    q: u32,
+    coarse: Option<&[bool]>,
+    flags: &mut [bool],
+) -> (usize, usize, usize) {
+    let m = s.min_points as usize;
+    column_slices(flags, &t.starts)
+        .into_par_iter()
+        .enumerate()
+        .with_min_len(1024)
+        .map(|(c, flags)| {
+            let own = t.column(c);
+            if own.is_empty() {
+                return (0, 0, 0);
+            }
+            let base = t.starts[c] as usize;
+            // The 8 neighbour columns, fetched only when a voxel needs them.
+            let mut neigh: [&[u64]; 8] = [&[]; 8];
+            let mut nn = usize::MAX;
+            let (mut failing, mut lost, mut voxels) = (0, 0, 0);
+            let mut a = 0;
+            while a < own.len() {
+                // The voxel k: keys a..b with layers in [k·q, (k+1)·q). Bounds stay in fine
+                // layers so that no loop divides.
+                // (Integer division is slow; q is 1 for most surveys.)
+                let k = if q == 1 {
+                    layer(own[a])
+                } else {
+                    layer(own[a]) / q
+                };
+                let top = (k + 1).saturating_mul(q);
+                let mut b = a + 1;
+                while b < own.len() && layer(own[b]) < top {
+                    b += 1;
+                }
+                voxels += 1;
+                // The block holds the voxel: a voxel that passes alone needs no neighbours
+                // (most voxels of a surface).
+                let mut count = b - a;
+                if s.neighbourhood && count < m {
+                    // Layers [(k−1)·q, (k+2)·q) of the 3×3 columns, the own column first
+                    // (its keys just below and above the voxel).
+                    let lo = k.saturating_sub(1) * q;
+                    let hi = (k + 2).saturating_mul(q);
+                    count += own[..a]
+                        .iter()
+                        .rev()
+                        .take_while(|&&key| layer(key) >= lo)
+                        .count();
+                    count += own[b..].iter().take_while(|&&key| layer(key) < hi).count();
+                    if count < m && nn == usize::MAX {
+                        let (ci, cj) = (c as u32 % lat.ncx, c as u32 / lat.ncx);
+                        nn = 0;
+                        for nj in cj.saturating_sub(1)..(cj + 2).min(lat.ncy) {
+                            for ni in ci.saturating_sub(1)..(ci + 2).min(lat.ncx) {
+                                if (ni, nj) != (ci, cj) {
+                                    neigh[nn] = t.column((nj * lat.ncx + ni) as usize);
+                                    nn += 1;
+                                }
+                            }
+                        }
+                    }
+                    // A neighbour's start only moves on (layers grow), and the walk stops
+                    // once the block holds min_points (starts left behind catch up later).
+                    if count < m {
+                        for seg in neigh[..nn].iter_mut() {
+                            let skip = seg.iter().take_while(|&&key| layer(key) < lo).count();
+                            *seg = &seg[skip..];
+                            count += seg.iter().take_while(|&&key| layer(key) < hi).count();
+                            if count >= m {
+                                break;
+                            }
+                        }
+                    }
+                }
+                let pass = count >= m;
+                flags[a..b].fill(pass);
+                if !pass {
+                    failing += b - a;
+                    if let Some(f) = coarse {
+                        lost += f[base + a..base + b].iter().filter(|&&p| p).count();
+                    }
+                }
+                a = b;
+            }
+            (failing, lost, voxels)
+        })
+        .reduce(|| (0, 0, 0), |p, q| (p.0 + q.0, p.1 + q.1, p.2 + q.2))
+}
+
+/// `v` cut into one slice per column (`starts` as in [`ColumnSort`]).
+fn column_slices<'a, T>(v: &'a mut [T], starts: &[u32]) -> Vec<&'a mut [T]> {
+    let mut rest = v;
+    let mut out = Vec::with_capacity(starts.len().saturating_sub(1));
+    for w in starts.windows(2) {
+        let (head, tail) = rest.split_at_mut((w[1] - w[0]) as usize);
+        out.push(head);
+        rest = tail;
+    }
+    out
+}
+
+/// Layer (voxel height index) of a sorted key.
+#[inline(always)]
+fn layer(key: u64) -> u32 {
+    (key >> 32) as u32
+}
+
+/// Points grouped by voxel column, each column sorted by (layer, point index); a key is
+/// `layer << 32 | index`.
+pub(crate) struct ColumnSort {
+    keys: Vec<u64>,
+    starts: Vec<u32>,
+}
+
+impl ColumnSort {
+    #[inline(always)]
+    fn column(&self, c: usize) -> &[u64] {
+        &self.keys[self.starts[c] as usize..self.starts[c + 1] as usize]
+    }
+}
+
+/// Counting sort of the points by column (stable, so the output does not depend on how the
+/// work was split), then a sort by layer inside each column.
+fn sort_by_column(x: &[f64], y: &[f64], z: &[f64], lat: &Lattice) -> ColumnSort {
+    let n = x.len();
+    let cols = lat.columns();
+    let chunks = rayon::current_num_threads().clamp(1, 64);
+    let chunk = n.div_ceil(chunks).max(1);
+    // Pass 1: one histogram per chunk.
+    let mut hist: Vec<Vec<u32>> = (0..n.div_ceil(chunk))
+        .into_par_iter()
+        .map(|t| {
+            let mut h = vec![0u32; cols];
+            let r = t * chunk..((t + 1) * chunk).min(n);
+            for i in r {
+                h[lat.column(x[i], y[i]) as usize] += 1;
+            }
+            h
+        })
+        .collect();
+    // Offsets: column-major over chunks, so each chunk's points of a column follow the
+    // previous chunk's (stability).
+    let mut starts = vec![0u32; cols + 1];
+    let mut acc = 0u32;
+    for c in 0..cols {
+        starts[c] = acc;
+        for h in hist.iter_mut() {
+            let v = h[c];
+            h[c] = acc;
+            acc += v;
+        }
+    }
+    starts[cols] = acc;
+    // Pass 2: scatter. Chunks write disjoint slots; atomics make that safe without `unsafe`
+    // (relaxed stores compile to plain stores).
+    let out: Vec<AtomicU64> = (0..n).into_par_iter().map(|_| AtomicU64::new(0)).collect();
+    hist.par_iter_mut().enumerate().for_each(|(t, cursor)| {
+        for i in t * chunk..((t + 1) * chunk).min(n) {
+            let (c, k) = lat.locate(x[i], y[i], z[i]);
+            let slot = &mut cursor[c as usize];
+            out[*slot as usize].store((k as u64) << 32 | i as u64, Relaxed);
+            *slot += 1;
+        }
+    });
+    drop(hist);
+    let mut keys: Vec<u64> = out.into_iter().map(AtomicU64::into_inner).collect();
+    // Sort inside each column by (layer, index): keys are unique, so unstable sorting is
+    // deterministic.
+    column_slices(&mut keys, &starts)
+        .into_par_iter()
+        .with_min_len(256)
+        .for_each(|s| s.sort_unstable());
+    ColumnSort { keys, starts }
+}
+
+/// Per low-layer column: the first slab that is not noise (points in lower slabs are a
+/// detached low layer). A low-layer column is `ratio` × `ratio` voxel columns; its window is
+/// itself and its 8 neighbours.
+fn low_floors(t: &ColumnSort, dense: &[bool], lat: &Lattice, fraction: f64) -> Vec<u32> {
+    let r = lat.ratio;
+    let (gx, gy) = (lat.groups_x(), lat.ncy.div_ceil(r));
+    let members = |g: u32| {
+        let (gi, gj) = (g % gx, g / gx);
+        (gj * r..((gj + 1) * r).min(lat.ncy)).flat_map(move |j| {
+            (gi * r..((gi + 1) * r).min(lat.ncx)).map(move |i| (j * lat.ncx + i) as usize)
+        })
+    };
+    let window = |g: u32| {
+        let (gi, gj) = (g % gx, g / gx);
+        (gj.saturating_sub(1)..(gj + 2).min(gy))
+            .flat_map(move |j| (gi.saturating_sub(1)..(gi + 2).min(gx)).map(move |i| j * gx + i))
+    };
+    // Lowest and highest slab holding a point that passed the count, per low-layer column. A
+    // window whose points span fewer than four slabs has no gap of two empty slabs: most
+    // windows are settled by this alone.
+    let span: Vec<(u32, u32)> = (0..gx * gy)
+        .into_par_iter()
+        .map(|g| {
+            let (mut lo, mut hi) = (u32::MAX, 0);
+            for c in members(g) {
+                let range = t.starts[c] as usize..t.starts[c + 1] as usize;
+                let (keys, ok) = (&t.keys[range.clone()], &dense[range]);
+                if let Some(p) = ok.iter().position(|&d| d) {
+                    lo = lo.min(layer(keys[p]));
+                }
+                if let Some(p) = ok.iter().rposition(|&d| d) {
+                    hi = hi.max(layer(keys[p]));
+                }
+            }
+            (lo, hi)
+        })
+        .collect();
+    let open: Vec<bool> = (0..gx * gy)
+        .into_par_iter()
+        .map(|g| {
+            let (lo, hi) = window(g).fold((u32::MAX, 0), |(lo, hi), w| {
+                (lo.min(span[w as usize].0), hi.max(span[w as usize].1))
+            });
+            lo != u32::MAX && hi / lat.slab >= lo / lat.slab + 3
+        })
+        .collect();
+    // Profiles, (slab, count) runs of the points that passed the count, of the low-layer
+    // columns some open window needs.
+    let needed = |g: u32| window(g).any(|w| open[w as usize]);
+    let profiles: Vec<Vec<(u32, u32)>> = (0..gx * gy)
+        .into_par_iter()
+        .map(|g| {
+            let mut runs: Vec<(u32, u32)> = Vec::new();
+            if !needed(g) {
+                return runs;
+            }
+            for c in members(g) {
+                let range = t.starts[c] as usize..t.starts[c + 1] as usize;
+                let (keys, ok) = (&t.keys[range.clone()], &dense[range]);
+                let mut a = 0;
+                while a < keys.len() {
+                    let s = layer(keys[a]) / lat.slab;
+                    let top = (s + 1).saturating_mul(lat.slab);
+                    let mut b = a;
+                    let mut count = 0;
+                    while b < keys.len() && layer(keys[b]) < top {
+                        count += ok[b] as u32;
+                        b += 1;
+                    }
+                    if count > 0 {
+                        runs.push((s, count));
+                    }
+                    a = b;
+                }
+            }
+            merge_runs(&mut runs);
+            runs
+        })
+        .collect();
+    (0..gx * gy)
+        .into_par_iter()
+        .map(|g| {
+            if !open[g as usize] {
+                return 0;
+            }
+            let mut window_runs: Vec<(u32, u32)> = Vec::new();
+            for w in window(g) {
+                window_runs.extend_from_slice(&profiles[w as usize]);
+            }
+            merge_runs(&mut window_runs);
+            floor_of(&window_runs, fraction)
+        })
+        .collect()
+}
+
+/// Sorts (slab, count) runs by slab and adds up equal slabs.
+fn merge_runs(runs: &mut Vec<(u32, u32)>) {
+    runs.sort_unstable_by_key(|r| r.0);
+    runs.dedup_by(|b, a| {
+        if a.0 == b.0 {
+            a.1 += b.1;
+            true
+        } else {
+            false
+        }
+    });
+}
+
+/// The floor of a window profile: the slab just above the highest gap of two or more empty
+/// slabs below which fewer than `fraction` of the window's points lie (0 if none).
+pub(crate) fn floor_of(profile: &[(u32, u32)], fraction: f64) -> u32 {
+    let total: u64 = profile.iter().map(|r| r.1 as u64).sum();
+    let limit = fraction * total as f64;
+    let mut below = 0u64;
+    let mut floor = 0;
+    for w in profile.windows(2) {
+        below += w[0].1 as u64;
+        if (below as f64) >= limit {
+            break;
+        }
+        if w[1].0 - w[0].0 > 2 {
+            floor = w[1].0;
+        }
+    }
+    floor
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::terrain::reference;
+
+    fn scene(seed: u64, n: u64) -> crate::generate::Scene {
+        crate::generate::generate(&crate::generate::GenerateParams {
+            seed,
+            points: n,
+            outliers_per_million: 2000,
+            ..Default::default()
+        })
+        .unwrap()
+    }
+
+    #[test]
+    fn fast_equals_slow_on_generated_scenes() {
+        for (seed, nb, low) in [
+            (1, true, true),
+            (2, false, true),
+            (3, true, false),
+            (4, false, false),
+        ] {
+            let s = scene(seed, 20_000);
+            let c = &s.cloud;
+            let p = DenoiseParams {
+                neighbourhood: nb,
+                low_layers: low,
+                ..Default::default()
+            };
+            let fast = denoise(c, &p, 1.0).unwrap();
+            let slow = reference::denoise(&c.x, &c.y, &c.z, &p, 1.0).unwrap();
+            assert_eq!(fast.keep, slow, "seed {seed} nb {nb} low {low}");
+            assert_eq!(fast.kept, slow.iter().filter(|k| **k).count());
+        }
+    }
+
+    #[test]
+    fn removes_a_dense_mirror_patch_under_the_ground() {
+        // A multipath "mirror": 40 points on a flat 8 × 3 m patch 25 m under the terrain,
+        // dense enough to pass any count test.
+        let s = scene(11, 40_000);
+        let mut c = s.cloud.clone();
+        let [x0, y0, _, _] = s.extent;
+        let (cx, cy) = (x0 + 60.0, y0 + 60.0);
+        let ground = (0..c.len())
+            .filter(|&i| (c.x[i] - cx).abs() < 5.0 && (c.y[i] - cy).abs() < 5.0)
+            .map(|i| c.z[i])
+            .fold(f64::INFINITY, f64::min);
+        let first = c.len();
+        for k in 0..40 {
+            c.x.push(cx + (k % 10) as f64 * 0.8);
+            c.y.push(cy + (k / 10) as f64 * 0.8);
+            c.z.push(ground - 25.0 + (k % 3) as f64 * 0.05);
+        }
+        let d = denoise_xyz(&c.x, &c.y, &c.z, &DenoiseParams::default(), 1.0).unwrap();
+        assert!(d.keep[first..].iter().all(|k| !k), "mirror points kept");
+        assert!(d.removed_low >= 40, "{}", d.removed_low);
+        assert_eq!(
+            d.keep,
+            reference::denoise(&c.x, &c.y, &c.z, &DenoiseParams::default(), 1.0).unwrap()
+        );
+        // Without the rule they survive the count.
+        let off = DenoiseParams {
+            low_layers: false,
+            ..Default::default()
+        };
+        let d = denoise_xyz(&c.x, &c.y, &c.z, &off, 1.0).unwrap();
+        assert!(d.keep[first..].iter().all(|&k| k));
+    }
+
+    #[test]
+    fn removes_generated_outliers() {
+        let s = scene(7, 50_000);
+        let d = denoise(&s.cloud, &DenoiseParams::default(), 1.0).unwrap();
+        let caught = s.outliers.iter().filter(|&&i| !d.keep[i as usize]).count();
+        assert_eq!(caught, s.outliers.len(), "outliers kept");
+        assert!(
+            d.removed() < s.outliers.len() + s.cloud.len() / 100,
+            "{}",
+            d.removed()
+        );
+    }
+
+    #[test]
+    fn same_result_for_any_thread_count() {
+        let s = scene(9, 30_000);
+        let run = |t: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(t)
+                .build()
+                .unwrap()
+                .install(|| denoise(&s.cloud, &DenoiseParams::default(), 1.0).unwrap())
+        };
+        let one = run(1);
+        assert_eq!(one, run(2));
+        assert_eq!(one, run(8));
+    }
+
+    #[test]
+    fn floor_finds_the_highest_small_detached_layer() {
+        // 3 points at slab 0, 4 at 10, then the main body at 20..22 with 100 points.
+        let p = [(0, 3), (10, 4), (20, 50), (21, 30), (22, 20)];
+        assert_eq!(floor_of(&p, 0.1), 20);
+        // A big low layer is not detached noise.
+        let p = [(0, 40), (20, 60)];
+        assert_eq!(floor_of(&p, 0.1), 0);
+        // Gaps of two slabs are not enough (adjacent-ish layers of one surface).
+        let p = [(0, 1), (2, 100)];
+        assert_eq!(floor_of(&p, 0.1), 0);
+        assert_eq!(floor_of(&[], 0.1), 0);
+    }
+
+    #[test]
+    fn bad_parameters_name_themselves() {
+        let c = scene(1, 1000).cloud;
+        for (p, key) in [
+            (
+                DenoiseParams {
+                    voxel_size: Some(0.0),
+                    ..Default::default()
+                },
+                "voxel_size",
+            ),
+            (
+                DenoiseParams {
+                    voxel_size: Some(f64::NAN),
+                    ..Default::default()
+                },
+                "voxel_size",
+            ),
+            (
+                DenoiseParams {
+                    voxel_height: Some(-1.0),
+                    ..Default::default()
+                },
+                "voxel_height",
+            ),
+            (
+                DenoiseParams {
+                    min_points: Some(0),
+                    ..Default::default()
+                },
+                "min_points",
+            ),
+            (
+                DenoiseParams {
+                    low_gap: Some(0.0),
+                    ..Default::default()
+                },
+                "low_gap",
+            ),
+            (
+                DenoiseParams {
+                    low_fraction: 1.5,
+                    ..Default::default()
+                },
+                "low_fraction",
+            ),
+        ] {
+            let e = denoise(&c, &p, 1.0).unwrap_err().to_string();
+            assert!(e.starts_with(&format!("denoise: {key} = ")), "{e}");
+        }
+    }
+
+    #[test]
+    fn all_removed_is_an_error() {
+        let c = scene(1, 1000).cloud;
+        let p = DenoiseParams {
+            min_points: Some(1_000_000),
+            ..Default::default()
+        };
+        let e = denoise(&c, &p, 1.0).unwrap_err().to_string();
+        assert!(
+            e.starts_with("denoise: every one of the 1000 points was removed"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn points_on_a_line_have_no_spacing() {
+        let x: Vec<f64> = (0..100).map(|i| i as f64).collect();
+        let y = vec![5.0; 100];
+        let z = vec![1.0; 100];
+        let e = denoise_xyz(&x, &y, &z, &DenoiseParams::default(), 1.0)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("denoise: voxel_size = auto: the points span a zero-width range"),
+            "{e}"
+        );
+    }
+}
