@@ -86,7 +86,7 @@ pub struct OutputConfig {
     /// Write one OpenEXR file per tile: height, d2 (and mask) channels (default true).
     #[serde(default = "yes")]
     pub exr: bool,
-    /// EXR compression: `none`, `rle` (default), `zips`, `zip` or `piz`; all lossless.
+    /// EXR compression: `none` (default), `rle`, `zips`, `zip` or `piz`; all lossless.
     #[serde(default)]
     pub exr_compression: crate::output::exr::ExrCompression,
     /// Write `manifest.json` (default true).

@@ -181,14 +181,15 @@ enum BenchCommand {
     },
     /// Time read, denoise, resample and fill on FILE against spade's Delaunay triangulation
     /// of the same denoised points (bulk loading and incremental insertion), with the peak
-    /// memory of each side.
+    /// memory of each side; then tiles, quadtree and writing the tiles (the whole pipeline).
     Terrain {
         /// The file (LAS, LAZ or XYZ).
         file: PathBuf,
         /// Repetitions (the median is reported).
         #[arg(long, default_value_t = 3)]
         repeat: usize,
-        /// Print JSON (`stages_ratio` = Delaunay time / (denoise + resample + fill) time).
+        /// Print JSON (`stages_ratio` = Delaunay time / (denoise + resample + fill) time;
+        /// `total_ratio` = Delaunay time / whole pipeline from file to written tiles).
         #[arg(long)]
         json: bool,
     },

@@ -207,6 +207,10 @@ fn bench_terrain_json() {
         "delaunay_bulk_s",
         "delaunay_incremental_s",
         "stages_ratio",
+        "quadtree_s",
+        "write_s",
+        "total_s",
+        "total_ratio",
     ] {
         let x = v[key]
             .as_f64()
@@ -215,6 +219,13 @@ fn bench_terrain_json() {
     }
     let ratio = v["delaunay_s"].as_f64().unwrap() / v["stages_s"].as_f64().unwrap();
     assert!((v["stages_ratio"].as_f64().unwrap() - ratio).abs() < 1e-9 * ratio);
+    // The whole pipeline: the grid stages and read, then tiles, quadtree and writing.
+    let total = v["total_s"].as_f64().unwrap();
+    assert!(total > v["stages_s"].as_f64().unwrap() + v["read_s"].as_f64().unwrap() * 0.5);
+    let ratio = v["delaunay_s"].as_f64().unwrap() / total;
+    assert!((v["total_ratio"].as_f64().unwrap() - ratio).abs() < 1e-9 * ratio);
+    assert!(v["written_bytes"].as_u64().unwrap() > 0);
+    assert_eq!(v["exr_compression"], "none");
     assert_eq!(v["points"], 55057);
     assert!(v["tin_triangles"].as_u64().unwrap() > 100_000);
 }

@@ -1,13 +1,21 @@
 //! `bench terrain`: the grid stages of seed 003 (read, denoise, resample, fill) against the
 //! Delaunay triangulation of the same denoised points (spade, bulk loading and incremental
-//! insertion in file order), in one process, with the peak memory of each side.
+//! insertion in file order), in one process, with the peak memory of each side. The tile
+//! stages follow (tiles, quadtree d2, writing the EXR tiles with the default compression, the
+//! manifest and the 16-bit heightmaps), so that `total_s` is the whole pipeline from file to
+//! written tiles; mesh extraction at the default tolerance is timed beside it.
 
 use super::median;
 use crate::error::{Error, Result};
 use crate::points::{self, PointCloud, ReadOptions};
 use crate::progress::NoProgress;
 use crate::terrain::delaunay::{self, TinMethod};
-use crate::terrain::{denoise, fill, resample, DenoiseParams, FillParams, ResampleParams};
+use crate::terrain::extract::ExtractParams;
+use crate::terrain::quadtree::{self, QuadtreeParams};
+use crate::terrain::tiles::{self, TileParams};
+use crate::terrain::{
+    denoise, fill, resample, DenoiseParams, FillParams, Heightfield, ResampleParams,
+};
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
@@ -61,6 +69,29 @@ pub struct TerrainBench {
     /// Peak resident memory while building the TIN (the point cloud it is built from
     /// included), in MB.
     pub delaunay_peak_mb: Option<f64>,
+    /// Median seconds to cut the filled grid into tiles.
+    pub tiles_s: f64,
+    /// Median seconds of the quadtree d2 (propagated and reconciled).
+    pub quadtree_s: f64,
+    /// Median seconds to write the EXR tiles (default compression), the manifest and the
+    /// 16-bit PNG and RAW heightmaps.
+    pub write_s: f64,
+    /// Median seconds to extract the tile meshes at the default tolerance (vertical error
+    /// tree included); not part of `total_s`.
+    pub extract_s: f64,
+    /// Median seconds of the whole pipeline from file to written tiles: read + denoise +
+    /// resample + fill + tiles + quadtree + write.
+    pub total_s: f64,
+    /// Delaunay time / whole-pipeline time.
+    pub total_ratio: f64,
+    /// Tile size and tile grid.
+    pub tiling: [usize; 3],
+    /// EXR compression used (the default).
+    pub exr_compression: String,
+    /// Bytes written (EXR, manifest, heightmaps).
+    pub written_bytes: u64,
+    /// Surface triangles of the extracted tile meshes.
+    pub mesh_triangles: usize,
     /// Repetitions (medians are reported).
     pub repeats: usize,
     /// Worker threads of the grid stages.
@@ -94,7 +125,77 @@ struct GridRun {
     cloud: PointCloud,
     keep: Vec<bool>,
     grid: [usize; 2],
+    hf: Heightfield,
     t: [f64; 4],
+}
+
+/// One run of the tile stages on a filled grid.
+struct TileRun {
+    /// tiles, quadtree, write, extract.
+    t: [f64; 4],
+    tiling: [usize; 3],
+    bytes: u64,
+    triangles: usize,
+}
+
+/// Total size of the files under `dir`.
+fn dir_bytes(dir: &Path) -> u64 {
+    std::fs::read_dir(dir)
+        .map(|rd| {
+            rd.flatten()
+                .map(|e| {
+                    let p = e.path();
+                    if p.is_dir() {
+                        dir_bytes(&p)
+                    } else {
+                        e.metadata().map_or(0, |m| m.len())
+                    }
+                })
+                .sum()
+        })
+        .unwrap_or(0)
+}
+
+/// Cuts, measures and writes `hf` as the default pipeline does (EXR with the default
+/// compression, manifest, PNG and RAW heightmaps) into a fresh directory under the system's
+/// temporary directory (removed afterwards, untimed), then extracts the meshes.
+fn tile_run(hf: &Heightfield, run: usize) -> Result<TileRun> {
+    use crate::config::OutputConfig;
+    let dir = std::env::temp_dir().join(format!("terratile-bench-{}-{run}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+    let out = OutputConfig {
+        relief: false,
+        wireframe: false,
+        meshes: Vec::new(),
+        ..Default::default()
+    };
+    let extract = ExtractParams::default();
+    let t0 = Instant::now();
+    let set = tiles::tile(hf, &TileParams::default())?;
+    let t1 = Instant::now();
+    let qt = quadtree::build(&set, &QuadtreeParams::default())?;
+    let t2 = Instant::now();
+    let written = crate::output::write_terrain(&dir, &set, &qt, &extract, &out, &NoProgress);
+    let t3 = Instant::now();
+    let bytes = dir_bytes(&dir);
+    let _ = std::fs::remove_dir_all(&dir);
+    written?;
+    let t4 = Instant::now();
+    let triangles = if set.holes() == 0 {
+        let tris = crate::output::extract_meshes(&set, &qt, &extract)?;
+        tris.iter().map(|t| t.surface_triangles).sum()
+    } else {
+        0
+    };
+    let t5 = Instant::now();
+    let s = |a: Instant, b: Instant| (b - a).as_secs_f64();
+    Ok(TileRun {
+        t: [s(t0, t1), s(t1, t2), s(t2, t3), s(t4, t5)],
+        tiling: [set.tile_size, set.grid[0], set.grid[1]],
+        bytes,
+        triangles,
+    })
 }
 
 fn grid_run(path: &Path) -> Result<GridRun> {
@@ -113,6 +214,7 @@ fn grid_run(path: &Path) -> Result<GridRun> {
         cloud,
         keep: d.keep,
         grid: [r.spec.cols, r.spec.rows],
+        hf: r.grid,
         t: [s(t0, t1), s(t1, t2), s(t2, t3), s(t3, t4)],
     })
 }
@@ -125,10 +227,25 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
     reset_peak_rss();
     let mut runs = vec![grid_run(path)?];
     let grid_peak = peak_rss();
-    for _ in 1..repeats {
+    // The tile stages run after the peak above is taken, so that it stays the grid stages'.
+    let mut tile_runs = vec![tile_run(&runs[0].hf, 0)?];
+    for k in 1..repeats {
         let last = grid_run(path)?;
+        tile_runs.push(tile_run(&last.hf, k)?);
         runs.push(last);
     }
+    let tcol = |k: usize| median(tile_runs.iter().map(|r| r.t[k]).collect());
+    let total_s = median(
+        runs.iter()
+            .zip(&tile_runs)
+            .map(|(g, t)| g.t.iter().sum::<f64>() + t.t[0] + t.t[1] + t.t[2])
+            .collect(),
+    );
+    let tile_last = tile_runs
+        .last()
+        .ok_or_else(|| Error::Internal("no run".into()))?;
+    let (tiling, written_bytes, mesh_triangles) =
+        (tile_last.tiling, tile_last.bytes, tile_last.triangles);
     let last = runs.pop().ok_or_else(|| Error::Internal("no run".into()))?;
     let mut times: Vec<[f64; 4]> = runs.iter().map(|r| r.t).collect();
     times.push(last.t);
@@ -202,6 +319,16 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
             .filter(|_| record_bytes > 0)
             .map(|p| p as f64 / record_bytes as f64),
         delaunay_peak_mb: delaunay_peak.map(mb),
+        tiles_s: tcol(0),
+        quadtree_s: tcol(1),
+        write_s: tcol(2),
+        extract_s: tcol(3),
+        total_s,
+        total_ratio: delaunay_s / total_s,
+        tiling,
+        exr_compression: crate::output::exr::ExrCompression::default().name().into(),
+        written_bytes,
+        mesh_triangles,
         repeats,
         threads: rayon::current_num_threads(),
     })
@@ -238,6 +365,34 @@ impl std::fmt::Display for TerrainBench {
             f,
             "  stages_ratio (Delaunay {} / grid stages): {:.1}",
             self.delaunay_method, self.stages_ratio
+        )?;
+        writeln!(
+            f,
+            "  tiles              {:>8.3} s   ({} tiles of {}², {} × {})",
+            self.tiles_s,
+            self.tiling[1] * self.tiling[2],
+            self.tiling[0],
+            self.tiling[1],
+            self.tiling[2]
+        )?;
+        writeln!(f, "  quadtree d2        {:>8.3} s", self.quadtree_s)?;
+        writeln!(
+            f,
+            "  write              {:>8.3} s   (EXR {}, manifest, PNG + RAW heightmaps: {:.1} MB)",
+            self.write_s,
+            self.exr_compression,
+            self.written_bytes as f64 / 1e6
+        )?;
+        writeln!(f, "  total, file to written tiles {:>6.3} s", self.total_s)?;
+        writeln!(
+            f,
+            "  total_ratio (Delaunay {} / whole pipeline): {:.1}",
+            self.delaunay_method, self.total_ratio
+        )?;
+        writeln!(
+            f,
+            "  (beside it) mesh extraction at the default tolerance {:.3} s, {} triangles",
+            self.extract_s, self.mesh_triangles
         )?;
         if let (Some(p), Some(r)) = (self.grid_peak_mb, self.grid_peak_per_record_bytes) {
             writeln!(

@@ -29,10 +29,9 @@ pub struct HeightEncoding {
 impl HeightEncoding {
     /// The encoding spanning the set's z range with all 16 bits.
     pub fn for_set(set: &TileSet) -> HeightEncoding {
-        let holes = set
-            .tiles
-            .iter()
-            .any(|t| t.heights.iter().any(|h| h.is_nan()));
+        // Padding repeats valid samples, so a tile has a NaN anywhere only if its valid
+        // extent counts a hole.
+        let holes = set.tiles.iter().any(|t| t.holes > 0);
         let (lo, hi) = set.z_range().unwrap_or((set.z_offset, set.z_offset));
         let first = if holes { 1.0 } else { 0.0 };
         let steps = 65535.0 - first;
@@ -64,18 +63,32 @@ impl HeightEncoding {
 
 /// Values of tile `t`, south row first, `tile_size`² of them (padding included).
 pub fn tile_values(set: &TileSet, enc: &HeightEncoding, t: usize) -> Vec<u16> {
-    let tile = &set.tiles[t];
-    tile.heights
-        .iter()
-        .map(|&h| enc.encode(set.z_offset + h as f64))
-        .collect()
+    encode_heights(set.z_offset, enc, set.tiles[t].heights.iter().copied())
 }
 
 /// Values of the whole grid (`samples[0]` × `samples[1]`), south row first.
 pub fn landscape_values(set: &TileSet, enc: &HeightEncoding) -> Vec<u16> {
-    set.assemble()
-        .iter()
-        .map(|&h| enc.encode(set.z_offset + h as f64))
+    encode_heights(set.z_offset, enc, set.assemble().iter().copied())
+}
+
+/// `enc.encode(z_offset + h)` for every stored height h, with the constants hoisted (one
+/// formula for tiles and landscape, so they agree to the bit).
+fn encode_heights(
+    z_offset: f64,
+    enc: &HeightEncoding,
+    heights: impl Iterator<Item = f32>,
+) -> Vec<u16> {
+    let (base, inv) = (z_offset - enc.z_offset, 1.0 / enc.z_scale);
+    let lowest = if enc.nodata.is_some() { 1.0 } else { 0.0 };
+    let hole = enc.nodata.unwrap_or(0);
+    heights
+        .map(|h| {
+            if h.is_nan() {
+                hole
+            } else {
+                ((base + h as f64) * inv + 0.5).clamp(lowest, 65535.0) as u16
+            }
+        })
         .collect()
 }
 
@@ -93,7 +106,8 @@ pub fn png_bytes(values: &[u16], width: usize) -> Result<Vec<u8>> {
         raw.extend_from_slice(&v.to_ne_bytes());
     }
     let mut out = Vec::new();
-    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Adaptive)
+    // Paeth: as small as the adaptive choice on real tiles, and faster (measured).
+    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Paeth)
         .write_image(&raw, width as u32, height as u32, ExtendedColorType::L16)
         .map_err(|e| Error::Internal(format!("png encoding: {e}")))?;
     Ok(out)

@@ -319,32 +319,21 @@ fn build_manifest(
     let unit_m = set.crs.as_ref().map_or(1.0, |c| c.metres_per_unit());
     let tiles = set
         .tiles
-        .iter()
+        .par_iter()
         .zip(per_tile)
         .enumerate()
-        .map(|(t, (tile, files))| {
-            let mut lo = f32::INFINITY;
-            let mut hi = f32::NEG_INFINITY;
-            for j in 0..tile.valid[1] {
-                for i in 0..tile.valid[0] {
-                    let h = tile.heights[[j, i]];
-                    if h.is_finite() {
-                        lo = lo.min(h);
-                        hi = hi.max(h);
-                    }
-                }
-            }
-            TileEntry {
-                col: tile.col,
-                row: tile.row,
-                grid_offset: tile.origin,
-                valid: tile.valid,
-                origin: set.sample_xy(tile.origin[0] as f64, tile.origin[1] as f64),
-                z_range: (lo <= hi).then_some([set.z_offset + lo as f64, set.z_offset + hi as f64]),
-                holes: tile.holes,
-                triangles: tris.map(|v| v[t].surface_triangles),
-                files,
-            }
+        .map(|(t, (tile, files))| TileEntry {
+            col: tile.col,
+            row: tile.row,
+            grid_offset: tile.origin,
+            valid: tile.valid,
+            origin: set.sample_xy(tile.origin[0] as f64, tile.origin[1] as f64),
+            z_range: tile
+                .z_range
+                .map(|[lo, hi]| [set.z_offset + lo as f64, set.z_offset + hi as f64]),
+            holes: tile.holes,
+            triangles: tris.map(|v| v[t].surface_triangles),
+            files,
         })
         .collect();
     Ok(Manifest {

@@ -96,6 +96,9 @@ pub struct Tile {
     /// Number of hole samples inside the valid extent (0: no NaN anywhere in `heights`,
     /// padding included, which the quadtree's fast path relies on).
     pub holes: usize,
+    /// Lowest and highest height (relative to the set's `z_offset`) of the valid extent, None
+    /// if it is all holes.
+    pub z_range: Option<[f32; 2]>,
 }
 
 /// A heightfield cut into tiles, with the georeference of the whole set.
@@ -167,22 +170,14 @@ impl TileSet {
 
     /// World z range over all non-hole samples.
     pub fn z_range(&self) -> Option<(f64, f64)> {
+        // Padding repeats valid samples, so the tiles' valid ranges cover every height.
         let (lo, hi) = self
             .tiles
-            .par_iter()
-            .map(|t| {
-                let mut lo = f32::INFINITY;
-                let mut hi = f32::NEG_INFINITY;
-                for h in t.heights.iter().filter(|h| h.is_finite()) {
-                    lo = lo.min(*h);
-                    hi = hi.max(*h);
-                }
-                (lo, hi)
-            })
-            .reduce(
-                || (f32::INFINITY, f32::NEG_INFINITY),
-                |a, b| (a.0.min(b.0), a.1.max(b.1)),
-            );
+            .iter()
+            .filter_map(|t| t.z_range)
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |a, b| {
+                (a.0.min(b[0]), a.1.max(b[1]))
+            });
         (lo <= hi).then_some((self.z_offset + lo as f64, self.z_offset + hi as f64))
     }
 
@@ -241,6 +236,7 @@ pub fn tile(hf: &Heightfield, params: &TileParams) -> Result<TileSet> {
             let valid = [(cols - origin[0]).min(t), (rows - origin[1]).min(t)];
             let mut heights = Array2::<f32>::zeros((t, t));
             let mut holes = 0;
+            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
             for j in 0..t {
                 let gj = (origin[1] + j).min(rows - 1);
                 for i in 0..t {
@@ -251,8 +247,13 @@ pub fn tile(hf: &Heightfield, params: &TileParams) -> Result<TileSet> {
                     } else {
                         f32::NAN
                     };
-                    if h.is_nan() && i < valid[0] && j < valid[1] {
-                        holes += 1;
+                    if i < valid[0] && j < valid[1] {
+                        if h.is_nan() {
+                            holes += 1;
+                        } else {
+                            lo = lo.min(h);
+                            hi = hi.max(h);
+                        }
                     }
                     heights[[j, i]] = h;
                 }
@@ -264,6 +265,7 @@ pub fn tile(hf: &Heightfield, params: &TileParams) -> Result<TileSet> {
                 valid,
                 heights,
                 holes,
+                z_range: (lo <= hi).then_some([lo, hi]),
             }
         })
         .collect();
