@@ -56,6 +56,16 @@ impl StagedDir {
             .parent()
             .filter(|p| !p.as_os_str().is_empty())
             .unwrap_or(Path::new("."));
+        // A file in the way says more than the system's "File exists".
+        if let Some(file) = target.ancestors().find(|a| a.is_file()) {
+            return Err(Error::io(
+                file,
+                std::io::Error::other(format!(
+                    "is a file, so the output directory {} cannot be created",
+                    target.display()
+                )),
+            ));
+        }
         std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
         let tmp = temp_sibling(target);
         if tmp.exists() {

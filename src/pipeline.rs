@@ -160,7 +160,8 @@ pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSumm
     run_with_context(pipeline, progress).map(|o| o.summary)
 }
 
-/// Runs `pipeline` and returns the summary with the data: read → denoise → resample → fill.
+/// Runs `pipeline` and returns the summary with the data: read → denoise → resample → fill →
+/// tiles → quadtree → meshes and tile outputs (EXR, manifest, heightmaps, previews).
 /// Outputs are written into a staged directory that replaces the output directory only when
 /// every stage succeeded.
 pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunOutput> {
@@ -302,6 +303,11 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
         });
     }
 
+    // Tiles, quadtree metrics, meshes and the tile outputs (issue 4).
+    let (reports, files) = tile_stages(pipeline, &grid, staged.path(), progress)?;
+    summary.stages.extend(reports);
+    summary.files.extend(files);
+
     // Assets stand on the filled grid ([[assets]], issue 6).
     if !cfg.assets.is_empty() {
         let origin = [grid.corner[0], grid.corner[1], grid.z_offset];
@@ -339,5 +345,60 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
     })
 }
 
+/// The stages after hole filling: tiles → quadtree → outputs (meshes, EXR, heightmaps,
+/// previews, manifest) written into `dir`. Returns one report per stage and the files.
+pub fn tile_stages(
+    pipeline: &LoadedPipeline,
+    hf: &crate::terrain::Heightfield,
+    dir: &std::path::Path,
+    progress: &dyn Progress,
+) -> Result<(Vec<StageReport>, Vec<String>)> {
+    use crate::terrain::{quadtree, tiles};
+    let cfg = &pipeline.config;
+    let mut reports = Vec::new();
+    let t = Instant::now();
+    let set = tiles::tile(hf, &cfg.tiles)?;
+    reports.push(StageReport {
+        stage: "tiles".into(),
+        seconds: t.elapsed().as_secs_f64(),
+        figures: vec![
+            ("tile size".into(), set.tile_size.to_string()),
+            ("tiles".into(), format!("{}×{}", set.grid[0], set.grid[1])),
+            (
+                "samples".into(),
+                format!("{}×{}", set.samples[0], set.samples[1]),
+            ),
+            ("holes".into(), set.holes().to_string()),
+        ],
+    });
+    if crate::output::wants_meshes(&cfg.output) {
+        // Refuse before the work: a mesh needs a filled heightfield.
+        crate::terrain::extract::check_no_holes(&set)?;
+    }
+    let t = Instant::now();
+    let qt = quadtree::build(&set, &cfg.quadtree)?;
+    reports.push(StageReport {
+        stage: "quadtree".into(),
+        seconds: t.elapsed().as_secs_f64(),
+        figures: vec![
+            ("C".into(), qt.c.to_string()),
+            ("K".into(), qt.k.to_string()),
+        ],
+    });
+    let w = crate::output::write_terrain(dir, &set, &qt, &cfg.extract, &cfg.output, progress)?;
+    if crate::output::wants_meshes(&cfg.output) {
+        reports.push(StageReport {
+            stage: "extract".into(),
+            seconds: w.extract_s,
+            figures: vec![("triangles".into(), w.triangles.to_string())],
+        });
+    }
+    reports.push(StageReport {
+        stage: "write".into(),
+        seconds: w.write_s,
+        figures: vec![("files".into(), w.files.len().to_string())],
+    });
+    Ok((reports, w.files))
+}
 /// The removed-noise file written with `denoise.write_removed = true`.
 pub const NOISE_FILE: &str = "noise.las";

@@ -148,7 +148,7 @@ fn run_reports_every_stage_and_writes_the_removed_points() {
         .collect();
     assert_eq!(
         stages,
-        ["read", "denoise", "resample", "fill"],
+        ["read", "denoise", "resample", "fill", "tiles", "quadtree", "extract", "write"],
         "{}",
         r.context()
     );

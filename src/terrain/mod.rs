@@ -6,10 +6,13 @@
 pub mod accuracy;
 pub mod delaunay;
 pub mod denoise;
+pub mod extract;
 pub mod fill;
 pub mod heightfield;
+pub mod quadtree;
 pub mod reference;
 pub mod resample;
+pub mod tiles;
 
 pub use denoise::{denoise, DenoiseParams, Denoised};
 pub use fill::{fill, Fallback, FillParams, FillReport};

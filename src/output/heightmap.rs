@@ -1,0 +1,182 @@
+//! 16-bit heightmaps (SPEC §6): one PNG and one RAW per tile, and under the `unreal` preset
+//! one of each for the whole landscape. One encoding for the whole set, so that neighbouring
+//! tiles agree on their shared border: world z = `z_offset` + value · `z_scale`. When the set
+//! has holes, value 0 is reserved for them (`nodata`) and data runs from 1 to 65535.
+//!
+//! Layouts: PNG rows run north to south (any image viewer, and Unreal's importer, which maps
+//! image rows to +Y, i.e. south, in its left-handed frame). Per-tile RAW is Unity's layout:
+//! little-endian u16, the first row the southern one (Unity's `heights[y, x]` has y = 0 at the
+//! terrain's origin; import without "Flip Vertically"). The landscape `.r16` follows Unreal,
+//! north first, little-endian.
+
+use crate::error::{Error, Result};
+use crate::terrain::tiles::TileSet;
+use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+use image::{ExtendedColorType, ImageEncoder};
+use serde::Serialize;
+
+/// How 16-bit values map to world heights.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct HeightEncoding {
+    /// World z units per step.
+    pub z_scale: f64,
+    /// World z of value 0.
+    pub z_offset: f64,
+    /// The value of hole samples, when the set has holes.
+    pub nodata: Option<u16>,
+}
+
+impl HeightEncoding {
+    /// The encoding spanning the set's z range with all 16 bits.
+    pub fn for_set(set: &TileSet) -> HeightEncoding {
+        let holes = set
+            .tiles
+            .iter()
+            .any(|t| t.heights.iter().any(|h| h.is_nan()));
+        let (lo, hi) = set.z_range().unwrap_or((set.z_offset, set.z_offset));
+        let first = if holes { 1.0 } else { 0.0 };
+        let steps = 65535.0 - first;
+        let z_scale = if hi > lo { (hi - lo) / steps } else { 1.0 };
+        HeightEncoding {
+            z_scale,
+            z_offset: lo - first * z_scale,
+            nodata: holes.then_some(0),
+        }
+    }
+
+    /// The 16-bit value of a world height (NaN: the hole value).
+    #[inline]
+    pub fn encode(&self, z: f64) -> u16 {
+        if z.is_nan() {
+            return self.nodata.unwrap_or(0);
+        }
+        let lowest = if self.nodata.is_some() { 1.0 } else { 0.0 };
+        ((z - self.z_offset) / self.z_scale)
+            .round()
+            .clamp(lowest, 65535.0) as u16
+    }
+
+    /// World height of a value (None for the hole value).
+    pub fn decode(&self, v: u16) -> Option<f64> {
+        (self.nodata != Some(v)).then_some(self.z_offset + v as f64 * self.z_scale)
+    }
+}
+
+/// Values of tile `t`, south row first, `tile_size`² of them (padding included).
+pub fn tile_values(set: &TileSet, enc: &HeightEncoding, t: usize) -> Vec<u16> {
+    let tile = &set.tiles[t];
+    tile.heights
+        .iter()
+        .map(|&h| enc.encode(set.z_offset + h as f64))
+        .collect()
+}
+
+/// Values of the whole grid (`samples[0]` × `samples[1]`), south row first.
+pub fn landscape_values(set: &TileSet, enc: &HeightEncoding) -> Vec<u16> {
+    set.assemble()
+        .iter()
+        .map(|&h| enc.encode(set.z_offset + h as f64))
+        .collect()
+}
+
+/// The rows of `values` (`width` wide, south first) in north-first order.
+fn north_first(values: &[u16], width: usize) -> Vec<u16> {
+    values.chunks(width).rev().flatten().copied().collect()
+}
+
+/// A 16-bit greyscale PNG of `values` (`width` wide, south row first), north row on top.
+pub fn png_bytes(values: &[u16], width: usize) -> Result<Vec<u8>> {
+    let height = values.len() / width.max(1);
+    let rows = north_first(values, width);
+    let mut raw = Vec::with_capacity(rows.len() * 2);
+    for v in rows {
+        raw.extend_from_slice(&v.to_ne_bytes());
+    }
+    let mut out = Vec::new();
+    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Adaptive)
+        .write_image(&raw, width as u32, height as u32, ExtendedColorType::L16)
+        .map_err(|e| Error::Internal(format!("png encoding: {e}")))?;
+    Ok(out)
+}
+
+/// Little-endian u16 RAW; `north_first` flips the rows (Unreal) or keeps them south first
+/// (Unity).
+pub fn raw_bytes(values: &[u16], width: usize, north_first_rows: bool) -> Vec<u8> {
+    let rows = if north_first_rows {
+        north_first(values, width)
+    } else {
+        values.to_vec()
+    };
+    let mut out = Vec::with_capacity(rows.len() * 2);
+    for v in rows {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::terrain::tiles::{tile, TileParams};
+    use crate::terrain::{CellState, Heightfield};
+
+    fn set(hole: bool) -> TileSet {
+        let mut hf = Heightfield::empty(80, 70, [0.0, 0.0], [1.0, 1.0], 0.0, None);
+        for j in 0..70 {
+            for i in 0..80 {
+                hf.heights[[j, i]] = 100.0 + i as f32 * 0.25 - j as f32 * 0.125;
+                hf.state[[j, i]] = CellState::Measured;
+            }
+        }
+        if hole {
+            hf.heights[[5, 5]] = f32::NAN;
+            hf.state[[5, 5]] = CellState::Empty;
+        }
+        tile(
+            &hf,
+            &TileParams {
+                size: Some(65),
+                ..Default::default()
+            },
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn encoding_spans_the_range_within_half_a_step() {
+        for hole in [false, true] {
+            let s = set(hole);
+            let e = HeightEncoding::for_set(&s);
+            let (lo, hi) = s.z_range().unwrap();
+            assert_eq!(e.nodata.is_some(), hole);
+            assert_eq!(e.encode(lo), if hole { 1 } else { 0 });
+            assert_eq!(e.encode(hi), 65535);
+            for t in 0..s.tiles.len() {
+                let v = tile_values(&s, &e, t);
+                for (h, v) in s.tiles[t].heights.iter().zip(&v) {
+                    match e.decode(*v) {
+                        Some(z) => assert!((z - *h as f64).abs() <= e.z_scale / 2.0 + 1e-9),
+                        None => assert!(h.is_nan()),
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn png_reads_back_north_up_and_raw_is_little_endian() {
+        let s = set(false);
+        let e = HeightEncoding::for_set(&s);
+        let v = tile_values(&s, &e, 0);
+        let png = png_bytes(&v, 65).unwrap();
+        let img = image::load_from_memory(&png).unwrap().into_luma16();
+        assert_eq!(img.dimensions(), (65, 65));
+        // Image row 0 is the tile's northern row (j = 64).
+        assert_eq!(img.get_pixel(3, 0).0[0], v[64 * 65 + 3]);
+        assert_eq!(img.get_pixel(3, 64).0[0], v[3]);
+        let raw = raw_bytes(&v, 65, false);
+        assert_eq!(u16::from_le_bytes([raw[6], raw[7]]), v[3]);
+        let raw_n = raw_bytes(&v, 65, true);
+        assert_eq!(u16::from_le_bytes([raw_n[6], raw_n[7]]), v[64 * 65 + 3]);
+    }
+}

@@ -1,0 +1,270 @@
+//! The CLI on the tile stages' bad input (issue 4): a tile size that is not 2^k + 1 or out of
+//! range, a tolerance ≤ 0 — each a one-line error naming the pipeline key, exit code 2, and
+//! no output directory.
+
+mod common;
+
+use common::{default_job, terratile};
+use std::path::Path;
+
+/// Appends `table` to the default job's pipeline.toml.
+fn with_table(dir: &Path, table: &str) {
+    let p = dir.join("pipeline.toml");
+    let mut text = std::fs::read_to_string(&p).unwrap();
+    text.push('\n');
+    text.push_str(table);
+    text.push('\n');
+    std::fs::write(&p, text).unwrap();
+}
+
+/// Replaces `from` by `to` in the job's pipeline.toml (which must contain it).
+fn edit(dir: &Path, from: &str, to: &str) {
+    let p = dir.join("pipeline.toml");
+    let text = std::fs::read_to_string(&p).unwrap();
+    assert!(text.contains(from), "pipeline.toml lacks `{from}`");
+    std::fs::write(&p, text.replace(from, to)).unwrap();
+}
+
+/// The run fails with the needles on one line, exit 2, and leaves nothing behind.
+fn refused(dir: &Path, needles: &[&str]) {
+    let r = terratile(dir, &["run", "-q"]);
+    r.input_error(needles);
+    assert!(!dir.join("out").exists(), "no output\n{}", r.context());
+    let leftovers: Vec<_> = common::walk(dir)
+        .into_iter()
+        .filter(|p| p.to_string_lossy().contains(".tmp-"))
+        .collect();
+    assert!(
+        leftovers.is_empty(),
+        "no temporary files: {leftovers:?}\n{}",
+        r.context()
+    );
+}
+
+#[test]
+fn tile_size_not_two_to_the_k_plus_one() {
+    for size in ["300", "256", "1000"] {
+        let d = default_job();
+        with_table(d.path(), &format!("[tiles]\nsize = {size}"));
+        refused(
+            d.path(),
+            &[
+                "pipeline.toml:",
+                "tiles.size",
+                &format!("{size}: must be 2^k + 1"),
+            ],
+        );
+    }
+}
+
+#[test]
+fn tile_size_out_of_range() {
+    for size in ["33", "17", "8193", "16385"] {
+        let d = default_job();
+        with_table(d.path(), &format!("[tiles]\nsize = {size}"));
+        refused(d.path(), &["tiles.size", "between 65 and 4097"]);
+    }
+}
+
+#[test]
+fn tile_size_line_is_named() {
+    let d = default_job();
+    with_table(d.path(), "[tiles]\npreset = \"unity\"\nsize = 100");
+    let text = std::fs::read_to_string(d.path().join("pipeline.toml")).unwrap();
+    let line = text.lines().position(|l| l == "size = 100").unwrap() + 1;
+    refused(
+        d.path(),
+        &[&format!("pipeline.toml:{line}:1: tiles.size: 100")],
+    );
+}
+
+#[test]
+fn tolerance_not_positive() {
+    for tol in ["0", "-0.5", "0.0", "nan"] {
+        let d = default_job();
+        with_table(d.path(), &format!("[extract]\ntolerance = {tol}"));
+        refused(d.path(), &["extract.tolerance", "must be > 0 metres"]);
+    }
+}
+
+#[test]
+fn other_tile_parameters_are_checked() {
+    for (table, key) in [
+        (
+            "[quadtree]\nmin_resolution_c = 2",
+            "quadtree.min_resolution_c",
+        ),
+        ("[extract]\nskirt_depth = -1", "extract.skirt_depth"),
+        (
+            "[extract]\ndesired_resolution_c = 0",
+            "extract.desired_resolution_c",
+        ),
+        ("[output]\npreview_size = 3", "output.preview_size"),
+        ("[tiles]\npreset = \"godot\"", "tiles.preset"),
+        ("[output]\nmeshes = [\"stl\"]", "output.meshes"),
+        (
+            "[output]\nexr_compression = \"b44\"",
+            "output.exr_compression",
+        ),
+    ] {
+        let d = default_job();
+        // [output] exists already in the default pipeline: put the key into it.
+        if let Some(rest) = table.strip_prefix("[output]\n") {
+            let p = d.path().join("pipeline.toml");
+            let text = std::fs::read_to_string(&p)
+                .unwrap()
+                .replace("[output]\n", &format!("[output]\n{rest}\n"));
+            std::fs::write(&p, text).unwrap();
+        } else {
+            with_table(d.path(), table);
+        }
+        refused(d.path(), &[key]);
+    }
+}
+
+/// Every file under `dir` with its bytes, by relative path.
+fn snapshot(dir: &Path) -> std::collections::BTreeMap<String, Vec<u8>> {
+    common::walk(dir)
+        .into_iter()
+        .filter(|p| p.is_file())
+        .map(|p| {
+            let rel = p
+                .strip_prefix(dir)
+                .unwrap()
+                .to_string_lossy()
+                .replace('\\', "/");
+            (rel, std::fs::read(&p).unwrap())
+        })
+        .collect()
+}
+
+#[test]
+fn default_pipeline_writes_the_whole_set() {
+    let d = default_job();
+    let r = terratile(d.path(), &["run", "-q", "--json"]);
+    r.ok();
+    let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+    let out = d.path().join("out");
+    let files = snapshot(&out);
+    let m: serde_json::Value = serde_json::from_slice(&files["manifest.json"]).unwrap();
+    let tiles = m["tiles"].as_array().unwrap();
+    assert!(tiles.len() >= 2, "{}", r.context());
+    for t in tiles {
+        for kind in ["exr", "png", "raw", "ply", "obj", "glb"] {
+            let f = t["files"][kind]
+                .as_str()
+                .unwrap_or_else(|| panic!("no {kind}\n{}", r.context()));
+            assert!(files.contains_key(f), "{f} missing\n{}", r.context());
+        }
+        assert!(t["triangles"].as_u64().unwrap() > 0);
+    }
+    for f in ["preview/relief.png", "preview/wireframe.png"] {
+        assert!(files.contains_key(f), "{f}\n{}", r.context());
+        image::load_from_memory(&files[f]).unwrap();
+    }
+    // The summary lists what is on disk, and the stages ran in order.
+    let mut listed: Vec<String> = v["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f.as_str().unwrap().to_string())
+        .collect();
+    listed.sort();
+    assert_eq!(listed, files.keys().cloned().collect::<Vec<_>>());
+    let stages: Vec<&str> = v["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["stage"].as_str().unwrap())
+        .collect();
+    assert!(
+        stages.ends_with(&["tiles", "quadtree", "extract", "write"]),
+        "{stages:?}"
+    );
+    // The grid the manifest describes is the run's: the fixture's CRS, no holes.
+    assert_eq!(m["crs"]["epsg"], 32632);
+    assert_eq!(m["grid"]["holes"], 0);
+}
+
+#[test]
+fn same_bytes_for_any_thread_count() {
+    let mut first: Option<std::collections::BTreeMap<String, Vec<u8>>> = None;
+    for threads in ["1", "2", "8"] {
+        let d = default_job();
+        terratile(d.path(), &["--threads", threads, "run", "-q"]).ok();
+        let s = snapshot(&d.path().join("out"));
+        if let Some(f) = &first {
+            assert_eq!(f.keys().collect::<Vec<_>>(), s.keys().collect::<Vec<_>>());
+            for (k, v) in &s {
+                assert!(f[k] == *v, "{k} differs with {threads} threads");
+            }
+        }
+        first = Some(s);
+    }
+}
+
+#[test]
+fn holes_asked_for_as_meshes() {
+    let d = default_job();
+    edit(d.path(), "fallback = \"smooth\"", "fallback = \"nodata\"");
+    refused(
+        d.path(),
+        &[
+            "extract:",
+            "masked hole samples",
+            "meshes need a filled heightfield",
+        ],
+    );
+    // Without meshes and wireframe the holes are kept and masked.
+    edit(
+        d.path(),
+        "[output]\n",
+        "[output]\nmeshes = []\nwireframe = false\n",
+    );
+    let r = terratile(d.path(), &["run", "-q"]);
+    r.ok();
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.path().join("out/manifest.json")).unwrap())
+            .unwrap();
+    assert!(m["grid"]["holes"].as_u64().unwrap() > 0, "{}", r.context());
+    assert_eq!(m["heightmaps"]["nodata"], 0);
+    assert!(!d.path().join("out/meshes").exists());
+}
+
+#[test]
+fn output_directory_that_cannot_be_written() {
+    let d = default_job();
+    // A file where a directory is needed: refused whoever runs the test (root included).
+    std::fs::write(d.path().join("blocker"), b"not a directory").unwrap();
+    edit(d.path(), "dir = \"out\"", "dir = \"blocker/out\"");
+    let r = terratile(d.path(), &["run", "-q"]);
+    r.input_error(&[
+        "blocker: is a file, so the output directory",
+        "blocker/out cannot be created",
+    ]);
+    assert_eq!(
+        std::fs::read(d.path().join("blocker")).unwrap(),
+        b"not a directory"
+    );
+    let stray: Vec<_> = common::walk(d.path())
+        .into_iter()
+        .filter(|p| p.to_string_lossy().contains(".tmp-"))
+        .collect();
+    assert!(stray.is_empty(), "{stray:?}");
+}
+
+#[test]
+fn a_failed_run_leaves_the_previous_output_as_it_was() {
+    let d = default_job();
+    terratile(d.path(), &["run", "-q"]).ok();
+    let before = snapshot(&d.path().join("out"));
+    // The second run fails after reading and gridding (the holes refuse meshes).
+    edit(d.path(), "fallback = \"smooth\"", "fallback = \"nodata\"");
+    terratile(d.path(), &["run", "-q"]).input_error(&["masked hole samples"]);
+    assert!(before == snapshot(&d.path().join("out")), "out/ changed");
+    let stray: Vec<_> = common::walk(d.path())
+        .into_iter()
+        .filter(|p| p.to_string_lossy().contains(".tmp-"))
+        .collect();
+    assert!(stray.is_empty(), "{stray:?}");
+}
