@@ -4,6 +4,7 @@
 
 use crate::error::{Error, Result};
 use crate::points::{ClassFilter, Format, ReadOptions};
+use crate::terrain::delaunay::BaselineParams;
 use crate::terrain::{DenoiseParams, FillParams, ResampleParams};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -35,6 +36,9 @@ pub struct Pipeline {
     /// `[fill]`: hole filling (on by default).
     #[serde(default)]
     pub fill: FillParams,
+    /// `[baseline]`: the Delaunay baseline and its comparison report (off by default).
+    #[serde(default)]
+    pub baseline: BaselineParams,
     /// `[[assets]]`: model meshes simplified and placed on the terrain (see `assets`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub assets: Vec<crate::assets::AssetConfig>,
@@ -279,7 +283,8 @@ impl LoadedPipeline {
         c.tiles.validate().map_err(at_key)?;
         c.quadtree.validate().map_err(at_key)?;
         c.extract.validate().map_err(at_key)?;
-        crate::output::validate(&c.output).map_err(at_key)
+        crate::output::validate(&c.output).map_err(at_key)?;
+        c.baseline.validate().map_err(at_key)
     }
 }
 

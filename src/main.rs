@@ -193,6 +193,50 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// The paper's Table 1 on FILE: for each count, a seeded random subset timed through the
+    /// grid pipeline and spade's Delaunay build (interleaved, median of --repeat), with
+    /// memory, triangle counts and the RMSE of both surfaces at 2 % held-out points.
+    Table1 {
+        /// The survey (LAS, LAZ or XYZ).
+        file: PathBuf,
+        /// Point counts, comma-separated (default: the paper's 34379,430674,1626972,3408187).
+        #[arg(long, value_delimiter = ',', value_parser = parse_count)]
+        counts: Option<Vec<u64>>,
+        /// Repetitions (the median is reported; at least 3 for the table).
+        #[arg(long, default_value_t = 3)]
+        repeat: usize,
+        /// Seed of the subsets and the hold-out.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Print the rows as JSON instead of the markdown table.
+        #[arg(long)]
+        json: bool,
+        /// Also draw time against points, log–log, into this PNG.
+        #[arg(long, value_name = "FILE.png")]
+        plot: Option<PathBuf>,
+    },
+    /// (Internal: one memory measurement of `table1`, run in a fresh process.)
+    #[command(hide = true)]
+    Table1Memory {
+        file: PathBuf,
+        #[arg(long)]
+        count: u64,
+        #[arg(long)]
+        seed: u64,
+        #[arg(long)]
+        method: String,
+    },
+}
+
+/// A `--counts` entry: a positive whole number.
+fn parse_count(s: &str) -> std::result::Result<u64, String> {
+    match s.trim().parse::<u64>() {
+        Ok(0) => Err("0 is not a point count".into()),
+        Ok(n) => Ok(n),
+        Err(_) => Err(format!(
+            "`{s}` is not a point count (a whole number such as 430674)"
+        )),
+    }
 }
 
 #[derive(Args, Debug, Clone)]
@@ -413,6 +457,61 @@ fn run(cli: Cli) -> Result<()> {
             } else {
                 println!("{r}");
             }
+        }
+        Command::Bench(BenchCommand::Table1 {
+            file,
+            counts,
+            repeat,
+            seed,
+            json,
+            plot,
+        }) => {
+            let counts = counts.unwrap_or_else(terratile::bench::paper_counts);
+            // Each memory figure comes from a fresh process running one method once.
+            let probe = |count: u64, method: &str| -> Result<Option<f64>> {
+                let exe = std::env::current_exe().map_err(|e| Error::Internal(e.to_string()))?;
+                let out = std::process::Command::new(exe)
+                    .args(["bench", "table1-memory", "--count", &count.to_string()])
+                    .args(["--seed", &seed.to_string(), "--method", method])
+                    .arg(&file)
+                    .output()
+                    .map_err(|e| Error::Internal(format!("memory probe: {e}")))?;
+                if !out.status.success() {
+                    return Err(Error::Internal(format!(
+                        "memory probe: {}",
+                        String::from_utf8_lossy(&out.stderr).trim()
+                    )));
+                }
+                Ok(String::from_utf8_lossy(&out.stdout)
+                    .trim()
+                    .parse::<f64>()
+                    .ok())
+            };
+            let t = terratile::bench::table1(&file, &counts, repeat, seed, Some(&probe))?;
+            for s in &t.skipped {
+                eprintln!(
+                    "terratile: bench table1: skipping {s} points: {} holds {}",
+                    file.display(),
+                    t.file_points
+                );
+            }
+            if let Some(p) = &plot {
+                terratile::bench::plot_table1(&t, p)?;
+            }
+            if json {
+                print_json(&t.rows)?;
+            } else {
+                print!("{t}");
+            }
+        }
+        Command::Bench(BenchCommand::Table1Memory {
+            file,
+            count,
+            seed,
+            method,
+        }) => {
+            let mb = terratile::bench::table1_memory(&file, count, seed, &method)?;
+            println!("{}", mb.map_or("none".into(), |m| m.to_string()));
         }
         Command::Simplify(a) => simplify(a, cli.quiet)?,
         Command::Compare {

@@ -308,6 +308,76 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
     summary.stages.extend(reports);
     summary.files.extend(files);
 
+    // The Delaunay baseline and its comparison report ([baseline], issue 5).
+    if cfg.baseline.enabled {
+        let grid_s: f64 = summary
+            .stages
+            .iter()
+            .filter(|s| {
+                matches!(
+                    s.stage.as_str(),
+                    "denoise" | "resample" | "fill" | "tiles" | "quadtree" | "extract" | "write"
+                )
+            })
+            .map(|s| s.seconds)
+            .sum();
+        progress.start("baseline (Delaunay)", 0);
+        let grid_peak = crate::bench::peak_rss();
+        crate::bench::reset_peak_rss();
+        let t = Instant::now();
+        let fill = cfg.fill.enabled.then_some(&cfg.fill);
+        let b = terrain::delaunay::baseline(
+            &cloud,
+            keep.as_deref(),
+            &grid,
+            grid_s,
+            &cfg.baseline,
+            &cfg.resample,
+            fill,
+        );
+        let seconds = t.elapsed().as_secs_f64();
+        progress.finish();
+        let (mut report, tin) = b?;
+        report.grid_peak_mb = grid_peak.map(|p| p as f64 / 1e6);
+        report.tin_peak_mb = crate::bench::peak_rss().map(|p| p as f64 / 1e6);
+        let b = &cfg.baseline;
+        let in_staged = |name: &str| -> Result<std::path::PathBuf> {
+            let p = staged.path().join(name);
+            if let Some(parent) = p.parent() {
+                std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+            }
+            Ok(p)
+        };
+        if !b.mesh.is_empty() {
+            let origin = [grid.corner[0], grid.corner[1], grid.z_offset];
+            crate::mesh::io::write(&tin.to_mesh(origin), &in_staged(&b.mesh)?)?;
+            summary.files.push(b.mesh.clone());
+        }
+        drop(tin);
+        let json =
+            serde_json::to_vec_pretty(&report).map_err(|e| Error::Internal(e.to_string()))?;
+        crate::fsutil::write_bytes_atomic(&in_staged(&b.report)?, &json)?;
+        summary.files.push(b.report.clone());
+        let acc = |s: &Option<terrain::accuracy::ErrorStats>| {
+            s.map_or("—".into(), |s| format!("{:.3} m", s.rmse))
+        };
+        summary.stages.push(StageReport {
+            stage: "baseline".into(),
+            seconds,
+            figures: vec![
+                fig("method", format!("{:?}", report.method).to_lowercase()),
+                fig("vertices", report.vertices.to_string()),
+                fig("triangles", report.triangles.to_string()),
+                fig("merged", report.merged.to_string()),
+                fig("build", format!("{:.3} s", report.build_s)),
+                fig("Delaunay / grid", format!("{:.1}", report.ratio)),
+                fig("grid − TIN rmse", format!("{:.3} m", report.raster.rmse_m)),
+                fig("held-out rmse grid", acc(&report.grid_accuracy)),
+                fig("held-out rmse TIN", acc(&report.tin_accuracy)),
+            ],
+        });
+    }
+
     // Assets stand on the filled grid ([[assets]], issue 6).
     if !cfg.assets.is_empty() {
         let origin = [grid.corner[0], grid.corner[1], grid.z_offset];

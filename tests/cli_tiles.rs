@@ -7,10 +7,22 @@ mod common;
 use common::{default_job, terratile};
 use std::path::Path;
 
-/// Appends `table` to the default job's pipeline.toml.
+/// Puts `table` (a header line and keys) into the default job's pipeline.toml in place of
+/// the table of the same name, so that the keys given are the only ones it has.
 fn with_table(dir: &Path, table: &str) {
     let p = dir.join("pipeline.toml");
-    let mut text = std::fs::read_to_string(&p).unwrap();
+    let header = table.lines().next().unwrap();
+    let mut text = String::new();
+    let mut skipping = false;
+    for line in std::fs::read_to_string(&p).unwrap().lines() {
+        if line.starts_with('[') {
+            skipping = line.trim() == header;
+        }
+        if !skipping {
+            text.push_str(line);
+            text.push('\n');
+        }
+    }
     text.push('\n');
     text.push_str(table);
     text.push('\n');
@@ -108,16 +120,7 @@ fn other_tile_parameters_are_checked() {
         ),
     ] {
         let d = default_job();
-        // [output] exists already in the default pipeline: put the key into it.
-        if let Some(rest) = table.strip_prefix("[output]\n") {
-            let p = d.path().join("pipeline.toml");
-            let text = std::fs::read_to_string(&p)
-                .unwrap()
-                .replace("[output]\n", &format!("[output]\n{rest}\n"));
-            std::fs::write(&p, text).unwrap();
-        } else {
-            with_table(d.path(), table);
-        }
+        with_table(d.path(), table);
         refused(d.path(), &[key]);
     }
 }
@@ -216,11 +219,7 @@ fn holes_asked_for_as_meshes() {
         ],
     );
     // Without meshes and wireframe the holes are kept and masked.
-    edit(
-        d.path(),
-        "[output]\n",
-        "[output]\nmeshes = []\nwireframe = false\n",
-    );
+    with_table(d.path(), "[output]\nmeshes = []\nwireframe = false");
     let r = terratile(d.path(), &["run", "-q"]);
     r.ok();
     let m: serde_json::Value =

@@ -1,10 +1,16 @@
 //! In-process measurements behind `terratile bench`: each compares terratile against a
 //! reference measured in the same run, so the ratio means something on a noisy machine.
 
+mod plot;
 mod read;
+mod table1;
 mod terrain;
 
+pub use plot::plot_table1;
 pub use read::{copy_file_bytes, read, read_with_las_rs, ReadBench};
+pub use table1::{
+    paper_counts, table1, table1_memory, MemoryProbe, Table1, Table1Row, PAPER, PAPER_DELAUNAY_S,
+};
 pub use terrain::{current_rss, peak_rss, reset_peak_rss, terrain, TerrainBench};
 
 /// Median of a non-empty list of seconds.

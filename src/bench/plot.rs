@@ -1,0 +1,248 @@
+//! The plot of `bench table1 --plot FILE.png`: time against points, log–log, for the grid
+//! pipeline and the Delaunay build measured here and for the paper's pipeline (its Delaunay:
+//! a line at "more than 12 hours"). Drawn with `embedded-graphics` (lines, markers and its
+//! built-in bitmap font, so no system font is needed) into an `image` buffer written as PNG.
+
+use super::table1::{Table1, PAPER, PAPER_DELAUNAY_S};
+use crate::error::{Error, Result};
+use embedded_graphics::mono_font::{ascii::FONT_6X10, MonoTextStyle};
+use embedded_graphics::pixelcolor::Rgb888;
+use embedded_graphics::prelude::*;
+use embedded_graphics::primitives::{Circle, Line, PrimitiveStyle, Rectangle, Triangle};
+use embedded_graphics::text::{Alignment, Text};
+use std::path::Path;
+
+/// An `image` buffer as an embedded-graphics target.
+struct Canvas(image::RgbImage);
+
+impl OriginDimensions for Canvas {
+    fn size(&self) -> Size {
+        Size::new(self.0.width(), self.0.height())
+    }
+}
+
+impl DrawTarget for Canvas {
+    type Color = Rgb888;
+    type Error = std::convert::Infallible;
+
+    fn draw_iter<I: IntoIterator<Item = Pixel<Rgb888>>>(
+        &mut self,
+        pixels: I,
+    ) -> std::result::Result<(), Self::Error> {
+        let (w, h) = (self.0.width() as i32, self.0.height() as i32);
+        for Pixel(p, c) in pixels {
+            if p.x >= 0 && p.y >= 0 && p.x < w && p.y < h {
+                self.0
+                    .put_pixel(p.x as u32, p.y as u32, image::Rgb([c.r(), c.g(), c.b()]));
+            }
+        }
+        Ok(())
+    }
+}
+
+const W: i32 = 900;
+const H: i32 = 620;
+const LEFT: i32 = 90;
+const RIGHT: i32 = 30;
+const TOP: i32 = 50;
+const BOTTOM: i32 = 70;
+
+/// Log-scale axis mapping from [lo, hi] (decades) to pixels [a, b].
+struct Axis {
+    lo: f64,
+    hi: f64,
+    a: i32,
+    b: i32,
+}
+
+impl Axis {
+    fn px(&self, v: f64) -> i32 {
+        let t = (v.log10() - self.lo) / (self.hi - self.lo);
+        (self.a as f64 + t * (self.b - self.a) as f64).round() as i32
+    }
+}
+
+fn label_points(v: f64) -> String {
+    match v {
+        v if v >= 1e6 => format!("{}M", v / 1e6),
+        v if v >= 1e3 => format!("{}k", v / 1e3),
+        v => format!("{v}"),
+    }
+}
+
+fn label_seconds(v: f64) -> String {
+    match v {
+        v if v >= 3600.0 => format!("{}h", (v / 3600.0 * 10.0).round() / 10.0),
+        v if v >= 1.0 => format!("{v} s"),
+        v => format!("{} ms", v * 1e3),
+    }
+}
+
+/// Draws `t` as a PNG at `path`.
+pub fn plot_table1(t: &Table1, path: &Path) -> Result<()> {
+    let mut c = Canvas(image::RgbImage::from_pixel(
+        W as u32,
+        H as u32,
+        image::Rgb([255, 255, 255]),
+    ));
+    let ours: Vec<(f64, f64, f64)> = t
+        .rows
+        .iter()
+        .map(|r| (r.points as f64, r.grid_s, r.delaunay_s))
+        .collect();
+    let xs = ours
+        .iter()
+        .map(|o| o.0)
+        .chain(PAPER.iter().map(|p| p.0 as f64));
+    let (xmin, xmax) = xs.fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(v), b.max(v)));
+    let ys = ours
+        .iter()
+        .flat_map(|o| [o.1, o.2])
+        .chain([PAPER_DELAUNAY_S])
+        .chain(PAPER.iter().map(|p| p.1));
+    let (ymin, ymax) = ys.fold((f64::INFINITY, 0.0f64), |(a, b), v| (a.min(v), b.max(v)));
+    let xa = Axis {
+        lo: xmin.log10().floor(),
+        hi: xmax.log10().ceil(),
+        a: LEFT,
+        b: W - RIGHT,
+    };
+    let ya = Axis {
+        lo: ymin.log10().floor(),
+        hi: (ymax * 2.0).log10().ceil(),
+        a: H - BOTTOM,
+        b: TOP,
+    };
+    let black = Rgb888::BLACK;
+    let grey = Rgb888::new(210, 210, 210);
+    let text = MonoTextStyle::new(&FONT_6X10, black);
+    let thin = |col| PrimitiveStyle::with_stroke(col, 1);
+    // Grid lines and labels at each decade.
+    for d in (xa.lo as i32)..=(xa.hi as i32) {
+        let x = xa.px(10f64.powi(d));
+        let _ = Line::new(Point::new(x, TOP), Point::new(x, H - BOTTOM))
+            .into_styled(thin(grey))
+            .draw(&mut c);
+        let _ = Text::with_alignment(
+            &label_points(10f64.powi(d)),
+            Point::new(x, H - BOTTOM + 16),
+            text,
+            Alignment::Center,
+        )
+        .draw(&mut c);
+    }
+    for d in (ya.lo as i32)..=(ya.hi as i32) {
+        let y = ya.px(10f64.powi(d));
+        let _ = Line::new(Point::new(LEFT, y), Point::new(W - RIGHT, y))
+            .into_styled(thin(grey))
+            .draw(&mut c);
+        let _ = Text::with_alignment(
+            &label_seconds(10f64.powi(d)),
+            Point::new(LEFT - 6, y + 3),
+            text,
+            Alignment::Right,
+        )
+        .draw(&mut c);
+    }
+    let _ = Rectangle::with_corners(Point::new(LEFT, TOP), Point::new(W - RIGHT, H - BOTTOM))
+        .into_styled(thin(black))
+        .draw(&mut c);
+    let _ = Text::with_alignment(
+        "points",
+        Point::new((LEFT + W - RIGHT) / 2, H - 24),
+        text,
+        Alignment::Center,
+    )
+    .draw(&mut c);
+    let _ = Text::new("seconds", Point::new(8, TOP - 10), text).draw(&mut c);
+    let title = format!(
+        "Table 1 on {} (log-log)",
+        Path::new(&t.file)
+            .file_name()
+            .map_or("?".into(), |f| f.to_string_lossy())
+    );
+    let _ =
+        Text::with_alignment(&title, Point::new(W / 2, 22), text, Alignment::Center).draw(&mut c);
+
+    let blue = Rgb888::new(30, 90, 200);
+    let red = Rgb888::new(200, 40, 40);
+    let green = Rgb888::new(40, 140, 60);
+    let series = |c: &mut Canvas, pts: &[(f64, f64)], col: Rgb888, marker: u8| {
+        let p: Vec<Point> = pts
+            .iter()
+            .map(|&(x, y)| Point::new(xa.px(x), ya.px(y)))
+            .collect();
+        for w in p.windows(2) {
+            let _ = Line::new(w[0], w[1])
+                .into_styled(PrimitiveStyle::with_stroke(col, 2))
+                .draw(c);
+        }
+        for q in &p {
+            let fill = PrimitiveStyle::with_fill(col);
+            let _ = match marker {
+                0 => Circle::with_center(*q, 9).into_styled(fill).draw(c),
+                1 => Rectangle::with_center(*q, Size::new(8, 8))
+                    .into_styled(fill)
+                    .draw(c),
+                _ => Triangle::new(
+                    *q + Point::new(0, -5),
+                    *q + Point::new(-5, 4),
+                    *q + Point::new(5, 4),
+                )
+                .into_styled(fill)
+                .draw(c),
+            };
+        }
+    };
+    let grid: Vec<(f64, f64)> = ours.iter().map(|o| (o.0, o.1)).collect();
+    let tin: Vec<(f64, f64)> = ours.iter().map(|o| (o.0, o.2)).collect();
+    let paper: Vec<(f64, f64)> = PAPER.iter().map(|p| (p.0 as f64, p.1)).collect();
+    series(&mut c, &paper, green, 2);
+    series(&mut c, &grid, blue, 0);
+    series(&mut c, &tin, red, 1);
+    // The paper's Delaunay: "more than 12 hours", dashed.
+    let y = ya.px(PAPER_DELAUNAY_S);
+    let mut x = LEFT;
+    while x < W - RIGHT {
+        let _ = Line::new(Point::new(x, y), Point::new((x + 8).min(W - RIGHT), y))
+            .into_styled(PrimitiveStyle::with_stroke(green, 2))
+            .draw(&mut c);
+        x += 14;
+    }
+    // Legend.
+    let entries = [
+        (blue, 0u8, "terratile grid pipeline (this machine)"),
+        (red, 1, "spade Delaunay build (this machine)"),
+        (green, 2, "paper's grid pipeline (Pentium IV)"),
+        (green, 3, "paper's Delaunay: more than 12 h"),
+    ];
+    for (k, (col, marker, name)) in entries.iter().enumerate() {
+        let p = Point::new(W - RIGHT - 280, H - BOTTOM - 70 + 16 * k as i32);
+        if *marker == 3 {
+            let _ = Line::new(p + Point::new(-8, 0), p + Point::new(8, 0))
+                .into_styled(PrimitiveStyle::with_stroke(*col, 2))
+                .draw(&mut c);
+        } else {
+            series(&mut c, &[], *col, *marker);
+            let fill = PrimitiveStyle::with_fill(*col);
+            let _ = match marker {
+                0 => Circle::with_center(p, 9).into_styled(fill).draw(&mut c),
+                1 => Rectangle::with_center(p, Size::new(8, 8))
+                    .into_styled(fill)
+                    .draw(&mut c),
+                _ => Triangle::new(
+                    p + Point::new(0, -5),
+                    p + Point::new(-5, 4),
+                    p + Point::new(5, 4),
+                )
+                .into_styled(fill)
+                .draw(&mut c),
+            };
+        }
+        let _ = Text::new(name, p + Point::new(14, 3), text).draw(&mut c);
+    }
+    let mut png = Vec::new();
+    c.0.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .map_err(|e| Error::Internal(format!("png: {e}")))?;
+    crate::fsutil::write_bytes_atomic(path, &png)
+}
