@@ -255,8 +255,9 @@ impl Coverage {
         }
     }
 
-    /// Xiaolin Wu's line from (x0, y0) to (x1, y1), pixel centres at integer + 0.5.
-    fn line(&mut self, mut x0: f64, mut y0: f64, mut x1: f64, mut y1: f64) {
+    /// Xiaolin Wu's line from (x0, y0) to (x1, y1), pixel centres at integer + 0.5, with
+    /// `ink` (0..=1) the coverage of a pixel the line crosses fully.
+    fn line(&mut self, mut x0: f64, mut y0: f64, mut x1: f64, mut y1: f64, ink: f32) {
         x0 -= 0.5;
         y0 -= 0.5;
         x1 -= 0.5;
@@ -279,15 +280,18 @@ impl Coverage {
             let f = (y - yf) as f32;
             let (a, b) = (yf as isize, yf as isize + 1);
             if steep {
-                self.plot(a, x, 1.0 - f);
-                self.plot(b, x, f);
+                self.plot(a, x, (1.0 - f) * ink);
+                self.plot(b, x, f * ink);
             } else {
-                self.plot(x, a, 1.0 - f);
-                self.plot(x, b, f);
+                self.plot(x, a, (1.0 - f) * ink);
+                self.plot(x, b, f * ink);
             }
         }
     }
 }
+
+/// Mesh edges at least this long (in pixels) are drawn with full ink.
+const FULL_INK_PX: f64 = 6.0;
 
 /// `base` with the surface edges of `tris` drawn over it, and the tiles' borders.
 pub fn wireframe(set: &TileSet, base: &Picture, tris: &[TileTriangulation]) -> Picture {
@@ -300,7 +304,11 @@ pub fn wireframe(set: &TileSet, base: &Picture, tris: &[TileTriangulation]) -> P
                 let (pa, pb) = (t.uv[a as usize], t.uv[b as usize]);
                 let [x0, y0] = base.to_pixel(o[0] as f64 + pa[0], o[1] as f64 + pa[1]);
                 let [x1, y1] = base.to_pixel(o[0] as f64 + pb[0], o[1] as f64 + pb[1]);
-                mesh.line(x0, y0, x1, y1);
+                // Edges shorter than a few pixels are drawn fainter: where the mesh is finer
+                // than the picture, its density shows as a shade instead of solid ink, and
+                // the coarse triangles stay readable beside it.
+                let len = (x1 - x0).hypot(y1 - y0);
+                mesh.line(x0, y0, x1, y1, (len / FULL_INK_PX).min(1.0) as f32);
             }
         }
     }
@@ -313,7 +321,7 @@ pub fn wireframe(set: &TileSet, base: &Picture, tris: &[TileTriangulation]) -> P
             let [a, b] = [corners[k], corners[(k + 1) % 4]];
             let [x0, y0] = base.to_pixel(a[0], a[1]);
             let [x1, y1] = base.to_pixel(b[0], b[1]);
-            borders.line(x0, y0, x1, y1);
+            borders.line(x0, y0, x1, y1, 1.0);
         }
     }
     let mut out = base.clone();
@@ -337,15 +345,19 @@ mod tests {
     #[test]
     fn wu_lines_cover_their_pixels_and_are_idempotent() {
         let mut c = Coverage::new(10, 10);
-        c.line(0.5, 0.5, 9.5, 0.5);
+        c.line(0.5, 0.5, 9.5, 0.5, 1.0);
         assert!((0..10).all(|x| c.c[x] == 1.0));
         let before = c.c.clone();
-        c.line(9.5, 0.5, 0.5, 0.5);
+        c.line(9.5, 0.5, 0.5, 0.5, 1.0);
         assert_eq!(before, c.c);
         // A diagonal splits its coverage.
         let mut d = Coverage::new(10, 10);
-        d.line(0.5, 0.5, 9.5, 9.5);
+        d.line(0.5, 0.5, 9.5, 9.5, 1.0);
         assert!((0..10).all(|k| d.c[k * 10 + k] == 1.0));
+        // Ink scales the coverage.
+        let mut e = Coverage::new(10, 10);
+        e.line(0.5, 0.5, 9.5, 0.5, 0.25);
+        assert!((0..10).all(|x| e.c[x] == 0.25));
     }
 
     #[test]
