@@ -281,7 +281,7 @@ pub fn read_tile(path: &Path) -> Result<ExrTile> {
 mod tests {
     use super::*;
     use crate::terrain::quadtree::{build, QuadtreeParams};
-    use crate::terrain::tiles::{tile, TileParams};
+    use crate::terrain::testutil::tiles_of;
     use crate::terrain::{CellState, Heightfield};
 
     #[test]
@@ -295,14 +295,7 @@ mod tests {
         }
         hf.heights[[3, 4]] = f32::NAN;
         hf.state[[3, 4]] = CellState::Empty;
-        let set = tile(
-            &hf,
-            &TileParams {
-                size: Some(65),
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let set = tiles_of(&hf, 65);
         let qt = build(&set, &QuadtreeParams::default()).unwrap();
         let dir = tempfile::tempdir().unwrap();
         for c in ExrCompression::ALL {

@@ -131,7 +131,7 @@ pub fn raw_bytes(values: &[u16], width: usize, north_first_rows: bool) -> Vec<u8
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::terrain::tiles::{tile, TileParams};
+    use crate::terrain::testutil::tiles_of;
     use crate::terrain::{CellState, Heightfield};
 
     fn set(hole: bool) -> TileSet {
@@ -146,14 +146,7 @@ mod tests {
             hf.heights[[5, 5]] = f32::NAN;
             hf.state[[5, 5]] = CellState::Empty;
         }
-        tile(
-            &hf,
-            &TileParams {
-                size: Some(65),
-                ..Default::default()
-            },
-        )
-        .unwrap()
+        tiles_of(&hf, 65)
     }
 
     #[test]

@@ -625,31 +625,13 @@ pub fn error_tree(set: &TileSet, criterion: &Criterion) -> Option<Vec<NodeValues
 mod tests {
     use super::*;
     use crate::terrain::quadtree::{build, QuadtreeParams};
-    use crate::terrain::tiles::{tile, TileParams};
-    use crate::terrain::{CellState, Heightfield};
-
-    fn field(cols: usize, rows: usize, f: impl Fn(usize, usize) -> f32) -> Heightfield {
-        let mut hf = Heightfield::empty(cols, rows, [0.0, 0.0], [1.0, 1.0], 0.0, None);
-        for j in 0..rows {
-            for i in 0..cols {
-                hf.heights[[j, i]] = f(i, j);
-                hf.state[[j, i]] = CellState::Measured;
-            }
-        }
-        hf
-    }
+    use crate::terrain::testutil::{field, tiles_of};
+    use crate::terrain::CellState;
 
     #[test]
     fn a_plane_is_two_fans_worth_of_triangles() {
         let hf = field(65, 65, |i, j| i as f32 * 0.5 + j as f32);
-        let set = tile(
-            &hf,
-            &TileParams {
-                size: Some(65),
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let set = tiles_of(&hf, 65);
         let qt = build(&set, &QuadtreeParams::default()).unwrap();
         let err = quadtree::vertical_error(&set);
         let r = Refiner::new(
@@ -670,14 +652,7 @@ mod tests {
         let mut hf = field(65, 65, |_, _| 1.0);
         hf.heights[[3, 3]] = f32::NAN;
         hf.state[[3, 3]] = CellState::Empty;
-        let set = tile(
-            &hf,
-            &TileParams {
-                size: Some(65),
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let set = tiles_of(&hf, 65);
         let qt = build(&set, &QuadtreeParams::default()).unwrap();
         let err = quadtree::vertical_error(&set);
         let r = Refiner::new(
@@ -722,14 +697,7 @@ mod tests {
     #[test]
     fn clipping_keeps_the_valid_extent_only() {
         let hf = field(100, 70, |i, j| ((i * 7 + j * 13) % 5) as f32);
-        let set = tile(
-            &hf,
-            &TileParams {
-                size: Some(65),
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let set = tiles_of(&hf, 65);
         let qt = build(&set, &QuadtreeParams::default()).unwrap();
         let err = quadtree::vertical_error(&set);
         let r = Refiner::new(
@@ -757,14 +725,7 @@ mod tests {
     #[test]
     fn skirts_face_outwards_and_close_the_border() {
         let hf = field(65, 65, |i, j| (i as f32 * 0.3).sin() + j as f32 * 0.1);
-        let set = tile(
-            &hf,
-            &TileParams {
-                size: Some(65),
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let set = tiles_of(&hf, 65);
         let qt = build(&set, &QuadtreeParams::default()).unwrap();
         let err = quadtree::vertical_error(&set);
         let r = Refiner::new(

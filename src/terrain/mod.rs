@@ -49,3 +49,31 @@ pub(crate) fn bounds_of(x: &[f64], y: &[f64], z: &[f64], keep: Option<&[bool]>) 
         })
         .reduce(|| (Bounds::EMPTY, 0), |a, b| (a.0.union(b.0), a.1 + b.1))
 }
+
+/// Small heightfields and tile sets for the unit tests of the terrain and output modules.
+#[cfg(test)]
+pub(crate) mod testutil {
+    use super::tiles::{tile, TileParams, TileSet};
+    use super::{CellState, Heightfield};
+
+    /// A `cols` × `rows` grid of unit cells at the origin, every cell measured at `f(i, j)`.
+    pub(crate) fn field(cols: usize, rows: usize, f: impl Fn(usize, usize) -> f32) -> Heightfield {
+        let mut hf = Heightfield::empty(cols, rows, [0.0, 0.0], [1.0, 1.0], 0.0, None);
+        for j in 0..rows {
+            for i in 0..cols {
+                hf.heights[[j, i]] = f(i, j);
+                hf.state[[j, i]] = CellState::Measured;
+            }
+        }
+        hf
+    }
+
+    /// `hf` cut into tiles of `size` samples.
+    pub(crate) fn tiles_of(hf: &Heightfield, size: usize) -> TileSet {
+        let params = TileParams {
+            size: Some(size),
+            ..Default::default()
+        };
+        tile(hf, &params).unwrap()
+    }
+}

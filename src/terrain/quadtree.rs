@@ -560,19 +560,7 @@ fn reconcile(set: &TileSet, m: &mut [NodeValues], r: usize) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::terrain::tiles::{tile, TileParams};
-    use crate::terrain::{CellState, Heightfield};
-
-    fn field(cols: usize, rows: usize, f: impl Fn(usize, usize) -> f32) -> Heightfield {
-        let mut hf = Heightfield::empty(cols, rows, [0.0, 0.0], [1.0, 1.0], 0.0, None);
-        for j in 0..rows {
-            for i in 0..cols {
-                hf.heights[[j, i]] = f(i, j);
-                hf.state[[j, i]] = CellState::Measured;
-            }
-        }
-        hf
-    }
+    use crate::terrain::testutil::{field, tiles_of};
 
     #[test]
     fn k_is_roettgers() {
@@ -592,14 +580,7 @@ mod tests {
     #[test]
     fn a_plane_has_no_error() {
         let hf = field(65, 65, |i, j| 3.0 * i as f32 - 2.0 * j as f32);
-        let set = tile(
-            &hf,
-            &TileParams {
-                size: Some(65),
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let set = tiles_of(&hf, 65);
         let q = build(&set, &QuadtreeParams::default()).unwrap();
         assert!(q.d2[0].to_matrix().iter().all(|v| *v == 0.0));
         assert!(vertical_error(&set)[0]
@@ -612,14 +593,7 @@ mod tests {
     fn a_single_bump_is_seen_at_every_level() {
         // A spike at the centre sample of the root: d2 of the root = spike / 64.
         let hf = field(65, 65, |i, j| if (i, j) == (32, 32) { 64.0 } else { 0.0 });
-        let set = tile(
-            &hf,
-            &TileParams {
-                size: Some(65),
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let set = tiles_of(&hf, 65);
         let q = build(&set, &QuadtreeParams::default()).unwrap();
         assert_eq!(q.d2[0].get(32, 32), 1.0);
         // For the four d = 2 nodes around it the spike is a corner: their edge midpoints
