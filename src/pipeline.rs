@@ -350,7 +350,17 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
         };
         if !b.mesh.is_empty() {
             let origin = [grid.corner[0], grid.corner[1], grid.z_offset];
-            crate::mesh::io::write(&tin.to_mesh(origin), &in_staged(&b.mesh)?)?;
+            let mesh = tin.to_mesh(origin);
+            let path = in_staged(&b.mesh)?;
+            let glb = path
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("glb"));
+            if glb {
+                let bytes = crate::output::glb::glb_bytes(&mesh, "tin")?;
+                crate::fsutil::write_bytes_atomic(&path, &bytes)?;
+            } else {
+                crate::mesh::io::write(&mesh, &path)?;
+            }
             summary.files.push(b.mesh.clone());
         }
         drop(tin);

@@ -114,6 +114,54 @@ fn baseline_obj_and_no_holdout() {
 }
 
 #[test]
+fn baseline_glb_reads_back_and_grid_time_counts_the_tile_stages() {
+    let d = tempfile::tempdir().unwrap();
+    let r = run_pipeline(
+        d.path(),
+        &fixture(),
+        "[baseline]\nenabled = true\nmesh = \"tin.glb\"\nholdout = 0\n",
+    );
+    r.ok();
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.path().join("out/baseline.json")).unwrap())
+            .unwrap();
+    let glb = std::fs::read(d.path().join("out/tin.glb")).unwrap();
+    let g = gltf::Gltf::from_slice(&glb).unwrap();
+    let prim = g.meshes().next().unwrap().primitives().next().unwrap();
+    let reader = prim.reader(|_| g.blob.as_deref());
+    let tris = reader.read_indices().unwrap().into_u32().count() / 3;
+    assert_eq!(tris as u64, report["triangles"].as_u64().unwrap());
+    assert_eq!(
+        reader.read_positions().unwrap().count() as u64,
+        report["vertices"].as_u64().unwrap()
+    );
+    // The baseline's grid time is the grid pipeline end to end: every stage from denoise to
+    // the written tiles.
+    let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+    let grid_stages: f64 = v["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|s| !matches!(s["stage"].as_str(), Some("read" | "baseline")))
+        .map(|s| s["seconds"].as_f64().unwrap())
+        .sum();
+    let names: Vec<&str> = v["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["stage"].as_str().unwrap())
+        .collect();
+    for stage in ["tiles", "quadtree", "write"] {
+        assert!(names.contains(&stage), "{names:?}");
+    }
+    let grid_s = report["grid_s"].as_f64().unwrap();
+    assert!(
+        (grid_s - grid_stages).abs() <= 1e-6 * grid_stages.max(1.0),
+        "{grid_s} vs {grid_stages}: {names:?}"
+    );
+}
+
+#[test]
 fn bad_baseline_parameters() {
     let d = tempfile::tempdir().unwrap();
     run_pipeline(
@@ -127,7 +175,7 @@ fn bad_baseline_parameters() {
         &fixture(),
         "[baseline]\nenabled = true\nmesh = \"tin.stl\"\n",
     )
-    .input_error(&["baseline.mesh: \"tin.stl\":", ".ply", ".obj"]);
+    .input_error(&["baseline.mesh: \"tin.stl\":", ".ply", ".obj", ".glb"]);
     run_pipeline(
         d.path(),
         &fixture(),
@@ -221,6 +269,21 @@ fn table1_json_plot_and_skipped_counts() {
             let x = row[key].as_f64().unwrap_or_else(|| panic!("{key}: {row}"));
             assert!(x.is_finite() && x > 0.0, "{key} = {x}");
         }
+        // The grid time is end to end: with one repetition, the sum of its six stages.
+        let stages: f64 = [
+            "denoise_s",
+            "resample_s",
+            "fill_s",
+            "tiles_s",
+            "quadtree_s",
+            "write_s",
+        ]
+        .iter()
+        .map(|k| row[k].as_f64().unwrap_or_else(|| panic!("{k}: {row}")))
+        .sum();
+        let grid_s = row["grid_s"].as_f64().unwrap();
+        assert!((grid_s - stages).abs() <= 1e-9 * grid_s, "{row}");
+        assert!(row["write_s"].as_f64().unwrap() > 0.0, "{row}");
         let ratio = row["delaunay_s"].as_f64().unwrap() / row["grid_s"].as_f64().unwrap();
         assert!((row["ratio"].as_f64().unwrap() - ratio).abs() < 1e-9 * ratio);
         // Memory comes from a fresh process per method (Linux /proc).

@@ -7,15 +7,20 @@
 //! 3,408,187 points 63.7 s; Delaunay "more than 12 hours").
 
 use super::{current_rss, median, peak_rss, reset_peak_rss};
+use crate::config::OutputConfig;
 use crate::error::{Error, Result};
+use crate::output::write_terrain;
 use crate::points::{self, PointCloud, ReadOptions};
 use crate::progress::NoProgress;
 use crate::rng::SplitMix64;
 use crate::terrain::accuracy::{holdout, ErrorStats};
 use crate::terrain::delaunay::{self, TinMethod};
+use crate::terrain::extract::ExtractParams;
+use crate::terrain::quadtree::{self, QuadtreeParams};
+use crate::terrain::tiles::{self, TileParams};
 use crate::terrain::{denoise, fill, resample, DenoiseParams, FillParams, ResampleParams};
 use serde::Serialize;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// The paper's Table 1: points and seconds of its grid pipeline (Pentium IV).
@@ -34,7 +39,8 @@ pub const PAPER_DELAUNAY_S: f64 = 12.0 * 3600.0;
 pub struct Table1Row {
     /// Points in the subset.
     pub points: u64,
-    /// Median seconds of the grid pipeline end to end (denoise + resample + fill).
+    /// Median seconds of the grid pipeline end to end (denoise + resample + fill + tiles +
+    /// quadtree + writing EXR tiles, heightmaps and manifest).
     pub grid_s: f64,
     /// Median seconds of noise removal.
     pub denoise_s: f64,
@@ -42,6 +48,12 @@ pub struct Table1Row {
     pub resample_s: f64,
     /// Median seconds of hole filling.
     pub fill_s: f64,
+    /// Median seconds of cutting the grid into tiles.
+    pub tiles_s: f64,
+    /// Median seconds of the quadtree error metrics (d2).
+    pub quadtree_s: f64,
+    /// Median seconds of writing the EXR tiles, heightmaps (PNG, RAW) and manifest.
+    pub write_s: f64,
     /// Median seconds of the faster Delaunay build.
     pub delaunay_s: f64,
     /// Median seconds of spade's bulk loading.
@@ -93,17 +105,80 @@ pub fn paper_counts() -> Vec<u64> {
     PAPER.iter().map(|p| p.0).collect()
 }
 
-/// Times spent by the grid pipeline on `cloud`, and its grid size.
-fn grid_pipeline(cloud: &PointCloud, mpu: f64) -> Result<([f64; 3], usize)> {
+/// What the grid pipeline writes in `bench table1`: the tiled EXR files (heights and d2),
+/// the 16-bit PNG and RAW heightmaps and the manifest, the outputs a game engine takes in;
+/// neither previews nor tile meshes (the TIN it is compared with is not written either).
+fn table1_outputs(dir: &Path) -> OutputConfig {
+    OutputConfig {
+        dir: dir.to_path_buf(),
+        exr: true,
+        manifest: true,
+        png: true,
+        raw: true,
+        relief: false,
+        wireframe: false,
+        meshes: Vec::new(),
+        ..OutputConfig::default()
+    }
+}
+
+/// Seconds spent by the grid pipeline end to end on `cloud` (denoise, resample, fill, tiles,
+/// quadtree, writing the outputs into `dir`, which must exist), and its grid size.
+fn grid_pipeline(cloud: &PointCloud, mpu: f64, dir: &Path) -> Result<([f64; 6], usize)> {
     let t0 = Instant::now();
     let d = denoise(cloud, &DenoiseParams::default(), mpu)?;
     let t1 = Instant::now();
     let mut r = resample(cloud, Some(&d.keep), &ResampleParams::default())?;
+    drop(d);
     let t2 = Instant::now();
     fill(&mut r.grid, &FillParams::default())?;
     let t3 = Instant::now();
+    let set = tiles::tile(&r.grid, &TileParams::default())?;
+    let t4 = Instant::now();
+    let qt = quadtree::build(&set, &QuadtreeParams::default())?;
+    let t5 = Instant::now();
+    write_terrain(
+        dir,
+        &set,
+        &qt,
+        &ExtractParams::default(),
+        &table1_outputs(dir),
+        &NoProgress,
+    )?;
+    let t6 = Instant::now();
     let s = |a: Instant, b: Instant| (b - a).as_secs_f64();
-    Ok(([s(t0, t1), s(t1, t2), s(t2, t3)], r.spec.cols * r.spec.rows))
+    Ok((
+        [
+            s(t0, t1),
+            s(t1, t2),
+            s(t2, t3),
+            s(t3, t4),
+            s(t4, t5),
+            s(t5, t6),
+        ],
+        r.spec.cols * r.spec.rows,
+    ))
+}
+
+/// A directory for the grid pipeline's outputs, removed with everything in it when dropped.
+struct ScratchDir(PathBuf);
+
+impl ScratchDir {
+    fn new(tag: &str) -> Result<ScratchDir> {
+        let p = std::env::temp_dir().join(format!("terratile-{tag}-{}", std::process::id()));
+        if p.exists() {
+            std::fs::remove_dir_all(&p).map_err(|e| Error::io(&p, e))?;
+        }
+        std::fs::create_dir_all(&p).map_err(|e| Error::io(&p, e))?;
+        Ok(ScratchDir(p))
+    }
+}
+
+impl Drop for ScratchDir {
+    fn drop(&mut self) {
+        // Best effort: a leftover temporary directory is not worth failing the benchmark.
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }
 
 /// Runs `f` and returns its result with the peak resident memory it added above what was
@@ -148,7 +223,10 @@ pub fn table1_memory(path: &Path, count: u64, seed: u64, method: &str) -> Result
     let cloud = subset(&all, count, seed);
     drop(all);
     match method {
-        "grid" => Ok(with_peak(|| grid_pipeline(&cloud, mpu))?.1),
+        "grid" => {
+            let dir = ScratchDir::new("table1")?;
+            Ok(with_peak(|| grid_pipeline(&cloud, mpu, &dir.0))?.1)
+        }
         "bulk" | "incremental" => {
             let d = denoise(&cloud, &DenoiseParams::default(), mpu)?;
             let p = delaunay::prepare(&cloud.x, &cloud.y, &cloud.z, Some(&d.keep))?;
@@ -186,6 +264,7 @@ pub fn table1(
     let all = points::read(path, &ReadOptions::default(), &NoProgress)?;
     let mpu = all.crs().map_or(1.0, |c| c.metres_per_unit());
     let n = all.len() as u64;
+    let dir = ScratchDir::new("table1")?;
     let (mut rows, mut skipped) = (Vec::new(), Vec::new());
     for &count in counts {
         if count > n {
@@ -202,7 +281,7 @@ pub fn table1(
         let mut tin_peaks = [None::<f64>; 2];
         let (mut cells, mut triangles) = (0, 0);
         for _ in 0..repeats {
-            let ((t, c), peak) = with_peak(|| grid_pipeline(&cloud, mpu))?;
+            let ((t, c), peak) = with_peak(|| grid_pipeline(&cloud, mpu, &dir.0))?;
             grid_t.push(t);
             cells = c;
             grid_peak = max_opt(grid_peak, peak);
@@ -263,6 +342,9 @@ pub fn table1(
             denoise_s: col(0),
             resample_s: col(1),
             fill_s: col(2),
+            tiles_s: col(3),
+            quadtree_s: col(4),
+            write_s: col(5),
             delaunay_s,
             delaunay_bulk_s: b,
             delaunay_incremental_s: i,
@@ -318,7 +400,7 @@ impl std::fmt::Display for Table1 {
             self.file, self.file_points, self.repeats, self.threads
         )?;
         writeln!(f)?;
-        writeln!(f, "| points | grid s (denoise / resample / fill) | Delaunay s (bulk / incremental) | Delaunay / grid | grid MB | Delaunay MB | grid cells | triangles | grid RMSE m | TIN RMSE m | paper grid s | paper Delaunay |")?;
+        writeln!(f, "| points | grid s (denoise / resample / fill / tiles / quadtree / write) | Delaunay s (bulk / incremental) | Delaunay / grid | grid MB | Delaunay MB | grid cells | triangles | grid RMSE m | TIN RMSE m | paper grid s | paper Delaunay |")?;
         writeln!(
             f,
             "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"
@@ -326,12 +408,15 @@ impl std::fmt::Display for Table1 {
         for r in &self.rows {
             writeln!(
                 f,
-                "| {} | {:.3} ({:.3} / {:.3} / {:.3}) | {:.3} ({:.3} / {:.3}) | {:.1} | {} | {} | {} | {} | {:.3} | {:.3} | {} | {} |",
+                "| {} | {:.3} ({:.3} / {:.3} / {:.3} / {:.3} / {:.3} / {:.3}) | {:.3} ({:.3} / {:.3}) | {:.1} | {} | {} | {} | {} | {:.3} | {:.3} | {} | {} |",
                 r.points,
                 r.grid_s,
                 r.denoise_s,
                 r.resample_s,
                 r.fill_s,
+                r.tiles_s,
+                r.quadtree_s,
+                r.write_s,
                 r.delaunay_s,
                 r.delaunay_bulk_s,
                 r.delaunay_incremental_s,

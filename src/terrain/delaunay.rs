@@ -363,8 +363,8 @@ pub struct BaselineParams {
     /// `auto` (default: incremental insertion for spatially coherent files, bulk loading
     /// otherwise), `bulk` or `incremental`.
     pub method: TinMethod,
-    /// The TIN mesh in the output directory: `.ply` (binary) or `.obj`; empty for none
-    /// (default `tin.ply`).
+    /// The TIN mesh in the output directory: `.ply` (binary), `.obj` or `.glb` (glTF
+    /// binary, y up); empty for none (default `tin.ply`).
     pub mesh: String,
     /// The comparison report in the output directory (default `baseline.json`).
     pub report: String,
@@ -404,12 +404,12 @@ impl BaselineParams {
                 .extension()
                 .and_then(|e| e.to_str())
                 .map(str::to_ascii_lowercase);
-            if !matches!(ext.as_deref(), Some("ply" | "obj")) {
+            if !matches!(ext.as_deref(), Some("ply" | "obj" | "glb")) {
                 return Err(Error::param(
                     "baseline",
                     "mesh",
                     format!("\"{}\"", self.mesh),
-                    "the TIN mesh is written as .ply (binary) or .obj",
+                    "the TIN mesh is written as .ply (binary), .obj or .glb",
                 ));
             }
         }
