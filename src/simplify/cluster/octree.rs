@@ -628,3 +628,6 @@ mod tests {
         );
     }
 }
+
+#[cfg(test)]
+mod lab;
