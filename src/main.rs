@@ -108,7 +108,7 @@ struct SimplifyArgs {
     /// Uniform/floating: cell edge length in model units.
     #[arg(long, value_name = "S", allow_negative_numbers = true)]
     cell_size: Option<f64>,
-    /// Octree: split cells scoring above this (area × plane distance, model units³).
+    /// Octree: split cells scoring above this (area × Dv × normal variation, model units³).
     #[arg(long, value_name = "T", allow_negative_numbers = true)]
     threshold: Option<f64>,
     /// Where each cluster's vertex goes (default quadric).
@@ -431,6 +431,8 @@ fn simplify(a: SimplifyArgs, quiet: bool) -> Result<()> {
             RepresentativeArg::Quadric => Representative::Quadric,
         }),
         refine: a.refine,
+        theta_avg_weight: None,
+        theta_max_weight: None,
     };
     let error = (!a.no_error).then(|| terratile::mesh::HausdorffParams {
         samples: a.samples.unwrap_or(0),

@@ -108,9 +108,8 @@ pub struct SimplifyParams {
     /// Uniform and floating: the cell edge length, in model units.
     #[serde(default)]
     pub cell_size: Option<f64>,
-    /// Octree: split every cell whose score — its area times (the RMS distance of its
-    /// triangles' planes from its representative + 1 % of its vertex spread Dv) — exceeds
-    /// this, in model units³.
+    /// Octree: split every cell whose score — its area × its vertex spread Dv ×
+    /// (1 + theta_avg_weight·θavg + theta_max_weight·θmax) — exceeds this, in model units³.
     #[serde(default)]
     pub threshold: Option<f64>,
     /// `centroid`, `important` or `quadric` (default `quadric`).
@@ -119,6 +118,12 @@ pub struct SimplifyParams {
     /// Octree: boxes refined more finely.
     #[serde(default)]
     pub refine: Vec<RefineBox>,
+    /// Octree: weight of θavg (radians) in the normal-variation factor (default 10).
+    #[serde(default)]
+    pub theta_avg_weight: Option<f64>,
+    /// Octree: weight of θmax (radians) in the normal-variation factor (default 0.5).
+    #[serde(default)]
+    pub theta_max_weight: Option<f64>,
 }
 
 impl SimplifyParams {
@@ -149,6 +154,8 @@ impl SimplifyParams {
             threshold: None,
             representative: None,
             refine: Vec::new(),
+            theta_avg_weight: None,
+            theta_max_weight: None,
         }
     }
 
@@ -210,6 +217,16 @@ impl SimplifyParams {
                     self.method
                 ),
             ));
+        }
+        for (name, w) in [
+            ("theta_avg_weight", self.theta_avg_weight),
+            ("theta_max_weight", self.theta_max_weight),
+        ] {
+            if let Some(w) = w {
+                if !(w.is_finite() && w >= 0.0) {
+                    return Err(Error::param(S, name, w, "must be a number >= 0"));
+                }
+            }
         }
         if let Some(r) = self.ratio {
             if !(r > 0.0 && r <= 1.0) {
