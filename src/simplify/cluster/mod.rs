@@ -118,7 +118,7 @@ pub struct SimplifyParams {
     /// Octree: boxes refined more finely.
     #[serde(default)]
     pub refine: Vec<RefineBox>,
-    /// Octree: weight of θavg (radians) in the normal-variation factor (default 10).
+    /// Octree: weight of θavg (radians) in the normal-variation factor (default 3).
     #[serde(default)]
     pub theta_avg_weight: Option<f64>,
     /// Octree: weight of θmax (radians) in the normal-variation factor (default 0.5).
@@ -383,6 +383,7 @@ pub struct Prepared<'a> {
     vertex_faces: std::sync::OnceLock<VertexFaces>,
     weights: std::sync::OnceLock<Vec<f64>>,
     quadrics: std::sync::OnceLock<Vec<Quadric>>,
+    normals: std::sync::OnceLock<Vec<NormalStats>>,
 }
 
 impl<'a> Prepared<'a> {
@@ -428,6 +429,7 @@ impl<'a> Prepared<'a> {
             vertex_faces: Default::default(),
             weights: Default::default(),
             quadrics: Default::default(),
+            normals: Default::default(),
         }
     }
 
@@ -502,82 +504,165 @@ impl<'a> Prepared<'a> {
     /// the squared edge length) so that holes and open borders keep their shape.
     pub fn quadrics(&self) -> &[Quadric] {
         self.quadrics.get_or_init(|| {
-            let vf = self.vertex_faces();
-            // Per triangle: its plane (unit normal, offset, area), computed once.
-            let planes: Vec<(DVec3, f64, f64)> = self
-                .faces
-                .par_iter()
-                .with_min_len(4096)
-                .map(|t| {
-                    let p0 = self.pos(t[0]);
-                    let c = (self.pos(t[1]) - p0).cross(self.pos(t[2]) - p0);
-                    let len = c.length();
-                    let n = if len > 0.0 { c / len } else { DVec3::ZERO };
-                    (n, -n.dot(p0), 0.5 * len)
-                })
-                .collect();
+            let planes = self.planes();
             (0..self.mesh.vertex_count() as u32)
                 .into_par_iter()
                 .with_min_len(1024)
                 .map_init(Vec::new, |edges: &mut Vec<u64>, v| {
-                    let mut s = Quadric::ZERO;
-                    // Inside a surface every neighbour of v is the far end of exactly two
-                    // of its triangles' edges. The XOR of a hash of the far ends is then 0,
-                    // and the exact (sorting) border search below is skipped: it would
-                    // otherwise cost a third of the uniform method's time.
-                    let mut parity = 0u64;
-                    for &f in vf.of(v) {
-                        let (n, d, area) = planes[f as usize];
-                        if area > 0.0 {
-                            s += Quadric::plane(n, d, area);
-                        }
-                        let t = self.faces[f as usize];
-                        for &u in &t {
-                            if u != v {
-                                parity ^= (u as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-                            }
-                        }
-                    }
-                    if parity == 0 {
-                        return s;
-                    }
-                    edges.clear();
-                    for &f in vf.of(v) {
-                        // The two edges of f at v, as (other end << 32 | triangle).
-                        let t = self.faces[f as usize];
-                        for k in 0..3 {
-                            if t[k] == v {
-                                edges.push((t[(k + 1) % 3] as u64) << 32 | f as u64);
-                                edges.push((t[(k + 2) % 3] as u64) << 32 | f as u64);
-                            }
-                        }
-                    }
-                    // An edge at v that only one triangle has is a border: add the plane
-                    // through it, perpendicular to that triangle.
-                    edges.sort_unstable();
-                    let mut i = 0;
-                    while i < edges.len() {
-                        let u = (edges[i] >> 32) as u32;
-                        let mut j = i + 1;
-                        while j < edges.len() && (edges[j] >> 32) as u32 == u {
-                            j += 1;
-                        }
-                        let n = planes[edges[i] as u32 as usize].0;
-                        if j - i == 1 && u != v && n != DVec3::ZERO {
-                            let (pa, pb) = (self.pos(v), self.pos(u));
-                            let e = pb - pa;
-                            let m = e.cross(n).normalize_or_zero();
-                            if m != DVec3::ZERO {
-                                s += Quadric::plane(m, -m.dot(pa), e.length_squared());
-                            }
-                        }
-                        i = j;
-                    }
-                    s
+                    self.vertex_quadric(v, &planes, edges)
                 })
                 .collect()
         })
     }
+
+    /// The quadrics of [`Prepared::quadrics`] and, from the same pass over every vertex's
+    /// triangles (they are loaded for the quadric anyway), the normal statistics the
+    /// octree's split rule needs (see [`NormalStats`]).
+    pub fn quadrics_and_normals(&self) -> (&[Quadric], &[NormalStats]) {
+        if let (Some(q), Some(n)) = (self.quadrics.get(), self.normals.get()) {
+            return (q, n);
+        }
+        let planes = self.planes();
+        let both: Vec<(Quadric, NormalStats)> = (0..self.mesh.vertex_count() as u32)
+            .into_par_iter()
+            .with_min_len(1024)
+            .map_init(
+                || (Vec::new(), Vec::new()),
+                |(edges, fan): &mut (Vec<u64>, Vec<(u32, u32, Vec3)>), v| {
+                    let q = self.vertex_quadric(v, &planes, edges);
+                    // The vertex's triangles as (its two other corners, unit normal).
+                    fan.clear();
+                    let (mut an, mut area) = (DVec3::ZERO, 0.0);
+                    for &f in self.vertex_faces().of(v) {
+                        let (n, _, a) = planes[f as usize];
+                        an += n * (a / 3.0);
+                        area += a / 3.0;
+                        if n != DVec3::ZERO {
+                            let t = self.faces[f as usize];
+                            let k = t.iter().position(|&x| x == v).unwrap_or(0);
+                            fan.push((t[(k + 1) % 3], t[(k + 2) % 3], n.as_vec3()));
+                        }
+                    }
+                    // θmax: the smallest cosine between two triangles sharing an edge at v
+                    // (they share v and one more corner).
+                    let mut min_cos = 1.0f32;
+                    for (i, &(a, b, nf)) in fan.iter().enumerate() {
+                        for &(c, e, ng) in &fan[i + 1..] {
+                            if a == c || a == e || b == c || b == e {
+                                min_cos = min_cos.min(nf.dot(ng));
+                            }
+                        }
+                    }
+                    let stats = NormalStats {
+                        area_normal: an.as_vec3(),
+                        area: area as f32,
+                        theta_max: min_cos.clamp(-1.0, 1.0).acos(),
+                    };
+                    (q, stats)
+                },
+            )
+            .collect();
+        let (q, n): (Vec<Quadric>, Vec<NormalStats>) = both.into_iter().unzip();
+        // Another thread may have filled either meanwhile; the values are the same.
+        let _ = self.quadrics.set(q);
+        let _ = self.normals.set(n);
+        (
+            self.quadrics.get().expect("set above"),
+            self.normals.get().expect("set above"),
+        )
+    }
+
+    /// Per welded triangle: its plane (unit normal, offset) and area, computed once.
+    fn planes(&self) -> Vec<(DVec3, f64, f64)> {
+        self.faces
+            .par_iter()
+            .with_min_len(4096)
+            .map(|t| {
+                let p0 = self.pos(t[0]);
+                let c = (self.pos(t[1]) - p0).cross(self.pos(t[2]) - p0);
+                let len = c.length();
+                let n = if len > 0.0 { c / len } else { DVec3::ZERO };
+                (n, -n.dot(p0), 0.5 * len)
+            })
+            .collect()
+    }
+
+    /// The quadric of vertex `v` (see [`Prepared::quadrics`]); `edges` is scratch.
+    fn vertex_quadric(
+        &self,
+        v: u32,
+        planes: &[(DVec3, f64, f64)],
+        edges: &mut Vec<u64>,
+    ) -> Quadric {
+        let vf = self.vertex_faces();
+        let mut s = Quadric::ZERO;
+        // Inside a surface every neighbour of v is the far end of exactly two of its
+        // triangles' edges. The XOR of a hash of the far ends is then 0, and the exact
+        // (sorting) border search below is skipped: it would otherwise cost a third of the
+        // uniform method's time.
+        let mut parity = 0u64;
+        for &f in vf.of(v) {
+            let (n, d, area) = planes[f as usize];
+            if area > 0.0 {
+                s += Quadric::plane(n, d, area);
+            }
+            let t = self.faces[f as usize];
+            for &u in &t {
+                if u != v {
+                    parity ^= (u as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+                }
+            }
+        }
+        if parity == 0 {
+            return s;
+        }
+        edges.clear();
+        for &f in vf.of(v) {
+            // The two edges of f at v, as (other end << 32 | triangle).
+            let t = self.faces[f as usize];
+            for k in 0..3 {
+                if t[k] == v {
+                    edges.push((t[(k + 1) % 3] as u64) << 32 | f as u64);
+                    edges.push((t[(k + 2) % 3] as u64) << 32 | f as u64);
+                }
+            }
+        }
+        // An edge at v that only one triangle has is a border: add the plane through it,
+        // perpendicular to that triangle.
+        edges.sort_unstable();
+        let mut i = 0;
+        while i < edges.len() {
+            let u = (edges[i] >> 32) as u32;
+            let mut j = i + 1;
+            while j < edges.len() && (edges[j] >> 32) as u32 == u {
+                j += 1;
+            }
+            let n = planes[edges[i] as u32 as usize].0;
+            if j - i == 1 && u != v && n != DVec3::ZERO {
+                let (pa, pb) = (self.pos(v), self.pos(u));
+                let e = pb - pa;
+                let m = e.cross(n).normalize_or_zero();
+                if m != DVec3::ZERO {
+                    s += Quadric::plane(m, -m.dot(pa), e.length_squared());
+                }
+            }
+            i = j;
+        }
+        s
+    }
+}
+
+/// A vertex's normal statistics for the octree's split rule (seed 000 eq. 1–4), in f32: a
+/// split heuristic needs no more, and the octree streams them through every split.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NormalStats {
+    /// Σ (A/3)·n over the vertex's triangles (A area, n unit normal).
+    pub area_normal: Vec3,
+    /// Σ A/3 over them.
+    pub area: f32,
+    /// The largest angle (radians) between the normals of two of its triangles sharing an
+    /// edge.
+    pub theta_max: f32,
 }
 
 /// An assignment of active vertices to clusters.

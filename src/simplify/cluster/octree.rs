@@ -1,36 +1,36 @@
-//! Adaptive octree clustering, the paper's method (Kim et al., seed 000 §III; SPEC §7), in
-//! the form that measured best on the shared meshes (notes/octree.md has the tables).
+//! Adaptive octree clustering, the paper's method (Kim et al., seed 000 §III; SPEC §7).
 //!
-//! The paper subdivides the bounding box like an octree and keeps splitting a node while its
-//! vertices spread (Dv, eq. 5–6) and its triangles' normals vary (θmax, θavg, eq. 1–4); each
-//! leaf is one cluster. We keep that scheme — a hierarchy of boxes, split where the surface
-//! inside deviates most from what one representative vertex can stand for, refined further
-//! in user boxes — and measure and cut differently:
+//! The bounding cube is subdivided as an octree: a node splits into its eight octants
+//! (empty octants are not created) while its vertices spread (Dv, eq. 5–6) and its
+//! triangles' normals vary (θmax, θavg, eq. 1–4); each leaf is one cluster, represented by
+//! its quadric-optimal point.
 //!
 //! 1. **The split score: the paper's quantities.** Dv = the mean distance of a node's
 //!    vertices to their centroid (eq. 5–6); θavg = the normal variation of the triangles in
 //!    the node (a triangle is in it once per corner there, with a third of its area) about
 //!    their mean normal N = Σ A·n / ‖Σ A·n‖, taken as acos of the area-weighted mean cosine,
 //!    acos(‖Σ A·n‖ / Σ A) (eq. 2–4 average the angle itself; the mean cosine makes θavg a sum
-//!    over members, so a node's is known from its children's without revisiting
-//!    triangles); θmax = the largest angle between the normals of two adjacent triangles in
-//!    the node (eq. 1). The paper splits while `Dv · (1 + a·θavg + b·θmax) > T` and leaves the
-//!    weights open; we multiply by the node's area A (Σ A/3 over its triangles' corners) —
-//!    `A · Dv · (1 + a·θavg + b·θmax)` is then about the node's share of the mean error
-//!    (area × sagitta ∝ A · Dv · θ on a curved surface) — and split in order of decreasing
-//!    score from a priority queue until the target is reached, so one pass sweeps T from +∞
-//!    down. Defaults a = 10, b = 0.5 by measurement (notes/octree.md); with them the 1
-//!    plays the role of a small spread term that lets flat regions split last, not never.
-//! 2. **The cut.** A node is cut at its vertices' centroid, along the one axis whose cut
-//!    lowers the children's summed error most (an adaptive k-d subdivision: the octree's
-//!    split is three such cuts through the cube's centre). Cells thus follow the surface —
-//!    long along a horn or a leg, short across it — and their sizes are not powers of two.
-//! 3. **Relaxation.** One Lloyd-style pass: every vertex moves to the cluster, among its
-//!    own and its neighbours', whose representative lies closest to the planes of its own
-//!    triangles (plus 10⁻⁴ × its squared distance to that cluster's centroid, which keeps
-//!    clusters compact where the planes do not decide), then the representatives are
-//!    recomputed. All moves are decided from the tree's clusters; only vertices on a
-//!    cluster's border can move.
+//!    over members, so an octant's is summed in the same pass that sorts it); θmax = the
+//!    largest angle between the normals of two adjacent triangles in the node (eq. 1). The
+//!    paper splits while `Dv · (1 + a·θavg + b·θmax) > T` and leaves the weights open; we
+//!    multiply by the node's area A (Σ A/3 over its triangles' corners) — `A · Dv · (1 +
+//!    a·θavg + b·θmax)` is then about the node's share of the mean error (area × sagitta ∝
+//!    A · Dv · θ on a curved surface) — and split in order of decreasing score from a
+//!    priority queue until the target is reached, so one pass sweeps T from +∞ down.
+//!    Defaults a = 3, b = 0.5, by measurement (notes/octree.md).
+//! 2. **The split.** A node splits at the centre of its cell into (up to) eight octants, as
+//!    in the paper. A cell whose vertices all lie in one octant shrinks to it and splits
+//!    again (the chain of one-child nodes collapsed). [`SplitPoint::Centroid`] splits at
+//!    the vertices' centroid instead (a point-region octree); it measured worse (notes).
+//! 3. **Relaxation.** Two passes after the tree: in each, every vertex on a cluster's
+//!    border moves to the cluster, among its own and those of its triangles' other
+//!    corners, whose quadric representative lies closest to the planes of its own
+//!    triangles (its quadric divided by its weight, evaluated at that representative),
+//!    plus 10⁻⁴ × its squared distance to that cluster's centroid (which keeps clusters
+//!    compact where the planes do not decide); then the representatives are recomputed.
+//!    All moves of a pass are decided from the clusters before it. The octants' straight
+//!    walls cut across features; the passes move the borders onto them (without them the
+//!    errors are 20–50 % higher, notes/octree.md).
 //!
 //! Selective refinement (the paper's Fig. 8): a node whose cell meets a refine box has its
 //! score multiplied by factor⁴; on a curved surface the score grows as the cell size to the
@@ -42,8 +42,8 @@
 //! shift the exact count by a few per cent, so the goal is corrected from the exact count
 //! (splits are undone or made from where the pass stands) at most three times.
 
-use super::{quadric_point, Clustering, Prepared, RefineBox, SimplifyParams, Target};
-use crate::mesh::adjacency::{Csr, VertexFaces};
+use super::{quadric_point, Clustering, NormalStats, Prepared, RefineBox, SimplifyParams, Target};
+use crate::mesh::adjacency::VertexFaces;
 use crate::simplify::quadric::Quadric;
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -51,18 +51,15 @@ use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
 /// Default weight of θavg (radians) in the normal-variation factor.
-pub const THETA_AVG_WEIGHT: f64 = 10.0;
+pub const THETA_AVG_WEIGHT: f64 = 3.0;
 /// Default weight of θmax (radians) in the normal-variation factor.
 pub const THETA_MAX_WEIGHT: f64 = 0.5;
 /// Relaxation passes after the tree is built.
-pub const RELAX_PASSES: usize = 1;
+pub const RELAX_PASSES: usize = 2;
 /// Weight of the squared distance to a cluster's centroid in the relaxation's cost.
 pub const COMPACTNESS: f64 = 1e-4;
-/// Regularisation (relative to the quadric's weight) of the one-solve minimiser that compares
-/// the cut axes: measured as good as the exact minimiser for that choice, 20× cheaper.
-const AXIS_REGULARISATION: f64 = 1e-3;
-/// Nodes with more vertices than this choose their cut axis from a regular subsample.
-const SAMPLE_LIMIT: usize = 512;
+/// Where a node's eight octants meet, by default.
+pub const SPLIT_POINT: SplitPoint = SplitPoint::CellCentre;
 /// With a target, nodes of more vertices than this (or than 16 × an average cluster) are
 /// split before the greedy pass.
 const FORCE_MIN: usize = 2048;
@@ -83,6 +80,17 @@ pub struct OctreeOptions {
     pub refine: Vec<RefineBox>,
     /// Relaxation passes after the tree.
     pub relax_passes: usize,
+    /// Where a node's octants meet.
+    pub split_point: SplitPoint,
+}
+
+/// Where a node's eight octants meet.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SplitPoint {
+    /// The node's vertex centroid (a point-region octree: octants of unequal size).
+    Centroid,
+    /// The centre of the node's cell (the classic octree: eight equal octants).
+    CellCentre,
 }
 
 impl OctreeOptions {
@@ -93,6 +101,7 @@ impl OctreeOptions {
             theta_max_weight: p.theta_max_weight.unwrap_or(THETA_MAX_WEIGHT),
             refine: p.refine.clone(),
             relax_passes: RELAX_PASSES,
+            split_point: SPLIT_POINT,
         }
     }
 }
@@ -195,66 +204,23 @@ fn chunked<S: Sync, T: Send>(
 }
 
 /// Per-vertex inputs, by dense index (views of what [`Prepared`] computes anyway: the
-/// quadric representative needs the quadrics, and they need the vertex → triangles rows).
+/// quadric representative needs the quadrics, and they need the vertex → triangles rows;
+/// the normal statistics come from the same pass as the quadrics).
 struct Data<'a> {
     prep: &'a Prepared<'a>,
     quadrics: &'a [Quadric],
     faces: &'a VertexFaces,
-    /// Per dense vertex: Σ (A/3)·n, Σ A/3 and θmax (see [`Rec`]).
-    normals: Vec<(Vec3, f32, f32)>,
+    /// Per vertex (not dense index): Σ (A/3)·n, Σ A/3 and θmax (see [`NormalStats`]).
+    normals: &'a [NormalStats],
 }
 
 impl<'a> Data<'a> {
     fn new(prep: &'a Prepared<'a>) -> Data<'a> {
-        let faces = prep.vertex_faces();
-        let tri = &prep.dense_faces;
-        let pos = |d: u32| prep.dense_pos[d as usize].as_dvec3();
-        // Unit normal and area of every triangle, in f32 (read at random below: half the
-        // bytes of f64).
-        let face: Vec<(Vec3, f32)> = tri
-            .par_iter()
-            .with_min_len(4096)
-            .map(|t| {
-                let c = (pos(t[1]) - pos(t[0])).cross(pos(t[2]) - pos(t[0]));
-                (c.normalize_or_zero().as_vec3(), (0.5 * c.length()) as f32)
-            })
-            .collect();
-        let normals = (0..prep.dense_pos.len() as u32)
-            .into_par_iter()
-            .with_min_len(1024)
-            .map_init(Vec::new, |fan: &mut Vec<(u32, u32, Vec3)>, d| {
-                // The vertex's triangles as (its two other corners, unit normal), gathered
-                // once: the pair loop below then reads no triangle twice.
-                fan.clear();
-                let mut an = DVec3::ZERO;
-                let mut area = 0.0;
-                for &f in faces.of(prep.active[d as usize]) {
-                    let (nf, af) = face[f as usize];
-                    an += nf.as_dvec3() * (af as f64 / 3.0);
-                    area += af as f64 / 3.0;
-                    let t = tri[f as usize];
-                    let k = t.iter().position(|&x| x == d).unwrap_or(0);
-                    if nf != Vec3::ZERO {
-                        fan.push((t[(k + 1) % 3], t[(k + 2) % 3], nf));
-                    }
-                }
-                // θmax: the smallest cosine between two triangles sharing an edge at d
-                // (they share d and one more corner).
-                let mut min_cos = 1.0f32;
-                for (i, &(a, b, nf)) in fan.iter().enumerate() {
-                    for &(c, e, ng) in &fan[i + 1..] {
-                        if a == c || a == e || b == c || b == e {
-                            min_cos = min_cos.min(nf.dot(ng));
-                        }
-                    }
-                }
-                (an.as_vec3(), area as f32, min_cos.clamp(-1.0, 1.0).acos())
-            })
-            .collect();
+        let (quadrics, normals) = prep.quadrics_and_normals();
         Data {
             prep,
-            quadrics: prep.quadrics(),
-            faces,
+            quadrics,
+            faces: prep.vertex_faces(),
             normals,
         }
     }
@@ -262,13 +228,14 @@ impl<'a> Data<'a> {
     /// The record of dense vertex `d`.
     #[inline]
     fn rec(&self, d: u32) -> Rec {
-        let (an, area, tmax) = self.normals[d as usize];
+        let v = self.prep.active[d as usize] as usize;
+        let ns = self.normals[v];
         Rec {
-            q: *self.q(d),
+            q: self.quadrics[v],
             p: self.pos(d),
-            an,
-            area,
-            tmax,
+            an: ns.area_normal,
+            area: ns.area,
+            tmax: ns.theta_max,
         }
     }
 
@@ -325,8 +292,9 @@ struct Node {
 enum State {
     /// A current leaf: a cluster.
     Leaf,
-    /// Split into `perm`-adjacent children.
-    Split([u32; 2]),
+    /// Split into `count` children, nodes `first..first + count` (the non-empty octants,
+    /// `perm`-adjacent in octant order).
+    Split { first: u32, count: u32 },
     /// A child of an undone split (its queue entry, if any, is stale).
     Dead,
 }
@@ -370,6 +338,8 @@ struct Tree<'a> {
     recs: Vec<Rec>,
     scratch: Vec<u32>,
     scratch_recs: Vec<Rec>,
+    /// Octant of every member of the node being split.
+    codes: Vec<u8>,
     heap: BinaryHeap<Entry>,
     /// Leaf (node id) of every vertex.
     leaf_of: Vec<u32>,
@@ -387,12 +357,26 @@ impl<'a> Tree<'a> {
         let data = Data::new(prep);
         let n = prep.dense_pos.len();
         let mut perm: Vec<u32> = (0..n as u32).collect();
+        // The root cell: the bounding cube (the paper's octree), centred on the bounding box.
         let (lo, hi) = (prep.bounds.min.as_dvec3(), prep.bounds.max.as_dvec3());
+        let (c, h) = ((lo + hi) * 0.5, (hi - lo).max_element() * 0.5);
+        let (lo, hi) = (c - DVec3::splat(h), c + DVec3::splat(h));
         let mut pieces = Vec::new();
         match force {
             Some(limit) if n > limit => {
                 let sum = data.summary(&perm).sum;
-                force_split(&data, &mut perm, 0, (lo, hi), sum, 0, limit, &mut pieces);
+                let sp = opts.split_point;
+                force_split(
+                    &data,
+                    sp,
+                    &mut perm,
+                    0,
+                    (lo, hi),
+                    sum,
+                    0,
+                    limit,
+                    &mut pieces,
+                );
             }
             _ => pieces.push(Piece {
                 lo,
@@ -421,6 +405,7 @@ impl<'a> Tree<'a> {
             recs,
             scratch: Vec::new(),
             scratch_recs: Vec::new(),
+            codes: Vec::new(),
             heap: BinaryHeap::new(),
             leaf_of,
             leaves: pieces.len(),
@@ -497,130 +482,94 @@ impl<'a> Tree<'a> {
         }
     }
 
-    /// Where to cut `node` (see [`cut_axis`]), and, when all its members were looked at,
-    /// the summaries of the two sides (below, at or above the cut).
-    fn plan(&self, node: &Node) -> Option<(usize, Option<[Summary; 2]>)> {
-        let m = &self.recs[node.start..node.end];
-        let n = m.len();
-        let c = node.sum / n as f64;
-        if n > SAMPLE_LIMIT {
-            let step = n.div_ceil(SAMPLE_LIMIT);
-            let items = m.iter().step_by(step).map(|r| (r.p, &r.q));
-            // A subsample may miss both sides; the whole node decides then.
-            let axis = cut_axis(c, None, items).or_else(|| any_cut(c, m.iter().map(|r| r.p)))?;
-            return Some((axis, None));
-        }
-        // One pass into the eight octants around the centroid; each axis's two sides are
-        // unions of four of them (one quadric sum per member instead of three).
-        let mut bins = [Summary::EMPTY; 8];
-        for r in m {
-            let o = (r.p.x >= c.x) as usize
-                | ((r.p.y >= c.y) as usize) << 1
-                | ((r.p.z >= c.z) as usize) << 2;
-            bins[o].add(r);
-        }
-        let side = |k: usize, up: bool| {
-            (0..8)
-                .filter(|o| ((o >> k) & 1 == 1) == up)
-                .fold(Summary::EMPTY, |a, o| a.merge(bins[o]))
-        };
-        let err = |s: &Summary| {
-            let w = s.q.weight();
-            if w > 0.0 {
-                let x = s.q.regularized_minimizer(s.centroid(), AXIS_REGULARISATION);
-                (s.q.eval(x) * w).sqrt()
-            } else {
-                0.0
+    /// Splits leaf `id` into its non-empty octants around the split point; returns the
+    /// children's ids (None when all its members coincide).
+    ///
+    /// With the cell centre as split point, a cell whose members all fall in one octant
+    /// is shrunk to that octant and tried again (the chain of one-child nodes a plain
+    /// octree would build there, collapsed).
+    fn split(&mut self, id: u32) -> Option<std::ops::Range<u32>> {
+        let node = self.nodes[id as usize];
+        let n = node.end - node.start;
+        let (mut lo, mut hi) = (node.lo, node.hi);
+        let mut codes = std::mem::take(&mut self.codes);
+        // Pass 1: every member's octant, and each octant's summary.
+        let mut bins;
+        let mut c;
+        let mut depth = node.depth;
+        loop {
+            c = match self.opts.split_point {
+                SplitPoint::Centroid => node.sum / n as f64,
+                SplitPoint::CellCentre => (lo + hi) * 0.5,
+            };
+            codes.clear();
+            bins = [Summary::EMPTY; 8];
+            for r in &self.recs[node.start..node.end] {
+                let o = octant(r.p, c);
+                codes.push(o as u8);
+                bins[o].add(r);
             }
-        };
-        let mut best: Option<(f64, usize, [Summary; 2])> = None;
-        for k in 0..3 {
-            let sides = [side(k, false), side(k, true)];
-            if sides[0].n == 0 || sides[1].n == 0 {
+            let full = bins.iter().filter(|b| b.n > 0).count();
+            if full >= 2 {
+                break;
+            }
+            if self.opts.split_point == SplitPoint::Centroid || depth >= MAX_DEPTH {
+                self.codes = codes;
+                return None;
+            }
+            let o = bins.iter().position(|b| b.n > 0).expect("members");
+            (lo, hi) = octant_cell(lo, hi, c, o);
+            depth += 1;
+        }
+        // Pass 2: scatter the members into octant order (stable), measuring each
+        // octant's Dv on the way (its centroid is known from pass 1).
+        let mut at = [0usize; 8];
+        let mut next = 0;
+        for (o, b) in bins.iter().enumerate() {
+            at[o] = next;
+            next += b.n;
+        }
+        let starts = at;
+        let centre = bins.map(|b| b.centroid());
+        let mut dist = [0.0f64; 8];
+        self.scratch.resize(n, 0);
+        self.scratch_recs.resize(n, self.recs[node.start]);
+        for (i, &o) in codes.iter().enumerate() {
+            let o = o as usize;
+            let r = self.recs[node.start + i];
+            dist[o] += (r.p - centre[o]).length();
+            self.scratch[at[o]] = self.perm[node.start + i];
+            self.scratch_recs[at[o]] = r;
+            at[o] += 1;
+        }
+        self.perm[node.start..node.end].copy_from_slice(&self.scratch[..n]);
+        self.recs[node.start..node.end].copy_from_slice(&self.scratch_recs[..n]);
+        self.codes = codes;
+        let first = self.nodes.len() as u32;
+        for o in 0..8 {
+            let b = &bins[o];
+            if b.n == 0 {
                 continue;
             }
-            let e = err(&sides[0]) + err(&sides[1]);
-            if best.as_ref().is_none_or(|b| e < b.0) {
-                best = Some((e, k, sides));
-            }
+            let (clo, chi) = octant_cell(lo, hi, c, o);
+            let start = node.start + starts[o];
+            let kid = self.make_node(
+                clo,
+                chi,
+                start,
+                start + b.n,
+                depth + 1,
+                b,
+                dist[o] / b.n as f64,
+            );
+            self.nodes.push(kid);
         }
-        best.map(|(_, k, sides)| (k, Some(sides)))
-    }
-
-    /// The axis [`Tree::split`] cuts `node` along.
-    #[cfg(test)]
-    fn cut_axis(&self, node: &Node) -> Option<usize> {
-        self.plan(node).map(|p| p.0)
-    }
-
-    /// Cuts leaf `id` in two; returns the children (None when it cannot be cut).
-    fn split(&mut self, id: u32) -> Option<[u32; 2]> {
-        let node = self.nodes[id as usize];
-        let (axis, exact) = self.plan(&node)?;
-        let n = node.end - node.start;
-        let at = (node.sum / n as f64)[axis];
-        // Stable partition in place: the side below the cut moves forward, the side above
-        // goes through the scratch buffers to the back. The sides are summed on the way
-        // unless the plan already did, and their Dv measured when their centroids are known.
-        self.scratch.clear();
-        self.scratch_recs.clear();
-        let mut sums = exact.unwrap_or([Summary::EMPTY; 2]);
-        let centre = exact.map(|s| [s[0].centroid(), s[1].centroid()]);
-        let mut dist = [0.0f64; 2];
-        let mut w = node.start;
-        for i in node.start..node.end {
-            let r = self.recs[i];
-            let side = (r.p[axis] >= at) as usize;
-            if side == 1 {
-                self.scratch.push(self.perm[i]);
-                self.scratch_recs.push(r);
-            } else {
-                self.perm[w] = self.perm[i];
-                self.recs[w] = r;
-                w += 1;
-            }
-            match centre {
-                Some(c) => dist[side] += (r.p - c[side]).length(),
-                None => sums[side].add(&r),
-            }
-        }
-        self.perm[w..node.end].copy_from_slice(&self.scratch);
-        self.recs[w..node.end].copy_from_slice(&self.scratch_recs);
-        let below = w - node.start;
-        let mid = node.start + below;
-        let ranges = [(node.start, mid), (mid, node.end)];
-        if centre.is_none() {
-            for k in 0..2 {
-                let c = sums[k].centroid();
-                dist[k] = self.recs[ranges[k].0..ranges[k].1]
-                    .iter()
-                    .map(|r| (r.p - c).length())
-                    .sum();
-            }
-        }
-        let (mut hi_a, mut lo_b) = (node.hi, node.lo);
-        hi_a[axis] = at;
-        lo_b[axis] = at;
-        let cells = [(node.lo, hi_a), (lo_b, node.hi)];
-        let make = |k: usize| {
-            let dv = dist[k] / sums[k].n as f64;
-            let (lo, hi) = cells[k];
-            self.make_node(
-                lo,
-                hi,
-                ranges[k].0,
-                ranges[k].1,
-                node.depth + 1,
-                &sums[k],
-                dv,
-            )
+        let last = self.nodes.len() as u32;
+        self.nodes[id as usize].state = State::Split {
+            first,
+            count: last - first,
         };
-        let (a, b) = (make(0), make(1));
-        let ids = [self.nodes.len() as u32, self.nodes.len() as u32 + 1];
-        self.nodes.push(a);
-        self.nodes.push(b);
-        self.nodes[id as usize].state = State::Split(ids);
-        Some(ids)
+        Some(first..last)
     }
 
     /// Triangles with two or more corners among `perm[start..end]` (which are all in leaf
@@ -687,7 +636,7 @@ impl<'a> Tree<'a> {
                 self.nodes[top.node as usize].score = 0.0;
                 continue;
             };
-            for &k in &kids {
+            for k in kids.clone() {
                 let kn = self.nodes[k as usize];
                 for i in kn.start..kn.end {
                     self.leaf_of[self.perm[i] as usize] = k;
@@ -697,7 +646,7 @@ impl<'a> Tree<'a> {
                     node: k,
                 });
             }
-            self.leaves += 1;
+            self.leaves += kids.len() - 1;
             let before = self.count;
             self.count = match self.count {
                 Some(c) if keep => Some(c + self.survivors(&self.touched)),
@@ -741,10 +690,10 @@ impl<'a> Tree<'a> {
     fn undo(&mut self) {
         let Some(l) = self.log.pop() else { return };
         let node = self.nodes[l.node as usize];
-        let State::Split(kids) = node.state else {
+        let State::Split { first, count } = node.state else {
             unreachable!("a logged node is split")
         };
-        for k in kids {
+        for k in first..first + count {
             self.nodes[k as usize].state = State::Dead;
         }
         for i in node.start..node.end {
@@ -755,7 +704,7 @@ impl<'a> Tree<'a> {
             score: node.score,
             node: l.node,
         });
-        self.leaves -= 1;
+        self.leaves -= count as usize - 1;
         self.count =
             Some(l.count_before.unwrap_or_else(|| {
                 super::count_surviving(&self.data.prep.dense_faces, &self.leaf_of)
@@ -841,79 +790,34 @@ struct Piece {
     depth: u32,
 }
 
-/// Per axis, the quadric, position sum and count of the members at or above the cut, and
-/// the same for all members.
-type Sums = (Quadric, DVec3, usize);
+/// The octant of `p` around `c`: bit k set when `p[k] >= c[k]`.
+#[inline]
+fn octant(p: DVec3, c: DVec3) -> usize {
+    (p.x >= c.x) as usize | ((p.y >= c.y) as usize) << 1 | ((p.z >= c.z) as usize) << 2
+}
 
-/// Where to cut a node with centroid `c`: along the axis whose two halves have the smallest
-/// summed error Σ √(Q(x)·w), x the regularised minimiser (a one-solve stand-in for the
-/// representative). `items` are the members' positions and quadrics, or a regular subsample
-/// of them; `exact` the totals when they are all of the members. None when every cut leaves
-/// one side of `items` empty.
-///
-/// The side below is the total minus the side above: rounding then costs the smaller side's
-/// residual ~1e-6 of itself at worst, plenty to compare axes (the children are summed
-/// exactly afterwards).
-fn cut_axis<'q>(
-    c: DVec3,
-    exact: Option<Sums>,
-    items: impl Iterator<Item = (DVec3, &'q Quadric)>,
-) -> Option<usize> {
-    let zero: Sums = (Quadric::ZERO, DVec3::ZERO, 0);
-    let (mut up, mut all) = ([zero; 3], zero);
-    let count_all = exact.is_none();
-    for (p, q) in items {
-        for (k, a) in up.iter_mut().enumerate() {
-            if p[k] >= c[k] {
-                a.0 += *q;
-                a.1 += p;
-                a.2 += 1;
-            }
-        }
-        if count_all {
-            all.0 += *q;
-            all.1 += p;
-            all.2 += 1;
-        }
-    }
-    if let Some(e) = exact {
-        all = e;
-    }
-    let err = |q: &Quadric, centroid: DVec3| {
-        let w = q.weight();
-        if w > 0.0 {
-            let x = q.regularized_minimizer(centroid, AXIS_REGULARISATION);
-            (q.eval(x) * w).sqrt()
+/// The cell of octant `o` of the cell `lo..hi` split at `c`.
+fn octant_cell(lo: DVec3, hi: DVec3, c: DVec3, o: usize) -> (DVec3, DVec3) {
+    let (mut a, mut b) = (lo, hi);
+    for k in 0..3 {
+        if (o >> k) & 1 == 1 {
+            a[k] = c[k];
         } else {
-            0.0
-        }
-    };
-    let mut best: Option<(f64, usize)> = None;
-    for (k, &(q, sum, nu)) in up.iter().enumerate() {
-        if nu == 0 || nu == all.2 {
-            continue;
-        }
-        let e = err(&q, sum / nu as f64) + err(&(all.0 - q), (all.1 - sum) / (all.2 - nu) as f64);
-        if best.is_none_or(|(b, _)| e < b) {
-            best = Some((e, k));
+            b[k] = c[k];
         }
     }
-    best.map(|(_, k)| k)
+    (a, b)
 }
 
-/// The first axis along which `points` lie on both sides of `c`.
-fn any_cut(c: DVec3, points: impl Iterator<Item = DVec3> + Clone) -> Option<usize> {
-    (0..3).find(|&k| points.clone().any(|p| p[k] >= c[k]) && points.clone().any(|p| p[k] < c[k]))
-}
-
-/// Splits every node of more than `limit` vertices, recursively and in parallel, and lists
-/// the resulting leaves in depth-first order. Such nodes are split by the greedy pass in
-/// any case (at the targets this is used for, a leaf averages a sixteenth of `limit`
-/// vertices), so only the order of the work changes: their scores, and the exact quadric
-/// sums they would need, are skipped, and the two halves go to two threads.
+/// Splits every node of more than `limit` vertices into its octants, recursively and in
+/// parallel, and lists the resulting leaves in depth-first order. Such nodes are split by
+/// the greedy pass in any case (at the targets this is used for, a leaf averages a
+/// sixteenth of `limit` vertices), so only the order of the work changes: their scores,
+/// and the exact sums they would need, are skipped, and the octants go to several threads.
 #[allow(clippy::too_many_arguments)]
 fn force_split(
     d: &Data,
+    split_point: SplitPoint,
     perm: &mut [u32],
     start: usize,
     cell: (DVec3, DVec3),
@@ -934,86 +838,110 @@ fn force_split(
         out.push(leaf);
         return;
     }
-    let c = sum / n as f64;
-    let step = n.div_ceil(SAMPLE_LIMIT);
-    let items = perm.iter().step_by(step).map(|&v| (d.pos(v), d.q(v)));
-    let Some(axis) =
-        cut_axis(c, None, items).or_else(|| any_cut(c, perm.iter().map(|&v| d.pos(v))))
-    else {
-        out.push(leaf);
-        return;
+    let c = match split_point {
+        SplitPoint::Centroid => sum / n as f64,
+        SplitPoint::CellCentre => (cell.0 + cell.1) * 0.5,
     };
-    let at = c[axis];
-    // Stable partition, summing each side's positions.
-    let mut above = Vec::with_capacity(n / 2);
-    let (mut w, mut sums) = (0, [DVec3::ZERO; 2]);
-    for i in 0..n {
-        let v = perm[i];
+    // Stable counting sort into octant order, summing each octant's positions.
+    let mut count = [0usize; 8];
+    let mut sums = [DVec3::ZERO; 8];
+    for &v in perm.iter() {
         let p = d.pos(v);
-        if p[axis] >= at {
-            above.push(v);
-            sums[1] += p;
-        } else {
-            perm[w] = v;
-            w += 1;
-            sums[0] += p;
-        }
+        let o = octant(p, c);
+        count[o] += 1;
+        sums[o] += p;
     }
-    perm[w..].copy_from_slice(&above);
-    let (mut hi_a, mut lo_b) = (cell.1, cell.0);
-    hi_a[axis] = at;
-    lo_b[axis] = at;
-    let (left, right) = perm.split_at_mut(w);
-    let (cell_a, cell_b) = ((cell.0, hi_a), (lo_b, cell.1));
-    if n > CHUNK {
-        let (mut a, mut b) = (Vec::new(), Vec::new());
-        rayon::join(
-            || force_split(d, left, start, cell_a, sums[0], depth + 1, limit, &mut a),
-            || {
-                force_split(
-                    d,
-                    right,
-                    start + w,
-                    cell_b,
-                    sums[1],
-                    depth + 1,
-                    limit,
-                    &mut b,
-                )
-            },
+    if count.iter().filter(|&&k| k > 0).count() < 2 && split_point == SplitPoint::Centroid {
+        out.push(leaf); // all members coincide
+        return;
+    }
+    let mut at = [0usize; 8];
+    let mut next = 0;
+    for o in 0..8 {
+        at[o] = next;
+        next += count[o];
+    }
+    let mut sorted = vec![0u32; n];
+    for &v in perm.iter() {
+        let o = octant(d.pos(v), c);
+        sorted[at[o]] = v;
+        at[o] += 1;
+    }
+    perm.copy_from_slice(&sorted);
+    drop(sorted);
+    // The octants' slices, in order (empty ones dropped).
+    let mut parts = Vec::with_capacity(8);
+    let mut rest = perm;
+    let mut offset = start;
+    for (o, &k) in count.iter().enumerate() {
+        let (mine, tail) = rest.split_at_mut(k);
+        rest = tail;
+        if k > 0 {
+            parts.push((o, mine, offset));
+        }
+        offset += k;
+    }
+    let recurse = |(o, part, s): (usize, &mut [u32], usize)| {
+        let mut pieces = Vec::new();
+        let cell = octant_cell(cell.0, cell.1, c, o);
+        let sum = sums[o];
+        force_split(
+            d,
+            split_point,
+            part,
+            s,
+            cell,
+            sum,
+            depth + 1,
+            limit,
+            &mut pieces,
         );
-        out.extend(a);
-        out.extend(b);
+        pieces
+    };
+    if n > CHUNK {
+        let lists: Vec<Vec<Piece>> = parts.into_par_iter().map(recurse).collect();
+        out.extend(lists.into_iter().flatten());
     } else {
-        force_split(d, left, start, cell_a, sums[0], depth + 1, limit, out);
-        force_split(d, right, start + w, cell_b, sums[1], depth + 1, limit, out);
+        for part in parts {
+            out.extend(recurse(part));
+        }
     }
 }
 
 /// One relaxation pass (see the module header): returns every vertex's new cluster.
 fn relax_pass(d: &Data, keys: &[u32], nc: usize) -> Vec<u32> {
     let n = keys.len();
-    let members = Csr::from_pairs(nc, keys.iter().enumerate().map(|(v, &c)| (c, v as u32)));
+    // Quadric, position sum, box and size per cluster, summed in vertex order: the
+    // quadrics are then read in sequence and the sums (a few hundred KB) stay in cache;
+    // gathering each cluster's members instead cost twice as much.
+    let mut acc = vec![
+        (
+            Quadric::ZERO,
+            DVec3::ZERO,
+            DVec3::INFINITY,
+            DVec3::NEG_INFINITY,
+            0u32
+        );
+        nc
+    ];
+    for (v, &c) in keys.iter().enumerate() {
+        let p = d.pos(v as u32);
+        let a = &mut acc[c as usize];
+        a.0 += *d.q(v as u32);
+        a.1 += p;
+        a.2 = a.2.min(p);
+        a.3 = a.3.max(p);
+        a.4 += 1;
+    }
     // (representative, centroid) per cluster.
-    let reps: Vec<(DVec3, DVec3)> = (0..nc)
-        .into_par_iter()
+    let reps: Vec<(DVec3, DVec3)> = acc
+        .par_iter()
         .with_min_len(256)
-        .map(|c| {
-            let m = members.row(c);
-            if m.is_empty() {
+        .map(|&(q, sum, lo, hi, k)| {
+            if k == 0 {
                 return (DVec3::NAN, DVec3::NAN);
             }
-            // Quadric and box only: the normal statistics are not needed here.
-            let (mut q, mut sum) = (Quadric::ZERO, DVec3::ZERO);
-            let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
-            for &u in m {
-                let p = d.pos(u);
-                q += *d.q(u);
-                sum += p;
-                lo = lo.min(p);
-                hi = hi.max(p);
-            }
-            let centroid = sum / m.len() as f64;
+            let centroid = sum / k as f64;
             (quadric_point(&q, centroid, lo, hi), centroid)
         })
         .collect();
@@ -1116,6 +1044,7 @@ mod tests {
             theta_max_weight: THETA_MAX_WEIGHT,
             refine: Vec::new(),
             relax_passes: relax,
+            split_point: SPLIT_POINT,
         }
     }
 
@@ -1255,73 +1184,94 @@ mod tests {
     }
 
     #[test]
-    fn the_cut_axis_is_the_best_of_three() {
-        // The slow twin: cut along each axis by hand, sum each side's quadric from scratch.
+    fn a_split_makes_the_non_empty_octants() {
+        // The slow twin: the parent's members grouped by hand by their octant around the
+        // split point (the cell shrunk first while they all fall in one octant).
         let m = cylinder(6.0, 24, 16);
         let prep = Prepared::new(&m);
-        let o = opts(0);
-        let mut tree = Tree::new(&prep, &o, None);
-        for _ in 0..40 {
-            tree.step(false, 0.0);
-        }
-        let mut checked = 0;
-        for id in 0..tree.nodes.len() {
-            let node = tree.nodes[id];
-            if node.end - node.start < 4 {
-                continue;
+        for sp in [SplitPoint::CellCentre, SplitPoint::Centroid] {
+            let mut o = opts(0);
+            o.split_point = sp;
+            let mut tree = Tree::new(&prep, &o, None);
+            for _ in 0..60 {
+                tree.step(false, 0.0);
             }
-            let members = &tree.perm[node.start..node.end];
-            let c = node.sum / members.len() as f64;
-            let err = |side: Vec<u32>| -> f64 {
-                let mut q = Quadric::ZERO;
-                let mut s = DVec3::ZERO;
-                for &v in &side {
-                    q += *tree.data.q(v);
-                    s += tree.data.pos(v);
+            let mut checked = 0;
+            for node in &tree.nodes {
+                let State::Split { first, count } = node.state else {
+                    continue;
+                };
+                let pts: Vec<(u32, DVec3)> = tree.perm[node.start..node.end]
+                    .iter()
+                    .map(|&v| (v, tree.data.pos(v)))
+                    .collect();
+                let which = |p: DVec3, c: DVec3| {
+                    let mut o = 0;
+                    for k in 0..3 {
+                        if p[k] >= c[k] {
+                            o += 1 << k;
+                        }
+                    }
+                    o
+                };
+                let (mut lo, mut hi) = (node.lo, node.hi);
+                let c = loop {
+                    let c = match sp {
+                        SplitPoint::Centroid => {
+                            // The node's own sum (summed in member order; the hand sum
+                            // agrees up to rounding, which may move a corner by an ulp).
+                            let hand = pts.iter().map(|p| p.1).sum::<DVec3>();
+                            assert!((hand - node.sum).length() < 1e-9 * pts.len() as f64);
+                            node.sum / pts.len() as f64
+                        }
+                        SplitPoint::CellCentre => (lo + hi) / 2.0,
+                    };
+                    let o0 = which(pts[0].1, c);
+                    if sp == SplitPoint::Centroid || pts.iter().any(|p| which(p.1, c) != o0) {
+                        break c;
+                    }
+                    for k in 0..3 {
+                        if o0 & (1 << k) != 0 {
+                            lo[k] = c[k];
+                        } else {
+                            hi[k] = c[k];
+                        }
+                    }
+                };
+                let mut kids = (first..first + count).map(|k| tree.nodes[k as usize]);
+                for o in 0..8 {
+                    let mut want: Vec<u32> = pts
+                        .iter()
+                        .filter(|p| which(p.1, c) == o)
+                        .map(|p| p.0)
+                        .collect();
+                    if want.is_empty() {
+                        continue;
+                    }
+                    let kid = kids.next().expect("a child per non-empty octant");
+                    let mut got = tree.perm[kid.start..kid.end].to_vec();
+                    want.sort_unstable();
+                    got.sort_unstable();
+                    assert_eq!(got, want, "{sp:?} octant {o}");
+                    for k in 0..3 {
+                        let (a, b) = if o & (1 << k) != 0 {
+                            (c[k], hi[k])
+                        } else {
+                            (lo[k], c[k])
+                        };
+                        assert_eq!((kid.lo[k], kid.hi[k]), (a, b), "{sp:?} octant {o}");
+                    }
+                    if sp == SplitPoint::CellCentre {
+                        // The root is the bounding cube: every cell is a cube.
+                        let e = kid.hi - kid.lo;
+                        assert!((e.max_element() - e.min_element()).abs() < 1e-9 * e.x);
+                    }
                 }
-                let x = q.regularized_minimizer(s / side.len() as f64, AXIS_REGULARISATION);
-                (q.eval(x) * q.weight()).sqrt()
-            };
-            let mut errs = [f64::INFINITY; 3];
-            for k in 0..3 {
-                let (a, b): (Vec<u32>, Vec<u32>) =
-                    members.iter().partition(|&&v| tree.data.pos(v)[k] >= c[k]);
-                if !a.is_empty() && !b.is_empty() {
-                    errs[k] = err(a) + err(b);
-                }
+                assert!(kids.next().is_none() && count >= 2);
+                checked += 1;
             }
-            let min = errs.iter().copied().fold(f64::INFINITY, f64::min);
-            match tree.cut_axis(&node) {
-                // Symmetric axes (y, z of the cylinder) tie up to rounding.
-                Some(k) => assert!(errs[k] <= min + 1e-9 * min.abs(), "node {id}: {errs:?} {k}"),
-                None => assert_eq!(min, f64::INFINITY, "node {id}"),
-            }
-            checked += 1;
+            assert!(checked >= 20, "{sp:?}: {checked}");
         }
-        assert!(checked > 30, "{checked}");
-    }
-
-    #[test]
-    fn cells_are_long_along_a_cylinder() {
-        // The curvature is all around the axis: clusters should stretch along x.
-        let m = cylinder(8.0, 64, 24);
-        let prep = Prepared::new(&m);
-        let (cl, _, _) = cluster(&prep, Target::Triangles(300), &opts(0));
-        let (mut along, mut across) = (0.0, 0.0);
-        for c in 0..cl.count as u32 {
-            let pts: Vec<DVec3> = (0..cl.of.len())
-                .filter(|&d| cl.of[d] == c)
-                .map(|d| prep.dense_pos[d].as_dvec3())
-                .collect();
-            let lo = pts.iter().fold(DVec3::INFINITY, |a, p| a.min(*p));
-            let hi = pts.iter().fold(DVec3::NEG_INFINITY, |a, p| a.max(*p));
-            if lo.x <= 0.0 || hi.x >= 8.0 {
-                continue; // the caps
-            }
-            along += hi.x - lo.x;
-            across += (hi.y - lo.y).max(hi.z - lo.z);
-        }
-        assert!(along > 2.0 * across, "along {along} across {across}");
     }
 
     #[test]
@@ -1420,16 +1370,17 @@ mod tests {
         assert_eq!((tree.count, tree.leaves, tree.leaf_of.clone()), before);
         // Back up to the first goal. The split sequence need not repeat the first one
         // exactly (a re-split node sums its members in their partitioned order, so nearly
-        // tied scores may swap), but the count is kept exactly and lands as close.
+        // tied scores may swap), but the count is kept exactly and lands within a split
+        // (up to eight children: a few dozen triangles here) of the goal.
         tree.seek(1500);
         let fast = super::super::count_surviving(&prep.dense_faces, &tree.leaf_of);
         assert_eq!(tree.count, Some(fast));
         let miss = |c: usize| (c as i64 - 1500).abs();
         assert!(
-            miss(fast) <= miss(count.unwrap()).max(3),
+            miss(fast) <= 30 && miss(count.unwrap()) <= 30,
             "{fast} vs {count:?}"
         );
-        assert!(tree.leaves.abs_diff(leaves) <= 2);
+        assert!(tree.leaves.abs_diff(leaves) <= 16);
     }
 
     #[test]
