@@ -108,13 +108,13 @@ struct SimplifyArgs {
     /// Uniform/floating: cell edge length in model units.
     #[arg(long, value_name = "S", allow_negative_numbers = true)]
     cell_size: Option<f64>,
-    /// Octree: split threshold in model units.
+    /// Octree: split cells scoring above this (area × Dv × normal variation, model units³).
     #[arg(long, value_name = "T", allow_negative_numbers = true)]
     threshold: Option<f64>,
     /// Where each cluster's vertex goes (default quadric).
     #[arg(long, value_enum)]
     representative: Option<RepresentativeArg>,
-    /// Octree: refine this box more finely, XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX[,FACTOR] (repeatable).
+    /// Octree: cells FACTOR (default 4) times smaller in XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX[,FACTOR] (repeatable).
     #[arg(long, value_name = "BOX", value_parser = parse_refine_box)]
     refine: Vec<terratile::simplify::RefineBox>,
     /// Area samples per direction for the error (default: 10 per triangle, at least 200,000).

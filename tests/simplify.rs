@@ -80,10 +80,24 @@ fn attributes_are_carried_over() {
     let s = simplify(&spot, &SimplifyParams::ratio(Method::Octree, 0.2))
         .unwrap()
         .mesh;
+    // Output UVs are averages of input ones: inside the input's range (spot's own UVs
+    // stray slightly outside [0, 1], e.g. v = 1.00065).
     let uv = s.uvs.as_ref().unwrap();
+    let input = spot.uvs.as_ref().unwrap();
+    let (lo, hi) = input.iter().fold(
+        (
+            glam::Vec2::splat(f32::INFINITY),
+            glam::Vec2::splat(f32::NEG_INFINITY),
+        ),
+        |(lo, hi), t| (lo.min(*t), hi.max(*t)),
+    );
+    assert!(
+        lo.min_element() > -0.1 && hi.max_element() < 1.1,
+        "{lo} {hi}"
+    );
     assert!(uv
         .iter()
-        .all(|t| t.x >= 0.0 && t.x <= 1.0 && t.y >= 0.0 && t.y <= 1.0));
+        .all(|t| t.cmpge(lo - 1e-6).all() && t.cmple(hi + 1e-6).all()));
     // Seams survive: some output positions carry two different uvs.
     let w = s.weld_map();
     assert!(
@@ -133,38 +147,71 @@ fn bunny_at_ten_percent_keeps_its_shape() {
     }
 }
 
+/// The error of `method` on `m` at `triangles`, the count checked within 3 %.
+fn error_at(m: &TriMesh, method: Method, triangles: u64) -> terratile::mesh::HausdorffReport {
+    let s = simplify(m, &SimplifyParams::triangles(method, triangles)).unwrap();
+    let n = s.mesh.triangle_count() as f64;
+    assert!(
+        (n - triangles as f64).abs() <= 0.03 * triangles as f64,
+        "{method}: {n} for {triangles}"
+    );
+    hausdorff(m, &s.mesh, &HausdorffParams::default()).unwrap()
+}
+
 /// The paper's Table 1 redone (seed 000 §IV): triceratops, 5,660 → about 1,850 triangles,
-/// the same (quadric) representative for every method. What holds on our implementation:
-/// the adaptive octree has the smallest max error, at most 1 % of the diagonal. Its mean is
-/// not the smallest (floating cells win there): see notes/mesh.md.
+/// the quadric representative for every method, symmetric error (SPEC §8). The adaptive
+/// octree has the smallest max, E_avg (the paper's mean) and Metro mean, with max ≤ 1 % and
+/// Metro mean ≤ 0.06 % of the diagonal; floating cells beat the uniform grid in both means,
+/// as in the paper. Not asserted because it does not hold: floating cells' max (1.77 %, a
+/// claw tip left without triangles at every cell size) is above the grid's (1.0 %), and
+/// E_avg ≤ 0.06 % (no method comes near; notes/octree.md).
 #[test]
 fn paper_comparison_on_triceratops() {
     let Some(m) = load("triceratops.obj") else {
         return;
     };
-    let p = HausdorffParams::default();
-    let run = |method| {
-        let s = simplify(&m, &SimplifyParams::triangles(method, 1850)).unwrap();
-        let n = s.mesh.triangle_count();
-        assert!((1750..=1950).contains(&n), "{method}: {n}");
-        hausdorff(&m, &s.mesh, &p).unwrap()
-    };
-    let (u, f, o) = (
-        run(Method::Uniform),
-        run(Method::Floating),
-        run(Method::Octree),
-    );
+    let u = error_at(&m, Method::Uniform, 1850);
+    let f = error_at(&m, Method::Floating, 1850);
+    let o = error_at(&m, Method::Octree, 1850);
     assert!(o.max_pct <= 1.0, "octree max {:.3} %", o.max_pct);
     assert!(
-        o.max_pct < u.max_pct && o.max_pct < f.max_pct,
-        "max: octree {} uniform {} floating {}",
-        o.max_pct,
-        u.max_pct,
-        f.max_pct
+        o.sample_mean_pct <= 0.06,
+        "octree mean {:.4} %",
+        o.sample_mean_pct
     );
+    for (name, x) in [("uniform", &u), ("floating", &f)] {
+        assert!(o.max_pct < x.max_pct, "max: octree {o:?} {name} {x:?}");
+        assert!(o.mean_pct < x.mean_pct, "E_avg: octree {o:?} {name} {x:?}");
+        assert!(
+            o.sample_mean_pct < x.sample_mean_pct,
+            "mean: octree {o:?} {name} {x:?}"
+        );
+    }
+    assert!(f.mean_pct < u.mean_pct && f.sample_mean_pct < u.sample_mean_pct);
     // All three are far below the paper's figures (max 2.78–3.10 %, mean 0.89–1.35 %).
     for (name, e) in [("uniform", u), ("floating", f), ("octree", o)] {
         assert!(e.max_pct < 2.78 && e.mean_pct < 0.89, "{name}: {e:?}");
+    }
+}
+
+/// The octree's lead is not a triceratops accident: on the cow (organic, thin legs) and
+/// fandisk (CAD: flat faces, sharp creases) at 33 % and 10 % it also has the smallest max,
+/// E_avg and Metro mean of the three methods (bunny: notes/octree.md).
+#[test]
+fn octree_leads_on_other_meshes() {
+    for name in ["cow.obj", "fandisk.obj"] {
+        let Some(m) = load(name) else { return };
+        for ratio in [0.33, 0.10] {
+            let t = (m.triangle_count() as f64 * ratio).round() as u64;
+            let o = error_at(&m, Method::Octree, t);
+            for method in [Method::Uniform, Method::Floating] {
+                let x = error_at(&m, method, t);
+                let what = format!("{name} {ratio}: octree {o:?}, {method} {x:?}");
+                assert!(o.max_pct < x.max_pct, "max, {what}");
+                assert!(o.mean_pct < x.mean_pct, "E_avg, {what}");
+                assert!(o.sample_mean_pct < x.sample_mean_pct, "mean, {what}");
+            }
+        }
     }
 }
 

@@ -9,7 +9,7 @@
 //! system.
 
 use glam::{DMat3, DVec3};
-use std::ops::{Add, AddAssign, Mul};
+use std::ops::{Add, AddAssign, Mul, Sub};
 
 /// A quadric error form Q(x) = xᵀAx + 2bᵀx + c.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -80,17 +80,82 @@ impl Quadric {
         (x.dot(self.matrix() * x) + 2.0 * self.linear().dot(x) + self.c).max(0.0)
     }
 
+    /// The summed plane weights: the trace of A (for area-weighted triangle planes, the
+    /// area they stand for).
+    #[inline]
+    pub fn weight(&self) -> f64 {
+        self.a[0] + self.a[3] + self.a[5]
+    }
+
+    /// The point minimising Q(x) + δ‖x − `toward`‖² with δ = `rel` × [`Quadric::weight`]: a
+    /// cheap, always well-posed stand-in for [`Quadric::minimizer`] (one 3 × 3 solve, no
+    /// eigenvectors) where only the size of the residual matters.
+    pub fn regularized_minimizer(&self, toward: DVec3, rel: f64) -> DVec3 {
+        let delta = rel * self.weight();
+        if delta <= 0.0 || !delta.is_finite() {
+            return toward;
+        }
+        let m = self.matrix() + DMat3::from_diagonal(DVec3::splat(delta));
+        let x = m.inverse() * (toward * delta - self.linear());
+        if x.is_finite() {
+            x
+        } else {
+            toward
+        }
+    }
+
     /// The point minimising Q, found from `fallback` along the eigendirections of A whose
     /// eigenvalue is at least `rel_eps` × the largest (Lindstrom's truncated pseudo-inverse);
     /// `fallback` itself when A vanishes.
+    ///
+    /// Closed form (a hot spot of clustering: one call per cluster and more): eigenvalues
+    /// from the characteristic cubic; then, by how many are kept, a plain 3 × 3 solve (all
+    /// three), a step along the top eigenvector (one), or a solve with the dropped direction
+    /// removed (two). The eigenvectors needed are those of eigenvalues at least the cut
+    /// apart from the others, found as cross products of rows of A − λI; when that is not
+    /// reliable (eigenvalues nearly equal at the cut) the Jacobi solution is used.
     pub fn minimizer(&self, fallback: DVec3, rel_eps: f64) -> DVec3 {
+        let m = self.matrix();
+        let l = sym3_eigenvalues(&m);
+        let lmax = l[0].abs().max(l[2].abs());
+        if lmax <= 0.0 || !lmax.is_finite() {
+            return fallback;
+        }
+        let cut = rel_eps * lmax;
+        // Gradient/2 at the fallback: A x0 + b; the step solves A dx = -(A x0 + b).
+        let g = m * fallback + self.linear();
+        let kept = l.iter().filter(|&&v| v > cut).count();
+        let step = match kept {
+            0 => Some(DVec3::ZERO),
+            1 => null_vector(&m, l[0]).map(|u| u * (u.dot(g) / l[0])),
+            2 => null_vector(&m, l[2]).map(|u| {
+                // Replace the dropped eigenvalue by the largest: a well-conditioned matrix
+                // whose inverse acts on g's part across u as the pseudo-inverse does.
+                let full = m + outer(u, u) * (l[0] - l[2]);
+                full.inverse() * (g - u * u.dot(g))
+            }),
+            _ => Some(m.inverse() * g),
+        };
+        let Some(step) = step else {
+            return self.minimizer_jacobi(fallback, rel_eps);
+        };
+        let x = fallback - step;
+        if x.is_finite() {
+            x
+        } else {
+            fallback
+        }
+    }
+
+    /// [`Quadric::minimizer`] through a full Jacobi eigendecomposition: the slow, obvious
+    /// twin, and the fallback where the closed form is not reliable.
+    pub fn minimizer_jacobi(&self, fallback: DVec3, rel_eps: f64) -> DVec3 {
         let m = self.matrix();
         let (vals, vecs) = sym3_eigen(m);
         let lmax = vals.iter().fold(0.0f64, |a, &v| a.max(v.abs()));
         if lmax <= 0.0 || !lmax.is_finite() {
             return fallback;
         }
-        // Gradient/2 at the fallback: A x0 + b; the step solves A dx = -(A x0 + b).
         let g = m * fallback + self.linear();
         let mut x = fallback;
         for k in 0..3 {
@@ -103,6 +168,71 @@ impl Quadric {
             x
         } else {
             fallback
+        }
+    }
+}
+
+/// u uᵀ.
+fn outer(u: DVec3, v: DVec3) -> DMat3 {
+    DMat3::from_cols(v * u.x, v * u.y, v * u.z)
+}
+
+/// Eigenvalues of a symmetric 3 × 3 matrix, largest first, in closed form (the
+/// trigonometric solution of the characteristic cubic; absolute error ~1e-15 × the
+/// largest).
+pub fn sym3_eigenvalues(m: &DMat3) -> [f64; 3] {
+    let (a00, a11, a22) = (m.x_axis.x, m.y_axis.y, m.z_axis.z);
+    let (a01, a02, a12) = (m.y_axis.x, m.z_axis.x, m.z_axis.y);
+    let p1 = a01 * a01 + a02 * a02 + a12 * a12;
+    if p1 == 0.0 {
+        let mut d = [a00, a11, a22];
+        d.sort_by(|a, b| b.total_cmp(a));
+        return d;
+    }
+    let q = (a00 + a11 + a22) / 3.0;
+    let (b00, b11, b22) = (a00 - q, a11 - q, a22 - q);
+    let p2 = b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * p1;
+    let p = (p2 / 6.0).sqrt();
+    // det(B) / 2 with B = (A − qI) / p.
+    let det = b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
+        + a02 * (a01 * a12 - b11 * a02);
+    let r = (det / (2.0 * p * p * p)).clamp(-1.0, 1.0);
+    let phi = r.acos() / 3.0;
+    let l0 = q + 2.0 * p * phi.cos();
+    let l2 = q + 2.0 * p * (phi + 2.0 * std::f64::consts::FRAC_PI_3).cos();
+    [l0, 3.0 * q - l0 - l2, l2]
+}
+
+/// A unit vector of the null space of A − λI for an eigenvalue λ of symmetric `m` that is
+/// well apart from the others: the largest cross product of two rows. None when every cross
+/// product is tiny (λ is (nearly) repeated).
+fn null_vector(m: &DMat3, lambda: f64) -> Option<DVec3> {
+    let r0 = DVec3::new(m.x_axis.x - lambda, m.y_axis.x, m.z_axis.x);
+    let r1 = DVec3::new(m.x_axis.y, m.y_axis.y - lambda, m.z_axis.y);
+    let r2 = DVec3::new(m.x_axis.z, m.y_axis.z, m.z_axis.z - lambda);
+    let c = [r0.cross(r1), r0.cross(r2), r1.cross(r2)];
+    let (best, n2) = c
+        .iter()
+        .map(|v| (*v, v.length_squared()))
+        .fold((DVec3::ZERO, 0.0), |a, b| if b.1 > a.1 { b } else { a });
+    let scale = r0
+        .length_squared()
+        .max(r1.length_squared())
+        .max(r2.length_squared());
+    // Rows of rank ≤ 1 (a repeated eigenvalue) give cross products at rounding level.
+    if n2.is_nan() || n2 <= 1e-16 * scale * scale {
+        return None;
+    }
+    Some(best / n2.sqrt())
+}
+
+impl Sub for Quadric {
+    type Output = Quadric;
+    fn sub(self, o: Quadric) -> Quadric {
+        Quadric {
+            a: std::array::from_fn(|k| self.a[k] - o.a[k]),
+            b: std::array::from_fn(|k| self.b[k] - o.b[k]),
+            c: self.c - o.c,
         }
     }
 }
@@ -211,6 +341,94 @@ mod tests {
         assert!((x - DVec3::new(1.0, 2.0, 3.0)).length() < 1e-12);
         assert!(q.eval(x) < 1e-20);
         assert!((q.eval(DVec3::ZERO) - (1.0 + 4.0 + 18.0)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn closed_form_minimizer_matches_jacobi() {
+        // Random quadrics of 1–6 planes: flat, creases, corners, spread normals, with
+        // tilts small and large; borderline cases (an eigenvalue near the cut) skipped.
+        let mut rng = crate::rng::SplitMix64::new(7);
+        let mut u = || rng.unit();
+        let mut compared = [0usize; 4];
+        for case in 0..20_000 {
+            let planes = 1 + case % 6;
+            let base = DVec3::new(u() - 0.5, u() - 0.5, u() - 0.5).normalize_or(DVec3::Z);
+            let tilt = [1e-4, 1e-2, 0.1, 1.0][case % 4];
+            let mut q = Quadric::ZERO;
+            for _ in 0..planes {
+                let n = (base + DVec3::new(u() - 0.5, u() - 0.5, u() - 0.5) * tilt)
+                    .normalize_or(DVec3::X);
+                let n = if u() < 0.2 {
+                    n.cross(DVec3::Y).normalize_or(n)
+                } else {
+                    n
+                };
+                q += Quadric::plane(n, (u() - 0.5) * 10.0, 0.1 + u() * 5.0);
+            }
+            let x0 = DVec3::new(u(), u(), u()) * 3.0;
+            let (vals, _) = sym3_eigen(q.matrix());
+            let lmax = vals.iter().fold(0.0f64, |a, v| a.max(v.abs()));
+            let cut = 1e-2 * lmax;
+            if vals.iter().any(|&v| v > 0.5 * cut && v < 2.0 * cut) {
+                continue;
+            }
+            let fast = q.minimizer(x0, 1e-2);
+            let slow = q.minimizer_jacobi(x0, 1e-2);
+            let tol = 1e-7 * (1.0 + slow.length());
+            assert!(
+                (fast - slow).length() < tol,
+                "case {case}: {fast} vs {slow} ({vals:?})"
+            );
+            compared[vals.iter().filter(|&&v| v > cut).count()] += 1;
+        }
+        // Every rank was exercised.
+        assert!(compared[1..].iter().all(|&c| c > 500), "{compared:?}");
+    }
+
+    #[test]
+    fn closed_form_eigenvalues_match_jacobi() {
+        let mut rng = crate::rng::SplitMix64::new(11);
+        for _ in 0..5000 {
+            let mut a = [0.0f64; 6];
+            for v in &mut a {
+                *v = rng.unit() - 0.5;
+            }
+            let m = DMat3::from_cols(
+                DVec3::new(a[0], a[1], a[2]),
+                DVec3::new(a[1], a[3], a[4]),
+                DVec3::new(a[2], a[4], a[5]),
+            );
+            let mut slow = sym3_eigen(m).0;
+            slow.sort_by(|a, b| b.total_cmp(a));
+            let fast = sym3_eigenvalues(&m);
+            for k in 0..3 {
+                assert!((fast[k] - slow[k]).abs() < 1e-12, "{fast:?} {slow:?}");
+            }
+        }
+        assert_eq!(
+            sym3_eigenvalues(&DMat3::from_diagonal(DVec3::new(1.0, 3.0, 2.0))),
+            [3.0, 2.0, 1.0]
+        );
+    }
+
+    #[test]
+    fn regularized_minimizer_approaches_the_minimiser() {
+        let q = Quadric::plane(DVec3::X, -1.0, 1.0)
+            + Quadric::plane(DVec3::Y, -2.0, 1.0)
+            + Quadric::plane(DVec3::Z, -3.0, 2.0);
+        assert_eq!(q.weight(), 4.0);
+        let x = q.regularized_minimizer(DVec3::ZERO, 1e-9);
+        assert!((x - DVec3::new(1.0, 2.0, 3.0)).length() < 1e-6, "{x}");
+        // A flat quadric: the free directions stay at `toward`.
+        let flat = Quadric::plane(DVec3::Z, -1.0, 3.0);
+        let x = flat.regularized_minimizer(DVec3::new(0.5, 0.25, 0.0), 1e-6);
+        assert!((x - DVec3::new(0.5, 0.25, 1.0)).length() < 1e-5, "{x}");
+        assert_eq!(
+            Quadric::ZERO.regularized_minimizer(DVec3::ONE, 1e-3),
+            DVec3::ONE
+        );
+        let d = (q - Quadric::plane(DVec3::Z, -3.0, 2.0)).weight();
+        assert_eq!(d, 2.0);
     }
 
     #[test]
