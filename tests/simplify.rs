@@ -164,7 +164,7 @@ fn error_at(m: &TriMesh, method: Method, triangles: u64) -> terratile::mesh::Hau
 /// Metro mean ≤ 0.06 % of the diagonal; floating cells beat the uniform grid in both means,
 /// as in the paper. Not asserted because it does not hold: floating cells' max (1.77 %, a
 /// claw tip left without triangles at every cell size) is above the grid's (1.0 %), and
-/// E_avg ≤ 0.06 % (no method comes near; notes/octree.md).
+/// E_avg ≤ 0.06 % (no method comes near; docs/notes/octree.md).
 #[test]
 fn paper_comparison_on_triceratops() {
     let Some(m) = load("triceratops.obj") else {
@@ -196,7 +196,7 @@ fn paper_comparison_on_triceratops() {
 
 /// The octree's lead is not a triceratops accident: on the cow (organic, thin legs) and
 /// fandisk (CAD: flat faces, sharp creases) at 33 % and 10 % it also has the smallest max,
-/// E_avg and Metro mean of the three methods (bunny: notes/octree.md).
+/// E_avg and Metro mean of the three methods (bunny: docs/notes/octree.md).
 #[test]
 fn octree_leads_on_other_meshes() {
     for name in ["cow.obj", "fandisk.obj"] {
@@ -289,7 +289,7 @@ proptest! {
     }
 }
 
-/// The table of notes/mesh.md: four meshes, 33 % and 10 %, every method and representative.
+/// The table of docs/notes/mesh.md: four meshes, 33 % and 10 %, every method and representative.
 /// Run: `cargo test --release --test simplify -- --ignored --nocapture clustering_table`.
 #[test]
 #[ignore]

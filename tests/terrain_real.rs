@@ -147,7 +147,7 @@ fn print_noise(rows: &[NoiseRow]) {
 
 /// What the defaults achieve on each tile, as floors for the injected points removed (the
 /// measured figure rounded down to a whole percent). The issue asks for 99 % everywhere;
-/// that is not reachable by any density test on these tiles (see notes/terrain.md and
+/// that is not reachable by any density test on these tiles (see docs/notes/terrain.md and
 /// `noise_injection_issue_bound` below), so these floors guard against regressions while the
 /// genuine-point and named-outlier bounds are the issue's own.
 fn injected_floor(file: &str) -> Option<f64> {
@@ -205,9 +205,9 @@ fn noise_on_real_tiles() {
 /// ones removed on every tile. It fails on every tile: the injected points that land inside
 /// the vegetation and building volume are as dense there as the genuine points (an oracle
 /// k-nearest-neighbour test removes at most 98.6 % of them on autzen_trim and 98.3 % on CSite4
-/// at 1 % genuine loss; see notes/terrain.md). Kept, unweakened, for the lead to decide.
+/// at 1 % genuine loss; see docs/notes/terrain.md). Kept, unweakened, as the record of the gap (README: Known gaps).
 #[test]
-#[ignore = "not reachable by a density test on these tiles: see notes/terrain.md; run with --ignored"]
+#[ignore = "not reachable by a density test on these tiles: see docs/notes/terrain.md; run with --ignored"]
 fn noise_injection_issue_bound() {
     let rows: Vec<NoiseRow> = common::lidar_files().iter().map(|p| noise_row(p)).collect();
     print_noise(&rows);

@@ -10,7 +10,7 @@
 //! Each reaches a target triangle count by searching its one scale parameter (cell size or
 //! split threshold), or runs at a given parameter. The representative is the centroid, the
 //! most important vertex (Low's weight) or the quadric-optimal position (Lindstrom 2000);
-//! the default, chosen by measurement (notes/mesh.md), is the quadric.
+//! the default, chosen by measurement (docs/notes/mesh.md), is the quadric.
 //!
 //! Topology is taken on *welded* vertices (the same position = one vertex), so UV and normal
 //! seams do not look like holes. Colours, normals and UVs are carried over: each output

@@ -17,7 +17,7 @@
 //!    a·θavg + b·θmax)` is then about the node's share of the mean error (area × sagitta ∝
 //!    A · Dv · θ on a curved surface) — and split in order of decreasing score from a
 //!    priority queue until the target is reached, so one pass sweeps T from +∞ down.
-//!    Defaults a = 3, b = 0.5, by measurement (notes/octree.md).
+//!    Defaults a = 3, b = 0.5, by measurement (docs/notes/octree.md).
 //! 2. **The split.** A node splits at the centre of its cell into (up to) eight octants, as
 //!    in the paper. A cell whose vertices all lie in one octant shrinks to it and splits
 //!    again (the chain of one-child nodes collapsed). [`SplitPoint::Centroid`] splits at
@@ -30,7 +30,7 @@
 //!    compact where the planes do not decide); then the representatives are recomputed.
 //!    All moves of a pass are decided from the clusters before it. The octants' straight
 //!    walls cut across features; the passes move the borders onto them (without them the
-//!    errors are 20–50 % higher, notes/octree.md).
+//!    errors are 20–50 % higher, docs/notes/octree.md).
 //!
 //! Selective refinement (the paper's Fig. 8): a node whose cell meets a refine box has its
 //! score multiplied by factor⁴; on a curved surface the score grows as the cell size to the
