@@ -182,6 +182,21 @@ fn bad_baseline_parameters() {
         "[baseline]\nenabled = true\nmethod = \"fast\"\n",
     )
     .input_error(&["baseline.method", "unknown variant"]);
+    for (key, value) in [
+        ("mesh", "../tin.ply"),
+        ("report", "/tmp/baseline.json"),
+        ("report", "a/../../b.json"),
+    ] {
+        run_pipeline(
+            d.path(),
+            &fixture(),
+            &format!("[baseline]\nenabled = true\n{key} = \"{value}\"\n"),
+        )
+        .input_error(&[
+            &format!("baseline.{key}: \"{value}\":"),
+            "must be a relative path inside the output directory",
+        ]);
+    }
 }
 
 fn xyz(dir: &Path, name: &str, pts: &[(f64, f64, f64)]) {

@@ -421,6 +421,22 @@ impl BaselineParams {
                 "name the report file",
             ));
         }
+        // Both files belong inside the run's (staged) output directory: an absolute path or
+        // `..` would write outside it, past the atomic commit.
+        for (param, name) in [("mesh", &self.mesh), ("report", &self.report)] {
+            let p = std::path::Path::new(name);
+            if p.is_absolute()
+                || p.components()
+                    .any(|c| matches!(c, std::path::Component::ParentDir))
+            {
+                return Err(Error::param(
+                    "baseline",
+                    param,
+                    format!("\"{name}\""),
+                    "must be a relative path inside the output directory",
+                ));
+            }
+        }
         Ok(())
     }
 }
