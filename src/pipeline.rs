@@ -204,12 +204,13 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
     let staged = StagedDir::new(&out_dir)?;
     let fig = |k: &str, v: String| (k.to_string(), v);
 
-    // Noise removal.
+    // Noise removal. Its sort keys stay mapped in `scratch` for resampling's sums.
+    let mut scratch: Vec<u64> = Vec::new();
     let keep = if cfg.denoise.enabled {
         progress.start("denoise", 0);
         let t = Instant::now();
         let mpu = cloud.crs().map_or(1.0, |c| c.metres_per_unit());
-        let d = terrain::denoise(&cloud, &cfg.denoise, mpu);
+        let d = terrain::denoise::denoise_reusing(&cloud, &cfg.denoise, mpu, &mut scratch);
         let seconds = t.elapsed().as_secs_f64();
         progress.finish();
         let d = d?;
@@ -251,7 +252,9 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
     // Resampling.
     progress.start("resample", 0);
     let t = Instant::now();
-    let r = terrain::resample(&cloud, keep.as_deref(), &cfg.resample);
+    let r =
+        terrain::resample::resample_reusing(&cloud, keep.as_deref(), &cfg.resample, &mut scratch);
+    drop(scratch);
     let seconds = t.elapsed().as_secs_f64();
     progress.finish();
     let r = r?;

@@ -10,12 +10,12 @@ use crate::error::{Error, Result};
 use crate::points::{self, PointCloud, ReadOptions};
 use crate::progress::NoProgress;
 use crate::terrain::delaunay::{self, TinMethod};
+use crate::terrain::denoise::denoise_reusing;
 use crate::terrain::extract::ExtractParams;
 use crate::terrain::quadtree::{self, QuadtreeParams};
+use crate::terrain::resample::resample_reusing;
 use crate::terrain::tiles::{self, TileParams};
-use crate::terrain::{
-    denoise, fill, resample, DenoiseParams, FillParams, Heightfield, ResampleParams,
-};
+use crate::terrain::{fill, DenoiseParams, FillParams, Heightfield, ResampleParams};
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
@@ -203,9 +203,17 @@ fn grid_run(path: &Path) -> Result<GridRun> {
     let cloud = points::read(path, &ReadOptions::default(), &NoProgress)?;
     let t1 = Instant::now();
     let mpu = cloud.crs().map_or(1.0, |c| c.metres_per_unit());
-    let d = denoise(&cloud, &DenoiseParams::default(), mpu)?;
+    // As the pipeline runs them: resampling reuses denoise's key buffer.
+    let mut scratch = Vec::new();
+    let d = denoise_reusing(&cloud, &DenoiseParams::default(), mpu, &mut scratch)?;
     let t2 = Instant::now();
-    let mut r = resample(&cloud, Some(&d.keep), &ResampleParams::default())?;
+    let mut r = resample_reusing(
+        &cloud,
+        Some(&d.keep),
+        &ResampleParams::default(),
+        &mut scratch,
+    )?;
+    drop(scratch);
     let t3 = Instant::now();
     fill(&mut r.grid, &FillParams::default())?;
     let t4 = Instant::now();

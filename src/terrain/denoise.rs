@@ -348,6 +348,25 @@ pub fn denoise(
     denoise_xyz(&cloud.x, &cloud.y, &cloud.z, params, metres_per_unit)
 }
 
+/// [`denoise`] that leaves its sorted keys (8 bytes per point, already faulted in) in
+/// `scratch` for the next stage to reuse instead of freeing them
+/// ([`super::resample::resample_reusing`]).
+pub(crate) fn denoise_reusing(
+    cloud: &PointCloud,
+    params: &DenoiseParams,
+    metres_per_unit: f64,
+    scratch: &mut Vec<u64>,
+) -> Result<Denoised> {
+    denoise_into(
+        &cloud.x,
+        &cloud.y,
+        &cloud.z,
+        params,
+        metres_per_unit,
+        scratch,
+    )
+}
+
 /// [`denoise`] on bare coordinate columns.
 pub fn denoise_xyz(
     x: &[f64],
@@ -355,6 +374,17 @@ pub fn denoise_xyz(
     z: &[f64],
     params: &DenoiseParams,
     metres_per_unit: f64,
+) -> Result<Denoised> {
+    denoise_into(x, y, z, params, metres_per_unit, &mut Vec::new())
+}
+
+fn denoise_into(
+    x: &[f64],
+    y: &[f64],
+    z: &[f64],
+    params: &DenoiseParams,
+    metres_per_unit: f64,
+    scratch: &mut Vec<u64>,
 ) -> Result<Denoised> {
     let n = x.len();
     if n == 0 {
@@ -447,6 +477,8 @@ pub fn denoise_xyz(
         })
         .sum();
     let keep: Vec<bool> = keep.into_iter().map(AtomicBool::into_inner).collect();
+    drop((dense, floors));
+    *scratch = sorted.keys;
     let kept = n - sparse - low;
     if kept == 0 {
         return Err(Error::Data {
