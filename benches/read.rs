@@ -7,33 +7,18 @@
 //!
 //! `TERRATILE_BENCH_LAS=path` benchmarks that file instead of the generated one.
 
+mod common;
+
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use std::hint::black_box;
-use std::path::{Path, PathBuf};
-use terratile::generate::{generate, write_scene, GenerateParams, OutFormat};
+use std::path::Path;
+use terratile::generate::{generate, GenerateParams};
 use terratile::points::{self, parse_xyz, ReadOptions};
 use terratile::NoProgress;
 
-const PAPER_POINTS: u64 = 3_408_187;
-
-fn bench_input(dir: &Path) -> PathBuf {
-    if let Some(p) = std::env::var_os("TERRATILE_BENCH_LAS") {
-        return PathBuf::from(p);
-    }
-    let scene = generate(&GenerateParams {
-        seed: 1,
-        points: PAPER_POINTS,
-        ..Default::default()
-    })
-    .expect("generate");
-    let path = dir.join("paper.las");
-    write_scene(&scene, &path, &[OutFormat::Las], (1, 1)).expect("write");
-    path
-}
-
 fn read_las(c: &mut Criterion) {
     let dir = tempfile::tempdir().expect("tempdir");
-    let path = bench_input(dir.path());
+    let path = common::paper_las(dir.path());
     let bytes = std::fs::metadata(&path).expect("stat").len();
     let mut g = c.benchmark_group("read_las");
     g.sample_size(10);

@@ -7,10 +7,11 @@
 //! - `extract`: view-independent extraction at 0.5 m over the same survey, vertical error
 //!   tree included.
 
+mod common;
+
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
-use std::path::{Path, PathBuf};
-use terratile::generate::{generate, write_scene, GenerateParams, OutFormat};
+use std::path::Path;
 use terratile::output::exr::{encode_tile, ExrCompression};
 use terratile::points::{self, ReadOptions};
 use terratile::terrain::extract::{self, ExtractParams, Refiner};
@@ -19,23 +20,6 @@ use terratile::terrain::quadtree::{self, build, QuadtreeParams};
 use terratile::terrain::tiles::{tile, TileParams, TileSet};
 use terratile::terrain::{CellState, Heightfield};
 use terratile::NoProgress;
-
-const PAPER_POINTS: u64 = 3_408_187;
-
-fn paper_las(dir: &Path) -> PathBuf {
-    if let Some(p) = std::env::var_os("TERRATILE_BENCH_LAS") {
-        return PathBuf::from(p);
-    }
-    let scene = generate(&GenerateParams {
-        seed: 1,
-        points: PAPER_POINTS,
-        ..Default::default()
-    })
-    .expect("generate");
-    let path = dir.join("paper.las");
-    write_scene(&scene, &path, &[OutFormat::Las], (1, 1)).expect("write");
-    path
-}
 
 /// A rough 4097² terrain (waves and noise), deterministic.
 fn grid_4097() -> TileSet {
@@ -140,7 +124,7 @@ fn real_set(rel: &str, size: usize) -> Option<TileSet> {
 
 fn d2_vs_decode(c: &mut Criterion) {
     let dir = tempfile::tempdir().expect("tempdir");
-    let las = paper_las(dir.path());
+    let las = common::paper_las(dir.path());
     let set = grid_4097();
     let mut g = c.benchmark_group("d2_vs_decode");
     g.sample_size(10);

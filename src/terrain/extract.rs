@@ -628,23 +628,24 @@ mod tests {
     use crate::terrain::testutil::{field, tiles_of};
     use crate::terrain::CellState;
 
+    /// Runs `f` with a view-independent refiner of `set` at `max_error`.
+    fn with_tolerance(set: &TileSet, max_error: f64, f: impl FnOnce(&Refiner)) {
+        let qt = build(set, &QuadtreeParams::default()).unwrap();
+        let err = quadtree::vertical_error(set);
+        let r = Refiner::new(set, &qt, Some(&err), Criterion::Tolerance { max_error }).unwrap();
+        f(&r)
+    }
+
     #[test]
     fn a_plane_is_two_fans_worth_of_triangles() {
         let hf = field(65, 65, |i, j| i as f32 * 0.5 + j as f32);
         let set = tiles_of(&hf, 65);
-        let qt = build(&set, &QuadtreeParams::default()).unwrap();
-        let err = quadtree::vertical_error(&set);
-        let r = Refiner::new(
-            &set,
-            &qt,
-            Some(&err),
-            Criterion::Tolerance { max_error: 0.01 },
-        )
-        .unwrap();
-        let tris = extract(&set, &r).unwrap();
-        // Root leaf with all four midpoints (outer edges include them): 8 triangles, 9 vertices.
-        assert_eq!(tris[0].triangles.len(), 8);
-        assert_eq!(tris[0].uv.len(), 9);
+        with_tolerance(&set, 0.01, |r| {
+            let tris = extract(&set, r).unwrap();
+            // Root leaf with all four midpoints (outer edges include them): 8 triangles, 9 vertices.
+            assert_eq!(tris[0].triangles.len(), 8);
+            assert_eq!(tris[0].uv.len(), 9);
+        });
     }
 
     #[test]
@@ -653,20 +654,13 @@ mod tests {
         hf.heights[[3, 3]] = f32::NAN;
         hf.state[[3, 3]] = CellState::Empty;
         let set = tiles_of(&hf, 65);
-        let qt = build(&set, &QuadtreeParams::default()).unwrap();
-        let err = quadtree::vertical_error(&set);
-        let r = Refiner::new(
-            &set,
-            &qt,
-            Some(&err),
-            Criterion::Tolerance { max_error: 0.01 },
-        )
-        .unwrap();
-        let e = extract(&set, &r).unwrap_err().to_string();
-        assert!(
-            e.starts_with("extract: the heightfield has 1 masked hole samples"),
-            "{e}"
-        );
+        with_tolerance(&set, 0.01, |r| {
+            let e = extract(&set, r).unwrap_err().to_string();
+            assert!(
+                e.starts_with("extract: the heightfield has 1 masked hole samples"),
+                "{e}"
+            );
+        });
     }
 
     #[test]
@@ -698,56 +692,42 @@ mod tests {
     fn clipping_keeps_the_valid_extent_only() {
         let hf = field(100, 70, |i, j| ((i * 7 + j * 13) % 5) as f32);
         let set = tiles_of(&hf, 65);
-        let qt = build(&set, &QuadtreeParams::default()).unwrap();
-        let err = quadtree::vertical_error(&set);
-        let r = Refiner::new(
-            &set,
-            &qt,
-            Some(&err),
-            Criterion::Tolerance { max_error: 0.5 },
-        )
-        .unwrap();
-        let tris = extract(&set, &r).unwrap();
-        let t = &tris[set.index(1, 1)];
-        let tile = &set.tiles[t.tile];
-        assert_eq!(tile.valid, [36, 6]);
-        let mut area = 0.0;
-        for f in &t.triangles {
-            for v in f {
-                let p = t.uv[*v as usize];
-                assert!(p[0] <= 35.0 && p[1] <= 5.0);
+        with_tolerance(&set, 0.5, |r| {
+            let tris = extract(&set, r).unwrap();
+            let t = &tris[set.index(1, 1)];
+            let tile = &set.tiles[t.tile];
+            assert_eq!(tile.valid, [36, 6]);
+            let mut area = 0.0;
+            for f in &t.triangles {
+                for v in f {
+                    let p = t.uv[*v as usize];
+                    assert!(p[0] <= 35.0 && p[1] <= 5.0);
+                }
+                area += area2(t, *f) / 2.0;
             }
-            area += area2(t, *f) / 2.0;
-        }
-        assert!((area - 35.0 * 5.0).abs() < 1e-9, "{area}");
+            assert!((area - 35.0 * 5.0).abs() < 1e-9, "{area}");
+        });
     }
 
     #[test]
     fn skirts_face_outwards_and_close_the_border() {
         let hf = field(65, 65, |i, j| (i as f32 * 0.3).sin() + j as f32 * 0.1);
         let set = tiles_of(&hf, 65);
-        let qt = build(&set, &QuadtreeParams::default()).unwrap();
-        let err = quadtree::vertical_error(&set);
-        let r = Refiner::new(
-            &set,
-            &qt,
-            Some(&err),
-            Criterion::Tolerance { max_error: 0.05 },
-        )
-        .unwrap();
-        let mut t = extract_tile(&set, 0, &r);
-        let surface = t.triangles.len();
-        add_skirts(&mut t, 2.0);
-        assert_eq!(t.surface_triangles, surface);
-        assert!(t.triangles.len() > surface);
-        let m = to_trimesh(&set, &t);
-        for f in &m.indices[surface..] {
-            let [a, b, c] = f.map(|v| m.positions[v as usize]);
-            let n = (b - a).cross(c - a);
-            assert!(n.z.abs() < 1e-6, "skirts are vertical");
-            // Outward: away from the tile centre.
-            let mid = (a + b + c) / 3.0 - Vec3::new(32.0, 32.0, 0.0);
-            assert!(n.x * mid.x + n.y * mid.y > 0.0);
-        }
+        with_tolerance(&set, 0.05, |r| {
+            let mut t = extract_tile(&set, 0, r);
+            let surface = t.triangles.len();
+            add_skirts(&mut t, 2.0);
+            assert_eq!(t.surface_triangles, surface);
+            assert!(t.triangles.len() > surface);
+            let m = to_trimesh(&set, &t);
+            for f in &m.indices[surface..] {
+                let [a, b, c] = f.map(|v| m.positions[v as usize]);
+                let n = (b - a).cross(c - a);
+                assert!(n.z.abs() < 1e-6, "skirts are vertical");
+                // Outward: away from the tile centre.
+                let mid = (a + b + c) / 3.0 - Vec3::new(32.0, 32.0, 0.0);
+                assert!(n.x * mid.x + n.y * mid.y > 0.0);
+            }
+        });
     }
 }
