@@ -20,20 +20,7 @@ fn run_with(dir: &Path, extra: &str) -> Run {
     std::fs::write(dir.join("p.toml"), text).unwrap();
     let r = terratile(dir, &["run", "-q", "--json", "p.toml"]);
     if r.code != 0 {
-        assert!(
-            !dir.join("out").exists(),
-            "no output on failure\n{}",
-            r.context()
-        );
-        let stray: Vec<_> = common::walk(dir)
-            .into_iter()
-            .filter(|p| p.to_string_lossy().contains(".tmp-"))
-            .collect();
-        assert!(
-            stray.is_empty(),
-            "no staged leftovers: {stray:?}\n{}",
-            r.context()
-        );
+        r.left_nothing("out");
     }
     r
 }
@@ -104,11 +91,7 @@ fn run_file(dir: &Path, file: &str, extra: &str) -> Run {
     )
     .unwrap();
     let r = terratile(dir, &["run", "-q", "p.toml"]);
-    assert!(
-        !dir.join("out").exists(),
-        "no output on failure\n{}",
-        r.context()
-    );
+    r.left_nothing("out");
     r
 }
 

@@ -39,18 +39,9 @@ fn edit(dir: &Path, from: &str, to: &str) {
 
 /// The run fails with the needles on one line, exit 2, and leaves nothing behind.
 fn refused(dir: &Path, needles: &[&str]) {
-    let r = terratile(dir, &["run", "-q"]);
-    r.input_error(needles);
-    assert!(!dir.join("out").exists(), "no output\n{}", r.context());
-    let leftovers: Vec<_> = common::walk(dir)
-        .into_iter()
-        .filter(|p| p.to_string_lossy().contains(".tmp-"))
-        .collect();
-    assert!(
-        leftovers.is_empty(),
-        "no temporary files: {leftovers:?}\n{}",
-        r.context()
-    );
+    terratile(dir, &["run", "-q"])
+        .input_error(needles)
+        .left_nothing("out");
 }
 
 #[test]
@@ -245,11 +236,7 @@ fn output_directory_that_cannot_be_written() {
         std::fs::read(d.path().join("blocker")).unwrap(),
         b"not a directory"
     );
-    let stray: Vec<_> = common::walk(d.path())
-        .into_iter()
-        .filter(|p| p.to_string_lossy().contains(".tmp-"))
-        .collect();
-    assert!(stray.is_empty(), "{stray:?}");
+    common::no_temporaries(d.path(), "");
 }
 
 #[test]
@@ -261,9 +248,5 @@ fn a_failed_run_leaves_the_previous_output_as_it_was() {
     edit(d.path(), "fallback = \"smooth\"", "fallback = \"nodata\"");
     terratile(d.path(), &["run", "-q"]).input_error(&["masked hole samples"]);
     assert!(before == snapshot(&d.path().join("out")), "out/ changed");
-    let stray: Vec<_> = common::walk(d.path())
-        .into_iter()
-        .filter(|p| p.to_string_lossy().contains(".tmp-"))
-        .collect();
-    assert!(stray.is_empty(), "{stray:?}");
+    common::no_temporaries(d.path(), "");
 }

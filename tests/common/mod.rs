@@ -121,6 +121,31 @@ impl Run {
         );
         self
     }
+
+    /// Asserts that the command left nothing behind: no `out` (file or directory, relative
+    /// to the run's directory) and no temporary files.
+    pub fn left_nothing(&self, out: &str) -> &Run {
+        assert!(
+            !self.dir.join(out).exists(),
+            "no {out} expected\n{}",
+            self.context()
+        );
+        no_temporaries(&self.dir, &self.context());
+        self
+    }
+}
+
+/// Asserts that no file under `dir` is a temporary (`*.tmp-*`) left by an atomic write or a
+/// staged output directory.
+pub fn no_temporaries(dir: &Path, context: &str) {
+    let stray: Vec<_> = walk(dir)
+        .into_iter()
+        .filter(|p| p.to_string_lossy().contains(".tmp-"))
+        .collect();
+    assert!(
+        stray.is_empty(),
+        "temporary files left: {stray:?}\n{context}"
+    );
 }
 
 /// Every file under `dir`, sorted.
