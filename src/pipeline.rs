@@ -204,16 +204,15 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
     let staged = StagedDir::new(&out_dir)?;
     let fig = |k: &str, v: String| (k.to_string(), v);
 
-    // Noise removal. Its sort keys stay mapped in `scratch` for resampling's sums.
-    let mut scratch: Vec<u64> = Vec::new();
-    let keep = if cfg.denoise.enabled {
-        progress.start("denoise", 0);
-        let t = Instant::now();
-        let mpu = cloud.crs().map_or(1.0, |c| c.metres_per_unit());
-        let d = terrain::denoise::denoise_reusing(&cloud, &cfg.denoise, mpu, &mut scratch);
-        let seconds = t.elapsed().as_secs_f64();
-        progress.finish();
-        let d = d?;
+    // Noise removal, resampling and hole filling.
+    let g = terrain::grid_stages(
+        &cloud,
+        cfg.denoise.enabled.then_some(&cfg.denoise),
+        &cfg.resample,
+        cfg.fill.enabled.then_some(&cfg.fill),
+        progress,
+    )?;
+    let keep = if let Some(d) = g.denoised {
         let st = &d.settings;
         let mut figures = vec![
             fig("points in", cloud.len().to_string()),
@@ -241,7 +240,7 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
         }
         summary.stages.push(StageReport {
             stage: "denoise".into(),
-            seconds,
+            seconds: g.seconds[0],
             figures,
         });
         Some(d.keep)
@@ -249,21 +248,13 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
         None
     };
 
-    // Resampling.
-    progress.start("resample", 0);
-    let t = Instant::now();
-    let r =
-        terrain::resample::resample_reusing(&cloud, keep.as_deref(), &cfg.resample, &mut scratch);
-    drop(scratch);
-    let seconds = t.elapsed().as_secs_f64();
-    progress.finish();
-    let r = r?;
-    let mut grid = r.grid;
+    let r = g.resampled;
+    let grid = r.grid;
     let [_, measured, _, _] = grid.census();
     let cells = grid.cols() * grid.rows();
     summary.stages.push(StageReport {
         stage: "resample".into(),
-        seconds,
+        seconds: g.seconds[1],
         figures: vec![
             fig("points", r.points.to_string()),
             fig("grid", format!("{} × {}", r.spec.cols, r.spec.rows)),
@@ -284,16 +275,10 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
     });
 
     // Hole filling.
-    if cfg.fill.enabled {
-        progress.start("fill", 0);
-        let t = Instant::now();
-        let f = terrain::fill(&mut grid, &cfg.fill);
-        let seconds = t.elapsed().as_secs_f64();
-        progress.finish();
-        let f = f?;
+    if let Some(f) = g.filled {
         summary.stages.push(StageReport {
             stage: "fill".into(),
-            seconds,
+            seconds: g.seconds[2],
             figures: vec![
                 fig("measured", f.measured.to_string()),
                 fig("interpolated", f.interpolated.to_string()),

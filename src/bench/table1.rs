@@ -16,6 +16,7 @@ use crate::rng::SplitMix64;
 use crate::terrain::accuracy::{holdout, ErrorStats};
 use crate::terrain::delaunay::{self, TinMethod};
 use crate::terrain::extract::ExtractParams;
+use crate::terrain::grid_stages;
 use crate::terrain::quadtree::{self, QuadtreeParams};
 use crate::terrain::tiles::{self, TileParams};
 use crate::terrain::{denoise, fill, resample, DenoiseParams, FillParams, ResampleParams};
@@ -124,14 +125,17 @@ fn table1_outputs(dir: &Path) -> OutputConfig {
 
 /// Seconds spent by the grid pipeline end to end on `cloud` (denoise, resample, fill, tiles,
 /// quadtree, writing the outputs into `dir`, which must exist), and its grid size.
-fn grid_pipeline(cloud: &PointCloud, mpu: f64, dir: &Path) -> Result<([f64; 6], usize)> {
-    let t0 = Instant::now();
-    let d = denoise(cloud, &DenoiseParams::default(), mpu)?;
-    let t1 = Instant::now();
-    let mut r = resample(cloud, Some(&d.keep), &ResampleParams::default())?;
-    drop(d);
-    let t2 = Instant::now();
-    fill(&mut r.grid, &FillParams::default())?;
+fn grid_pipeline(cloud: &PointCloud, dir: &Path) -> Result<([f64; 6], usize)> {
+    // As the pipeline runs them.
+    let g = grid_stages(
+        cloud,
+        Some(&DenoiseParams::default()),
+        &ResampleParams::default(),
+        Some(&FillParams::default()),
+        &NoProgress,
+    )?;
+    drop(g.denoised);
+    let r = g.resampled;
     let t3 = Instant::now();
     let set = tiles::tile(&r.grid, &TileParams::default())?;
     let t4 = Instant::now();
@@ -149,9 +153,9 @@ fn grid_pipeline(cloud: &PointCloud, mpu: f64, dir: &Path) -> Result<([f64; 6], 
     let s = |a: Instant, b: Instant| (b - a).as_secs_f64();
     Ok((
         [
-            s(t0, t1),
-            s(t1, t2),
-            s(t2, t3),
+            g.seconds[0],
+            g.seconds[1],
+            g.seconds[2],
             s(t3, t4),
             s(t4, t5),
             s(t5, t6),
@@ -225,7 +229,7 @@ pub fn table1_memory(path: &Path, count: u64, seed: u64, method: &str) -> Result
     match method {
         "grid" => {
             let dir = ScratchDir::new("table1")?;
-            Ok(with_peak(|| grid_pipeline(&cloud, mpu, &dir.0))?.1)
+            Ok(with_peak(|| grid_pipeline(&cloud, &dir.0))?.1)
         }
         "bulk" | "incremental" => {
             let d = denoise(&cloud, &DenoiseParams::default(), mpu)?;
@@ -281,7 +285,7 @@ pub fn table1(
         let mut tin_peaks = [None::<f64>; 2];
         let (mut cells, mut triangles) = (0, 0);
         for _ in 0..repeats {
-            let ((t, c), peak) = with_peak(|| grid_pipeline(&cloud, mpu, &dir.0))?;
+            let ((t, c), peak) = with_peak(|| grid_pipeline(&cloud, &dir.0))?;
             grid_t.push(t);
             cells = c;
             grid_peak = max_opt(grid_peak, peak);

@@ -10,12 +10,10 @@ use crate::error::{Error, Result};
 use crate::points::{self, PointCloud, ReadOptions};
 use crate::progress::NoProgress;
 use crate::terrain::delaunay::{self, TinMethod};
-use crate::terrain::denoise::denoise_reusing;
 use crate::terrain::extract::ExtractParams;
 use crate::terrain::quadtree::{self, QuadtreeParams};
-use crate::terrain::resample::resample_reusing;
 use crate::terrain::tiles::{self, TileParams};
-use crate::terrain::{fill, DenoiseParams, FillParams, Heightfield, ResampleParams};
+use crate::terrain::{grid_stages, DenoiseParams, FillParams, Heightfield, ResampleParams};
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
@@ -202,28 +200,31 @@ fn grid_run(path: &Path) -> Result<GridRun> {
     let t0 = Instant::now();
     let cloud = points::read(path, &ReadOptions::default(), &NoProgress)?;
     let t1 = Instant::now();
-    let mpu = cloud.crs().map_or(1.0, |c| c.metres_per_unit());
-    // As the pipeline runs them: resampling reuses denoise's key buffer.
-    let mut scratch = Vec::new();
-    let d = denoise_reusing(&cloud, &DenoiseParams::default(), mpu, &mut scratch)?;
-    let t2 = Instant::now();
-    let mut r = resample_reusing(
+    // As the pipeline runs them.
+    let g = grid_stages(
         &cloud,
-        Some(&d.keep),
+        Some(&DenoiseParams::default()),
         &ResampleParams::default(),
-        &mut scratch,
+        Some(&FillParams::default()),
+        &NoProgress,
     )?;
-    drop(scratch);
-    let t3 = Instant::now();
-    fill(&mut r.grid, &FillParams::default())?;
-    let t4 = Instant::now();
-    let s = |a: Instant, b: Instant| (b - a).as_secs_f64();
+    let Some(d) = g.denoised else {
+        return Err(Error::Internal(
+            "denoise was asked for and did not run".into(),
+        ));
+    };
+    let r = g.resampled;
     Ok(GridRun {
         cloud,
         keep: d.keep,
         grid: [r.spec.cols, r.spec.rows],
         hf: r.grid,
-        t: [s(t0, t1), s(t1, t2), s(t2, t3), s(t3, t4)],
+        t: [
+            (t1 - t0).as_secs_f64(),
+            g.seconds[0],
+            g.seconds[1],
+            g.seconds[2],
+        ],
     })
 }
 
