@@ -117,6 +117,10 @@ struct SimplifyArgs {
     /// Octree: cells FACTOR (default 4) times smaller in XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX[,FACTOR] (repeatable).
     #[arg(long, value_name = "BOX", value_parser = parse_refine_box)]
     refine: Vec<terratile::simplify::RefineBox>,
+    /// Leave clusters that keep no triangle as they are (thin parts may vanish) instead of
+    /// cutting them in two.
+    #[arg(long)]
+    no_split_stranded: bool,
     /// Area samples per direction for the error (default: 10 per triangle, at least 200,000).
     #[arg(long, value_name = "N")]
     samples: Option<u64>,
@@ -554,6 +558,7 @@ fn simplify(a: SimplifyArgs, quiet: bool) -> Result<()> {
         refine: a.refine,
         theta_avg_weight: None,
         theta_max_weight: None,
+        split_stranded: a.no_split_stranded.then_some(false),
     };
     let error = (!a.no_error).then(|| terratile::mesh::HausdorffParams {
         samples: a.samples.unwrap_or(0),

@@ -162,9 +162,10 @@ fn error_at(m: &TriMesh, method: Method, triangles: u64) -> terratile::mesh::Hau
 /// the quadric representative for every method, symmetric error (SPEC §8). The adaptive
 /// octree has the smallest max, E_avg (the paper's mean) and Metro mean, with max ≤ 1 % and
 /// Metro mean ≤ 0.06 % of the diagonal; floating cells beat the uniform grid in both means,
-/// as in the paper. Not asserted because it does not hold: floating cells' max (1.77 %, a
-/// claw tip left without triangles at every cell size) is above the grid's (1.0 %), and
-/// E_avg ≤ 0.06 % (no method comes near; docs/notes/octree.md).
+/// as in the paper. Not asserted because it does not hold: floating cells' max (1.18 % with
+/// stranded clusters split, 1.77 % without; a front claw thinner than half a cell) is above
+/// the grid's (1.0 %), and E_avg ≤ 0.06 % (no method comes near, nor does meshoptimizer's
+/// edge collapse at 1,850 triangles; docs/notes/mesh.md).
 #[test]
 fn paper_comparison_on_triceratops() {
     let Some(m) = load("triceratops.obj") else {
@@ -194,9 +195,45 @@ fn paper_comparison_on_triceratops() {
     }
 }
 
+/// Floating cells cut triceratops' claws into chains of slabs where no three clusters meet;
+/// without the stranded-cluster split the claw tips vanish (max 1.77 %, docs/notes/octree.md).
+/// With it no cluster is left without a triangle and the max falls, the means do not rise.
+#[test]
+fn splitting_stranded_clusters_keeps_the_claws() {
+    let Some(m) = load("triceratops.obj") else {
+        return;
+    };
+    for ratio in [0.33, 0.10] {
+        let t = (m.triangle_count() as f64 * ratio).round() as u64;
+        let mut p = SimplifyParams::triangles(Method::Floating, t);
+        let split = simplify(&m, &p).unwrap();
+        p.split_stranded = Some(false);
+        let plain = simplify(&m, &p).unwrap();
+        assert!(split.report.stranded_split > 0, "{:?}", split.report);
+        assert_eq!(split.report.clusters, split.mesh.vertex_count());
+        assert!(plain.report.clusters > plain.mesh.vertex_count());
+        let h = HausdorffParams::default();
+        let (es, ep) = (
+            hausdorff(&m, &split.mesh, &h).unwrap(),
+            hausdorff(&m, &plain.mesh, &h).unwrap(),
+        );
+        assert!(
+            es.max_pct < 0.7 * ep.max_pct,
+            "{ratio}: split {es:?} plain {ep:?}"
+        );
+        assert!(
+            es.sample_mean_pct <= ep.sample_mean_pct,
+            "{ratio}: split {es:?} plain {ep:?}"
+        );
+    }
+}
+
 /// The octree's lead is not a triceratops accident: on the cow (organic, thin legs) and
-/// fandisk (CAD: flat faces, sharp creases) at 33 % and 10 % it also has the smallest max,
-/// E_avg and Metro mean of the three methods (bunny: docs/notes/octree.md).
+/// fandisk (CAD: flat faces, sharp creases) at 33 % and 10 % it also has the smallest E_avg
+/// and Metro mean of the three methods, and a smaller max than the uniform grid. Its max is
+/// also below floating cells' except on the cow at 10 % (580 triangles), where floating
+/// cells, whose stranded clusters are split, keep the thin parts better: 2.33 % against the
+/// octree's 3.67 % (bunny and the table: docs/notes/mesh.md).
 #[test]
 fn octree_leads_on_other_meshes() {
     for name in ["cow.obj", "fandisk.obj"] {
@@ -207,7 +244,11 @@ fn octree_leads_on_other_meshes() {
             for method in [Method::Uniform, Method::Floating] {
                 let x = error_at(&m, method, t);
                 let what = format!("{name} {ratio}: octree {o:?}, {method} {x:?}");
-                assert!(o.max_pct < x.max_pct, "max, {what}");
+                let cow_floating_10 =
+                    name == "cow.obj" && ratio == 0.10 && method == Method::Floating;
+                if !cow_floating_10 {
+                    assert!(o.max_pct < x.max_pct, "max, {what}");
+                }
                 assert!(o.mean_pct < x.mean_pct, "E_avg, {what}");
                 assert!(o.sample_mean_pct < x.sample_mean_pct, "mean, {what}");
             }
@@ -329,6 +370,60 @@ fn clustering_table() {
                     );
                 }
             }
+            // References: meshoptimizer's edge collapse (QEM) and its own grid clustering
+            // at the same target, measured the same way.
+            let target = if name == "triceratops.obj" && ratio == 0.33 {
+                1850
+            } else {
+                (m.triangle_count() as f64 * ratio).round() as usize
+            };
+            for (what, s) in meshopt_references(&m, target) {
+                let e = hausdorff(&m, &s, &HausdorffParams::default()).unwrap();
+                println!(
+                    "| {name} | {ratio} | — | {what} | {} | — | {:.3} | {:.4} | {:.4} |",
+                    s.triangle_count(),
+                    e.max_pct,
+                    e.mean_pct,
+                    e.sample_mean_pct
+                );
+            }
         }
     }
+}
+
+/// meshoptimizer's `simplify` (edge collapse) and `simplify_sloppy` (grid clustering) at
+/// `target` triangles, as meshes over `m`'s vertices.
+fn meshopt_references(m: &TriMesh, target: usize) -> Vec<(&'static str, TriMesh)> {
+    let bytes: Vec<u8> = m
+        .positions
+        .iter()
+        .flat_map(|p| p.to_array())
+        .flat_map(f32::to_le_bytes)
+        .collect();
+    let indices: Vec<u32> = m.indices.iter().flatten().copied().collect();
+    let adapter = meshopt::VertexDataAdapter::new(&bytes, 12, 0).unwrap();
+    let collapse = meshopt::simplify(
+        &indices,
+        &adapter,
+        target * 3,
+        1.0,
+        meshopt::SimplifyOptions::None,
+        None,
+    );
+    let sloppy = meshopt::simplify_sloppy(&indices, &adapter, target * 3, 1.0, None);
+    [
+        ("meshopt edge collapse", collapse),
+        ("meshopt sloppy", sloppy),
+    ]
+    .into_iter()
+    .map(|(what, idx)| {
+        let mut s = TriMesh {
+            positions: m.positions.clone(),
+            indices: idx.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect(),
+            ..TriMesh::default()
+        };
+        s.remove_unreferenced();
+        (what, s)
+    })
+    .collect()
 }

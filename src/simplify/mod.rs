@@ -75,13 +75,14 @@ impl std::fmt::Display for FileReport {
         )?;
         writeln!(
             f,
-            "triangles {} → {} ({:.1} %), vertices {} → {}, {} clusters, scale {:.6}, {:.1} ms",
+            "triangles {} → {} ({:.1} %), vertices {} → {}, {} clusters ({} stranded split), scale {:.6}, {:.1} ms",
             r.triangles_in,
             r.triangles_out,
             100.0 * r.triangles_out as f64 / r.triangles_in.max(1) as f64,
             r.vertices_in,
             r.vertices_out,
             r.clusters,
+            r.stranded_split,
             r.scale,
             self.seconds * 1e3
         )?;

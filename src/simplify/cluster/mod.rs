@@ -124,6 +124,10 @@ pub struct SimplifyParams {
     /// Octree: weight of θmax (radians) in the normal-variation factor (default 0.5).
     #[serde(default)]
     pub theta_max_weight: Option<f64>,
+    /// Cut clusters that keep no triangle in two so thin parts do not vanish (default
+    /// true; see [`split_stranded`]).
+    #[serde(default)]
+    pub split_stranded: Option<bool>,
 }
 
 impl SimplifyParams {
@@ -156,7 +160,13 @@ impl SimplifyParams {
             refine: Vec::new(),
             theta_avg_weight: None,
             theta_max_weight: None,
+            split_stranded: None,
         }
+    }
+
+    /// Whether stranded clusters are split (default yes).
+    pub fn split_stranded(&self) -> bool {
+        self.split_stranded.unwrap_or(true)
     }
 
     /// The representative in effect.
@@ -296,8 +306,10 @@ pub struct SimplifyReport {
     pub vertices_in: usize,
     /// Output vertices.
     pub vertices_out: usize,
-    /// Clusters formed.
+    /// Clusters formed (after splitting stranded ones).
     pub clusters: usize,
+    /// Stranded clusters split in two (see [`split_stranded`]).
+    pub stranded_split: usize,
     /// The cell size or threshold used (found by the search, or given).
     pub scale: f64,
     /// Clusterings evaluated while searching for the target.
@@ -332,6 +344,12 @@ pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
             octree::cluster(&prep, target, &octree::OctreeOptions::from_params(params))
         }
     };
+    let mut clustering = clustering;
+    let stranded_split = if params.split_stranded() {
+        split_stranded(&prep, &mut clustering)
+    } else {
+        0
+    };
     let out = build_output(&prep, &clustering, rep);
     if out.triangle_count() == 0 {
         return Err(Error::Data {
@@ -350,10 +368,114 @@ pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
         vertices_in: mesh.vertex_count(),
         vertices_out: out.vertex_count(),
         clusters: clustering.count,
+        stranded_split,
         scale,
         evaluations,
     };
     Ok(Simplified { mesh: out, report })
+}
+
+/// Splits every *stranded* cluster — one whose triangles all have two corners in one
+/// cluster, so that the surface around it vanishes — in two, and repeats while that helps
+/// (a split strands nothing new, but a cluster no cut saved may be saved once its
+/// neighbour is cut; every round adds a cluster, so this ends). Returns the number of splits.
+///
+/// A protrusion thinner than a cell (a claw, a horn tip) is cut by cells into a chain of
+/// slabs in which no three clusters meet, so every triangle on it degenerates and the
+/// protrusion disappears from the output: the largest error of floating cells on
+/// triceratops (docs/notes/mesh.md). Cutting a stranded cluster in two along its length
+/// gives the chain triple junctions again. Each stranded cluster is cut by the plane through
+/// its vertices' centroid normal to x, y or z, whichever lets most of its triangles survive
+/// (ties: the first); a cluster no cut helps is left as it is. Clusters that keep a triangle
+/// are never touched.
+pub fn split_stranded(prep: &Prepared, cl: &mut Clustering) -> usize {
+    let mut total = 0;
+    loop {
+        let n = split_stranded_once(prep, cl);
+        if n == 0 {
+            return total;
+        }
+        total += n;
+    }
+}
+
+#[inline]
+fn survives(of: &[u32], t: &[u32; 3]) -> bool {
+    let (a, b, c) = (of[t[0] as usize], of[t[1] as usize], of[t[2] as usize]);
+    a != b && b != c && a != c
+}
+
+/// One round of [`split_stranded`]: every cluster stranded at its start is tried once.
+fn split_stranded_once(prep: &Prepared, cl: &mut Clustering) -> usize {
+    let mut kept = vec![false; cl.count];
+    for t in &prep.dense_faces {
+        if survives(&cl.of, t) {
+            for &v in t {
+                kept[cl.of[v as usize] as usize] = true;
+            }
+        }
+    }
+    // Stranded clusters with their members (dense indices, ascending); a cluster of one
+    // vertex cannot be cut.
+    let mut slot = vec![u32::MAX; cl.count];
+    let mut members: Vec<Vec<u32>> = Vec::new();
+    for (d, &c) in cl.of.iter().enumerate() {
+        if kept[c as usize] {
+            continue;
+        }
+        if slot[c as usize] == u32::MAX {
+            slot[c as usize] = members.len() as u32;
+            members.push(Vec::new());
+        }
+        members[slot[c as usize] as usize].push(d as u32);
+    }
+    if members.is_empty() {
+        return 0;
+    }
+    let vf = prep.vertex_faces();
+    let pos = |d: u32| prep.dense_pos[d as usize].as_dvec3();
+    let mut faces: Vec<u32> = Vec::new();
+    let mut split = 0;
+    for m in members.iter().filter(|m| m.len() > 1) {
+        let c = cl.of[m[0] as usize];
+        let centroid = m.iter().map(|&d| pos(d)).sum::<DVec3>() / m.len() as f64;
+        faces.clear();
+        faces.extend(
+            m.iter()
+                .flat_map(|&d| vf.of(prep.active[d as usize]).iter().copied()),
+        );
+        faces.sort_unstable();
+        faces.dedup();
+        let new_id = (cl.count + split) as u32;
+        let assign = |of: &mut [u32], axis: usize, above: u32, below: u32| {
+            for &d in m {
+                of[d as usize] = if pos(d)[axis] > centroid[axis] {
+                    above
+                } else {
+                    below
+                };
+            }
+        };
+        let mut best = (0, 0);
+        for axis in 0..3 {
+            assign(&mut cl.of, axis, new_id, c);
+            let n = faces
+                .iter()
+                .filter(|&&f| survives(&cl.of, &prep.dense_faces[f as usize]))
+                .count();
+            if n > best.0 {
+                best = (n, axis);
+            }
+        }
+        if best.0 > 0 {
+            assign(&mut cl.of, best.1, new_id, c);
+            split += 1;
+        } else {
+            assign(&mut cl.of, 0, c, c);
+        }
+    }
+    cl.count += split;
+    split
 }
 
 /// A mesh made ready for clustering: welded topology and the active vertex set, with the
@@ -1216,6 +1338,147 @@ mod tests {
                 fmt(f),
                 fmt(o)
             );
+        }
+    }
+
+    /// A closed triangular prism along x: `n` rings of three vertices, radius `r`.
+    fn prism(n: usize, r: f32) -> TriMesh {
+        let mut m = TriMesh::default();
+        for i in 0..n {
+            for k in 0..3 {
+                let a = k as f32 * std::f32::consts::TAU / 3.0;
+                m.positions
+                    .push(Vec3::new(i as f32 * 0.1, r * a.cos(), r * a.sin()));
+            }
+        }
+        let id = |i: usize, k: usize| (3 * i + k % 3) as u32;
+        for i in 0..n - 1 {
+            for k in 0..3 {
+                m.indices.push([id(i, k), id(i + 1, k), id(i + 1, k + 1)]);
+                m.indices.push([id(i, k), id(i + 1, k + 1), id(i, k + 1)]);
+            }
+        }
+        m.indices.push([id(0, 0), id(0, 2), id(0, 1)]);
+        m.indices.push([id(n - 1, 0), id(n - 1, 1), id(n - 1, 2)]);
+        m
+    }
+
+    /// The slow twin of the stranded test: scan every triangle for each cluster.
+    fn stranded_by_scan(prep: &Prepared, cl: &Clustering) -> Vec<u32> {
+        (0..cl.count as u32)
+            .filter(|&c| {
+                let has = cl.of.contains(&c);
+                has && !prep.dense_faces.iter().any(|t| {
+                    let k = t.map(|v| cl.of[v as usize]);
+                    k.contains(&c) && k[0] != k[1] && k[1] != k[2] && k[0] != k[2]
+                })
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_chain_of_slabs_gets_its_surface_back() {
+        // A thin horn cut into slabs two rings thick: no three clusters meet, every
+        // triangle degenerates — what cells thicker than a claw do to it.
+        let m = prism(12, 0.02);
+        let prep = Prepared::new(&m);
+        let keys: Vec<u32> = (0..prep.dense_pos.len() as u32).map(|d| d / 6).collect();
+        let mut cl = Clustering::from_keys(&keys);
+        assert_eq!(count_surviving(&prep.dense_faces, &cl.of), 0);
+        assert_eq!(stranded_by_scan(&prep, &cl).len(), 6);
+        let n = split_stranded(&prep, &mut cl);
+        assert!(n >= 6, "{n}");
+        assert!(stranded_by_scan(&prep, &cl).is_empty(), "{:?}", cl.of);
+        assert!(count_surviving(&prep.dense_faces, &cl.of) > 0);
+        let out = build_output(&prep, &cl, Representative::Quadric);
+        assert!(out.triangle_count() > 0);
+    }
+
+    #[test]
+    fn simplify_reports_the_split_and_can_skip_it() {
+        let m = prism(40, 0.01);
+        let mut p = SimplifyParams {
+            cell_size: Some(0.2),
+            ..SimplifyParams::new(Method::Uniform)
+        };
+        let split = simplify(&m, &p).unwrap();
+        assert!(split.report.stranded_split > 0, "{:?}", split.report);
+        assert_eq!(split.report.clusters, split.mesh.vertex_count());
+        p.split_stranded = Some(false);
+        match simplify(&m, &p) {
+            Ok(s) => {
+                assert_eq!(s.report.stranded_split, 0);
+                assert!(s.mesh.triangle_count() < split.mesh.triangle_count());
+            }
+            Err(e) => assert!(e.to_string().contains("no triangle is left"), "{e}"),
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+        /// Any clustering of a bumpy grid: clusters that kept a triangle keep exactly their
+        /// members, a split cluster becomes two, no triangle is lost, and a cluster still
+        /// stranded is one that no cut across x, y or z would have saved.
+        #[test]
+        fn splitting_only_helps_and_touches_only_stranded_clusters(
+            n in 3usize..9,
+            keys in proptest::collection::vec(0u32..12, 100),
+            slabs in 0u32..6,
+        ) {
+            let m = grid(n);
+            let prep = Prepared::new(&m);
+            // Random labels, or (slabs > 0) strips across x with a few random labels mixed
+            // in: strips are chains, where most clusters are stranded.
+            let keys: Vec<u32> = (0..prep.dense_pos.len())
+                .map(|d| {
+                    let k = keys[d % keys.len()];
+                    if slabs > 0 && k < 10 {
+                        100 + (prep.dense_pos[d].x * slabs as f32) as u32
+                    } else {
+                        k
+                    }
+                })
+                .collect();
+            let before = Clustering::from_keys(&keys);
+            let stranded = stranded_by_scan(&prep, &before);
+            let mut after = before.clone();
+            let n_split = split_stranded(&prep, &mut after);
+            proptest::prop_assert_eq!(after.count, before.count + n_split);
+            proptest::prop_assert!(
+                count_surviving(&prep.dense_faces, &after.of)
+                    >= count_surviving(&prep.dense_faces, &before.of)
+            );
+            for d in 0..before.of.len() {
+                let c = before.of[d];
+                if !stranded.contains(&c) {
+                    proptest::prop_assert_eq!(after.of[d], c);
+                } else {
+                    // Either kept or moved to a new cluster, never into an existing one.
+                    proptest::prop_assert!(after.of[d] == c || after.of[d] >= before.count as u32);
+                }
+            }
+            let pos = |d: usize| prep.dense_pos[d].as_dvec3();
+            for c in stranded_by_scan(&prep, &after) {
+                let members: Vec<usize> = (0..after.of.len()).filter(|&d| after.of[d] == c).collect();
+                if members.len() < 2 {
+                    continue;
+                }
+                let centroid = members.iter().map(|&d| pos(d)).sum::<DVec3>() / members.len() as f64;
+                for axis in 0..3 {
+                    let mut trial = after.of.clone();
+                    for &d in &members {
+                        if pos(d)[axis] > centroid[axis] {
+                            trial[d] = u32::MAX;
+                        }
+                    }
+                    let saved = prep.dense_faces.iter().any(|t| {
+                        let k = t.map(|v| trial[v as usize]);
+                        (k.contains(&c) || k.contains(&u32::MAX))
+                            && k[0] != k[1] && k[1] != k[2] && k[0] != k[2]
+                    });
+                    proptest::prop_assert!(!saved, "cluster {} axis {}", c, axis);
+                }
+            }
         }
     }
 }
