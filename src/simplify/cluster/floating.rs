@@ -29,36 +29,29 @@ fn bucket(p: DVec3, min: DVec3, inv_h: f64) -> (i64, i64, i64) {
     (c.x as i64, c.y as i64, c.z as i64)
 }
 
-#[inline]
-fn pack(b: (i64, i64, i64)) -> u64 {
-    let m = (1u64 << 21) - 1;
-    ((b.0 as u64) & m) | (((b.1 as u64) & m) << 21) | (((b.2 as u64) & m) << 42)
-}
-
 /// Half-cell buckets → centre index.
 enum Buckets {
     /// Row-major over `dims` buckets, `u32::MAX` = empty.
-    Dense {
-        dims: [i64; 3],
-        cells: Vec<u32>,
-    },
-    Sparse(FxHashMap<u64, u32>),
+    Dense { dims: [i64; 3], cells: Vec<u32> },
+    /// Occupied buckets only, keyed by their full coordinates.
+    Sparse(FxHashMap<(i64, i64, i64), u32>),
 }
 
 impl Buckets {
-    /// Buckets for points in `bounds` at bucket size 1 / `inv_h`, dense when there are at most
+    /// Buckets for the points in `bounds` (bucketed by [`bucket`] from `min` = the bounds'
+    /// minimum at `inv_h`), dense when `dense` allows it and there are at most
     /// `max(8 · vertices, 2²⁰)` of them.
-    fn new(bounds: &crate::mesh::Aabb, inv_h: f64, vertices: usize) -> Buckets {
-        let ext = (bounds.max - bounds.min).as_dvec3() * inv_h;
-        let dims = [
-            ext.x.floor() + 1.0,
-            ext.y.floor() + 1.0,
-            ext.z.floor() + 1.0,
-        ];
-        let cells = dims[0] * dims[1] * dims[2];
-        if cells <= (8 * vertices).max(1 << 20) as f64 {
+    fn new(bounds: &crate::mesh::Aabb, inv_h: f64, vertices: usize, dense: bool) -> Buckets {
+        // The grid's extent comes from the same f64 arithmetic as every lookup, so the point
+        // on the bounds' maximum face falls in the last bucket, never past it (a difference
+        // taken in f32 can round down a bucket).
+        let min = bounds.min.as_dvec3();
+        let last = bucket(bounds.max.as_dvec3(), min, inv_h);
+        let dims = [last.0, last.1, last.2].map(|l| l.saturating_add(1));
+        let cells = dims.iter().map(|&d| d as f64).product::<f64>();
+        if dense && cells <= (8 * vertices).max(1 << 20) as f64 {
             Buckets::Dense {
-                dims: dims.map(|d| d as i64),
+                dims,
                 cells: vec![u32::MAX; cells as usize],
             }
         } else {
@@ -82,7 +75,7 @@ impl Buckets {
                 let c = cells[((b.2 * dims[1] + b.1) * dims[0] + b.0) as usize];
                 (c != u32::MAX).then_some(c)
             }
-            Buckets::Sparse(map) => map.get(&pack(b)).copied(),
+            Buckets::Sparse(map) => map.get(&b).copied(),
         }
     }
 
@@ -90,11 +83,15 @@ impl Buckets {
     fn insert(&mut self, b: (i64, i64, i64), c: u32) {
         match self {
             Buckets::Dense { dims, cells } => {
-                // A point of the bounds is always inside the grid.
+                // A point of the bounds is always inside the grid (see `new`).
+                debug_assert!(
+                    (0..3).all(|k| [b.0, b.1, b.2][k] < dims[k]),
+                    "{b:?} {dims:?}"
+                );
                 cells[((b.2 * dims[1] + b.1) * dims[0] + b.0) as usize] = c;
             }
             Buckets::Sparse(map) => {
-                map.insert(pack(b), c);
+                map.insert(b, c);
             }
         }
     }
@@ -163,20 +160,15 @@ impl Centres<'_> {
 }
 
 fn pass(prep: &Prepared, order: &[u32], s: f64) -> Pass {
-    pass_in(
-        prep,
-        order,
-        s,
-        Buckets::new(&prep.bounds, 2.0 / s, prep.dense_pos.len()),
-    )
+    pass_in(prep, order, s, true)
 }
 
-/// [`pass`] with the given (empty) bucket grid.
-fn pass_in(prep: &Prepared, order: &[u32], s: f64, grid: Buckets) -> Pass {
+/// [`pass`], with the dense bucket grid allowed or not (tests compare the two).
+fn pass_in(prep: &Prepared, order: &[u32], s: f64, dense: bool) -> Pass {
     let h = 0.5 * s;
     let mut cs = Centres {
         prep,
-        grid,
+        grid: Buckets::new(&prep.bounds, 1.0 / h, prep.dense_pos.len(), dense),
         list: Vec::new(),
         min: prep.bounds.min.as_dvec3(),
         h,
@@ -245,26 +237,22 @@ pub fn cluster(prep: &Prepared, target: Target) -> (Clustering, f64, usize) {
 mod tests {
     use super::super::tests::grid;
     use super::*;
+    use crate::mesh::TriMesh;
+    use glam::Vec3;
 
     #[test]
     fn every_vertex_joins_the_nearest_covering_centre() {
         let m = grid(12);
         let prep = Prepared::new(&m);
-        let w = prep.weights();
-        let mut order: Vec<u32> = (0..prep.active.len() as u32).collect();
-        order.sort_by(|&a, &b| {
-            w[prep.active[b as usize] as usize]
-                .total_cmp(&w[prep.active[a as usize] as usize])
-                .then(a.cmp(&b))
-        });
+        let order = weight_order(&prep);
         let s = 0.2;
         let p = pass(&prep, &order, s);
         assert!(matches!(
-            Buckets::new(&prep.bounds, 2.0 / s, prep.dense_pos.len()),
+            Buckets::new(&prep.bounds, 2.0 / s, prep.dense_pos.len(), true),
             Buckets::Dense { .. }
         ));
         // The hash-map grid (huge or far-flung meshes) gives the same clusters.
-        let sparse = pass_in(&prep, &order, s, Buckets::Sparse(FxHashMap::default()));
+        let sparse = pass_in(&prep, &order, s, false);
         assert_eq!(
             (sparse.of.clone(), sparse.centres),
             (p.of.clone(), p.centres)
@@ -292,6 +280,58 @@ mod tests {
                 })
                 .unwrap();
             assert_eq!(p.of[v as usize], want, "vertex {v}");
+        }
+    }
+
+    /// Order of decreasing weight, as `cluster` makes it.
+    fn weight_order(prep: &Prepared) -> Vec<u32> {
+        let w = prep.weights();
+        let mut order: Vec<u32> = (0..prep.active.len() as u32).collect();
+        order.sort_by(|&a, &b| {
+            w[prep.active[b as usize] as usize]
+                .total_cmp(&w[prep.active[a as usize] as usize])
+                .then(a.cmp(&b))
+        });
+        order
+    }
+
+    #[test]
+    fn far_and_large_coordinates_bucket_the_same_dense_or_sparse() {
+        // Mixed signs and large magnitudes, where a grid sized by an f32 difference came out
+        // one bucket short (found in review): every cell size must give the dense and the
+        // sparse grid the same clusters, and neither may index past its end.
+        let triangle = TriMesh {
+            positions: vec![
+                Vec3::new(-64.0, 0.0, 0.0),
+                Vec3::new((1u64 << 30) as f32, 0.0, 0.0),
+                Vec3::new(0.0, 1.0, 0.0),
+            ],
+            indices: vec![[0, 1, 2]],
+            ..TriMesh::default()
+        };
+        let mut scattered = TriMesh::default();
+        let mut rng = crate::rng::SplitMix64::new(11);
+        for _ in 0..300 {
+            scattered.positions.push(Vec3::new(
+                rng.range(-7e5, 9e7) as f32,
+                rng.range(-3.3e6, 4e5) as f32,
+                rng.range(-1.0, 1.0) as f32,
+            ));
+        }
+        scattered.indices = (0..298).map(|i| [i, i + 1, i + 2]).collect();
+        for m in [triangle, scattered] {
+            let prep = Prepared::new(&m);
+            let order = weight_order(&prep);
+            let mut cells = vec![715_827_925.333_325_4];
+            cells.extend((0..60).map(|k| 1e3 * 1.37f64.powi(k)));
+            for s in cells {
+                let (d, sp) = (
+                    pass_in(&prep, &order, s, true),
+                    pass_in(&prep, &order, s, false),
+                );
+                assert!(d.of.iter().all(|&c| (c as usize) < d.centres), "{s}");
+                assert_eq!((d.of, d.centres), (sp.of, sp.centres), "{s}");
+            }
         }
     }
 }

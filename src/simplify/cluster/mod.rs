@@ -337,19 +337,43 @@ pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
     let target = params.target(mesh.triangle_count())?;
     let prep = Prepared::new(mesh);
     let rep = params.representative();
-    let (clustering, scale, evaluations) = match params.method {
-        Method::Uniform => uniform::cluster(&prep, target),
-        Method::Floating => floating::cluster(&prep, target),
-        Method::Octree => {
-            octree::cluster(&prep, target, &octree::OctreeOptions::from_params(params))
+    let octree_options = octree::OctreeOptions::from_params(params);
+    let run = |target: Target| {
+        let (mut clustering, scale, evaluations) = match params.method {
+            Method::Uniform => uniform::cluster(&prep, target),
+            Method::Floating => floating::cluster(&prep, target),
+            Method::Octree => octree::cluster(&prep, target, &octree_options),
+        };
+        let cuts = if params.split_stranded() {
+            split_stranded(&prep, &mut clustering)
+        } else {
+            0
+        };
+        (clustering, scale, evaluations, cuts)
+    };
+    let (mut clustering, mut scale, mut evaluations, mut stranded_split) = run(target);
+    // The searches count triangles before stranded clusters are cut, and the cuts add some
+    // back (a few on triceratops, a tenth at tiny targets): aim again, at most twice, when
+    // that leaves the count more than 1 % off; the closest result is kept.
+    if let (Target::Triangles(t), true) = (target, stranded_split > 0) {
+        let count = |cl: &Clustering| count_distinct(&prep.dense_faces, &cl.of) as f64;
+        let miss = |n: f64| (n - t as f64).abs();
+        let mut got = count(&clustering);
+        let (mut goal, mut last) = (t as f64, got);
+        for _ in 0..2 {
+            if miss(got) <= 0.01 * t as f64 || last == 0.0 {
+                break;
+            }
+            goal = (goal * t as f64 / last).round().max(1.0);
+            let (c, s, e, k) = run(Target::Triangles(goal as u64));
+            evaluations += e;
+            let n = count(&c);
+            last = n;
+            if miss(n) < miss(got) {
+                (clustering, scale, stranded_split, got) = (c, s, k, n);
+            }
         }
-    };
-    let mut clustering = clustering;
-    let stranded_split = if params.split_stranded() {
-        split_stranded(&prep, &mut clustering)
-    } else {
-        0
-    };
+    }
     let out = build_output(&prep, &clustering, rep);
     if out.triangle_count() == 0 {
         return Err(Error::Data {
@@ -377,8 +401,9 @@ pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
 
 /// Splits every *stranded* cluster — one whose triangles all have two corners in one
 /// cluster, so that the surface around it vanishes — in two, and repeats while that helps
-/// (a split strands nothing new, but a cluster no cut saved may be saved once its
-/// neighbour is cut; every round adds a cluster, so this ends). Returns the number of splits.
+/// (a cluster no cut saved may be saved once its neighbour is cut). A cut only refines the
+/// clusters, so a triangle that survives keeps surviving, and every cut makes two non-empty
+/// clusters of one: at most V − clusters cuts, so the rounds end. Returns the number of cuts.
 ///
 /// A protrusion thinner than a cell (a claw, a horn tip) is cut by cells into a chain of
 /// slabs in which no three clusters meet, so every triangle on it degenerates and the
@@ -386,8 +411,10 @@ pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
 /// triceratops (docs/notes/mesh.md). Cutting a stranded cluster in two along its length
 /// gives the chain triple junctions again. Each stranded cluster is cut by the plane through
 /// its vertices' centroid normal to x, y or z, whichever lets most of its triangles survive
-/// (ties: the first); a cluster no cut helps is left as it is. Clusters that keep a triangle
-/// are never touched.
+/// (ties: the first), with both halves non-empty; a cluster no cut helps is left as it is.
+/// Within a round, a cut of a neighbour may already have given a stranded cluster some
+/// triangles; it is then cut only if that saves more of them. Clusters that keep a
+/// triangle when a round starts are not touched in it.
 pub fn split_stranded(prep: &Prepared, cl: &mut Clustering) -> usize {
     let mut total = 0;
     loop {
@@ -406,6 +433,7 @@ fn survives(of: &[u32], t: &[u32; 3]) -> bool {
 }
 
 /// One round of [`split_stranded`]: every cluster stranded at its start is tried once.
+/// Returns the number of cuts.
 fn split_stranded_once(prep: &Prepared, cl: &mut Clustering) -> usize {
     let mut kept = vec![false; cl.count];
     for t in &prep.dense_faces {
@@ -438,7 +466,6 @@ fn split_stranded_once(prep: &Prepared, cl: &mut Clustering) -> usize {
     let mut split = 0;
     for m in members.iter().filter(|m| m.len() > 1) {
         let c = cl.of[m[0] as usize];
-        let centroid = m.iter().map(|&d| pos(d)).sum::<DVec3>() / m.len() as f64;
         faces.clear();
         faces.extend(
             m.iter()
@@ -446,32 +473,45 @@ fn split_stranded_once(prep: &Prepared, cl: &mut Clustering) -> usize {
         );
         faces.sort_unstable();
         faces.dedup();
-        let new_id = (cl.count + split) as u32;
-        let assign = |of: &mut [u32], axis: usize, above: u32, below: u32| {
-            for &d in m {
-                of[d as usize] = if pos(d)[axis] > centroid[axis] {
-                    above
-                } else {
-                    below
-                };
-            }
-        };
-        let mut best = (0, 0);
-        for axis in 0..3 {
-            assign(&mut cl.of, axis, new_id, c);
-            let n = faces
+        let saved = |of: &[u32]| {
+            faces
                 .iter()
-                .filter(|&&f| survives(&cl.of, &prep.dense_faces[f as usize]))
-                .count();
+                .filter(|&&f| survives(of, &prep.dense_faces[f as usize]))
+                .count()
+        };
+        // A neighbour cut earlier in this round may have given it triangles already: a cut
+        // must then save more than those.
+        let n0 = saved(&cl.of);
+        let centroid = m.iter().map(|&d| pos(d)).sum::<DVec3>() / m.len() as f64;
+        let above = |d: u32, axis: usize| pos(d)[axis] > centroid[axis];
+        let new_id = (cl.count + split) as u32;
+        let mut best = (n0, 0);
+        for axis in 0..3 {
+            // Both halves must be non-empty (all members may share this coordinate).
+            let n_above = m.iter().filter(|&&d| above(d, axis)).count();
+            if n_above == 0 || n_above == m.len() {
+                continue;
+            }
+            for &d in m {
+                if above(d, axis) {
+                    cl.of[d as usize] = new_id;
+                }
+            }
+            let n = saved(&cl.of);
             if n > best.0 {
                 best = (n, axis);
             }
+            for &d in m {
+                cl.of[d as usize] = c;
+            }
         }
-        if best.0 > 0 {
-            assign(&mut cl.of, best.1, new_id, c);
+        if best.0 > n0 {
+            for &d in m {
+                if above(d, best.1) {
+                    cl.of[d as usize] = new_id;
+                }
+            }
             split += 1;
-        } else {
-            assign(&mut cl.of, 0, c, c);
         }
     }
     cl.count += split;
@@ -980,6 +1020,10 @@ pub fn build_output(prep: &Prepared, cl: &Clustering, rep: Representative) -> Tr
         .into_par_iter()
         .map(|c| {
             let m = members.row(c);
+            if m.is_empty() {
+                // No vertex, so no output vertex uses this representative.
+                return Vec3::ZERO;
+            }
             let centroid = m.iter().map(|&v| prep.pos(v)).sum::<DVec3>() / m.len() as f64;
             let p = match rep {
                 Representative::Centroid => centroid,
@@ -1387,7 +1431,7 @@ mod tests {
         assert_eq!(count_surviving(&prep.dense_faces, &cl.of), 0);
         assert_eq!(stranded_by_scan(&prep, &cl).len(), 6);
         let n = split_stranded(&prep, &mut cl);
-        assert!(n >= 6, "{n}");
+        assert!(n > 0, "{n}");
         assert!(stranded_by_scan(&prep, &cl).is_empty(), "{:?}", cl.of);
         assert!(count_surviving(&prep.dense_faces, &cl.of) > 0);
         let out = build_output(&prep, &cl, Representative::Quadric);
@@ -1414,26 +1458,69 @@ mod tests {
         }
     }
 
+    #[test]
+    fn no_cut_leaves_an_empty_cluster_on_a_wall() {
+        // A vertical wall at x = 0.1 (a constant f64 sums do not reproduce exactly): cutting
+        // across x moves every member or none. Random clusterings, as the review that found
+        // an empty cluster here ran them; every id must keep members and a cut must save
+        // a triangle.
+        let mut rng = crate::rng::SplitMix64::new(3);
+        for _ in 0..3000 {
+            let n = 3 + rng.below(6) as usize;
+            let mut m = grid(n);
+            for p in &mut m.positions {
+                *p = Vec3::new(0.1, p.x, p.y);
+            }
+            let prep = Prepared::new(&m);
+            let labels = 2 + rng.below(11);
+            let keys: Vec<u64> = (0..prep.dense_pos.len())
+                .map(|_| rng.below(labels))
+                .collect();
+            let mut cl = Clustering::from_keys(&keys);
+            let (count0, surviving0) = (cl.count, count_surviving(&prep.dense_faces, &cl.of));
+            let cuts = split_stranded(&prep, &mut cl);
+            let mut used = vec![false; cl.count];
+            for &c in &cl.of {
+                used[c as usize] = true;
+            }
+            assert!(used.iter().all(|&u| u), "empty cluster: {keys:?}");
+            assert_eq!(cl.count, count0 + cuts);
+            assert!(cuts == 0 || count_surviving(&prep.dense_faces, &cl.of) > surviving0);
+        }
+    }
+
     proptest::proptest! {
         #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
-        /// Any clustering of a bumpy grid: clusters that kept a triangle keep exactly their
-        /// members, a split cluster becomes two, no triangle is lost, and a cluster still
-        /// stranded is one that no cut across x, y or z would have saved.
+        /// Any clustering of a bumpy, flat (z = 0.7) or wall-like (x = 0.1) grid: clusters that
+        /// kept a triangle keep exactly their members, every cluster id has members, new
+        /// clusters come out of one old cluster each, no triangle is lost, and a cluster
+        /// still stranded is one that no cut across x, y or z would have saved.
         #[test]
         fn splitting_only_helps_and_touches_only_stranded_clusters(
             n in 3usize..9,
             keys in proptest::collection::vec(0u32..12, 100),
             slabs in 0u32..6,
+            shape in 0usize..3,
         ) {
-            let m = grid(n);
+            let mut m = grid(n);
+            for p in &mut m.positions {
+                match shape {
+                    // Constants that f32/f64 sums do not reproduce exactly, so a
+                    // centroid may fall beside every member.
+                    1 => p.z = 0.7,
+                    2 => *p = Vec3::new(0.1, p.x, p.y),
+                    _ => {}
+                }
+            }
             let prep = Prepared::new(&m);
-            // Random labels, or (slabs > 0) strips across x with a few random labels mixed
+            // Random labels, or (slabs > 0) diagonal strips with a few random labels mixed
             // in: strips are chains, where most clusters are stranded.
             let keys: Vec<u32> = (0..prep.dense_pos.len())
                 .map(|d| {
                     let k = keys[d % keys.len()];
+                    let p = prep.dense_pos[d];
                     if slabs > 0 && k < 10 {
-                        100 + (prep.dense_pos[d].x * slabs as f32) as u32
+                        100 + ((p.x + p.y + p.z) * slabs as f32) as u32
                     } else {
                         k
                     }
@@ -1448,6 +1535,7 @@ mod tests {
                 count_surviving(&prep.dense_faces, &after.of)
                     >= count_surviving(&prep.dense_faces, &before.of)
             );
+            let mut origin = vec![u32::MAX; after.count];
             for d in 0..before.of.len() {
                 let c = before.of[d];
                 if !stranded.contains(&c) {
@@ -1456,7 +1544,11 @@ mod tests {
                     // Either kept or moved to a new cluster, never into an existing one.
                     proptest::prop_assert!(after.of[d] == c || after.of[d] >= before.count as u32);
                 }
+                let o = &mut origin[after.of[d] as usize];
+                proptest::prop_assert!(*o == u32::MAX || *o == c, "cluster {} from two", after.of[d]);
+                *o = c;
             }
+            proptest::prop_assert!(origin.iter().all(|&o| o != u32::MAX), "an empty cluster");
             let pos = |d: usize| prep.dense_pos[d].as_dvec3();
             for c in stranded_by_scan(&prep, &after) {
                 let members: Vec<usize> = (0..after.of.len()).filter(|&d| after.of[d] == c).collect();
