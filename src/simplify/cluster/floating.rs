@@ -204,9 +204,9 @@ fn pass_in(prep: &Prepared, order: &[u32], s: f64, dense: bool) -> Pass {
     }
 }
 
-/// Clusters `prep` with floating cells: returns the clustering, the cell size and the number
-/// of passes made.
-pub fn cluster(prep: &Prepared, target: Target) -> (Clustering, f64, usize) {
+/// Active vertices (dense indices) in order of decreasing weight, ties by index: the order
+/// in which they may become centres.
+fn weight_order(prep: &Prepared) -> Vec<u32> {
     let w = prep.weights();
     let mut order: Vec<u32> = (0..prep.active.len() as u32).collect();
     order.par_sort_unstable_by(|&a, &b| {
@@ -214,6 +214,13 @@ pub fn cluster(prep: &Prepared, target: Target) -> (Clustering, f64, usize) {
             .total_cmp(&w[prep.active[a as usize] as usize])
             .then(a.cmp(&b))
     });
+    order
+}
+
+/// Clusters `prep` with floating cells: returns the clustering, the cell size and the number
+/// of passes made.
+pub fn cluster(prep: &Prepared, target: Target) -> (Clustering, f64, usize) {
+    let order = weight_order(prep);
     let min_s = 2.0 * uniform::min_cell(prep);
     let (s, evals) = match target {
         Target::Scale(s) => (s.max(min_s), 1),
@@ -281,18 +288,6 @@ mod tests {
                 .unwrap();
             assert_eq!(p.of[v as usize], want, "vertex {v}");
         }
-    }
-
-    /// Order of decreasing weight, as `cluster` makes it.
-    fn weight_order(prep: &Prepared) -> Vec<u32> {
-        let w = prep.weights();
-        let mut order: Vec<u32> = (0..prep.active.len() as u32).collect();
-        order.sort_by(|&a, &b| {
-            w[prep.active[b as usize] as usize]
-                .total_cmp(&w[prep.active[a as usize] as usize])
-                .then(a.cmp(&b))
-        });
-        order
     }
 
     #[test]
