@@ -6,6 +6,8 @@
 //!   compression; the sizes are printed once (they decided the default).
 //! - `extract`: view-independent extraction at 0.5 m over the same survey, vertical error
 //!   tree included.
+//! - `mesh_encoding`: the same survey's tile meshes (0.5 m) encoded as binary PLY, OBJ and
+//!   GLB, all tiles: what each mesh format adds to a run.
 
 mod common;
 
@@ -13,6 +15,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
 use std::path::Path;
 use terratile::output::exr::{encode_tile, ExrCompression};
+use terratile::output::MeshFormat;
 use terratile::points::{self, ReadOptions};
 use terratile::terrain::extract::{self, ExtractParams, Refiner};
 use terratile::terrain::heightfield::choose_z_offset;
@@ -189,5 +192,45 @@ fn extraction(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, d2_vs_decode, exr_compression, extraction);
+fn mesh_encoding(c: &mut Criterion) {
+    let Some(set) = real_set("CSite4_orig-utm.laz", 257) else {
+        return;
+    };
+    let qt = build(&set, &QuadtreeParams::default()).expect("d2");
+    let crit = ExtractParams::default()
+        .criterion(&set, &qt)
+        .expect("criterion");
+    let err = quadtree::vertical_error(&set);
+    let r = Refiner::new(&set, &qt, Some(&err), crit).expect("refiner");
+    let meshes: Vec<_> = extract::extract(&set, &r)
+        .expect("extract")
+        .iter()
+        .map(|t| extract::to_trimesh(&set, t))
+        .collect();
+    let mut g = c.benchmark_group("mesh_encoding");
+    g.sample_size(10);
+    for f in [MeshFormat::Ply, MeshFormat::Obj, MeshFormat::Glb] {
+        let bytes: usize = meshes
+            .iter()
+            .map(|m| f.encode(m, "tile").expect("encode").len())
+            .sum();
+        eprintln!("{}: {bytes} bytes over {} tiles", f.ext(), meshes.len());
+        g.bench_function(f.ext(), |b| {
+            b.iter(|| {
+                for m in &meshes {
+                    black_box(f.encode(m, "tile").expect("encode"));
+                }
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(
+    benches,
+    d2_vs_decode,
+    exr_compression,
+    extraction,
+    mesh_encoding
+);
 criterion_main!(benches);
