@@ -216,3 +216,113 @@ fn unknown_extension_is_a_usage_error() {
     assert_eq!(e.exit_code(), 2);
     assert!(e.to_string().contains(".obj or .ply"), "{e}");
 }
+
+/// A small mesh with every attribute, as bytes in each format the readers take.
+fn seed_files() -> Vec<(&'static str, Vec<u8>)> {
+    use terratile::mesh::io::{obj, ply};
+    let m = TriMesh {
+        positions: vec![
+            glam::Vec3::new(0.0, 0.0, 0.0),
+            glam::Vec3::new(1.0, 0.0, 0.5),
+            glam::Vec3::new(0.0, 1.0, -0.25),
+            glam::Vec3::new(1.0, 1.0, 2.0),
+        ],
+        indices: vec![[0, 1, 2], [1, 3, 2]],
+        normals: Some(vec![glam::Vec3::Z; 4]),
+        colors: Some(vec![[0.2, 0.4, 0.6, 1.0]; 4]),
+        uvs: Some(vec![glam::Vec2::new(0.5, 0.25); 4]),
+    };
+    let mut files = Vec::new();
+    let mut o = Vec::new();
+    obj::write_obj(&m, &mut o).unwrap();
+    // Polygons, negative indices and groups too, for the OBJ reader's other paths.
+    o.extend_from_slice(b"g quad\nf -4/-4/-4 -3/-3/-3 -1/-1/-1 -2/-2/-2\n");
+    files.push(("m.obj", o));
+    for (name, enc) in [
+        ("a.ply", ply::Encoding::Ascii),
+        ("le.ply", ply::Encoding::BinaryLittleEndian),
+        ("be.ply", ply::Encoding::BinaryBigEndian),
+    ] {
+        let mut b = Vec::new();
+        ply::write_ply(&m, &mut b, enc).unwrap();
+        files.push((name, b));
+    }
+    files
+}
+
+/// One damage to a file: overwrite a byte, cut the file short, or insert bytes.
+#[derive(Debug, Clone)]
+enum Damage {
+    Set(usize, u8),
+    Truncate(usize),
+    Insert(usize, Vec<u8>),
+}
+
+fn damage() -> impl Strategy<Value = Damage> {
+    prop_oneof![
+        (any::<usize>(), any::<u8>()).prop_map(|(i, b)| Damage::Set(i, b)),
+        any::<usize>().prop_map(Damage::Truncate),
+        (
+            any::<usize>(),
+            prop::collection::vec(
+                prop_oneof![
+                    any::<u8>(),
+                    Just(b'\n'),
+                    Just(b' '),
+                    Just(b'-'),
+                    Just(b'/'),
+                    Just(b'9')
+                ],
+                1..12
+            )
+        )
+            .prop_map(|(i, v)| Damage::Insert(i, v)),
+    ]
+}
+
+fn apply(bytes: &mut Vec<u8>, d: &Damage) {
+    let n = bytes.len().max(1);
+    match d {
+        Damage::Set(i, b) => {
+            if !bytes.is_empty() {
+                bytes[i % n] = *b;
+            }
+        }
+        Damage::Truncate(i) => bytes.truncate(i % n),
+        Damage::Insert(i, v) => {
+            let at = i % n;
+            bytes.splice(at..at, v.iter().copied());
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(512))]
+    /// Damaged OBJ and PLY files never panic the readers: each either still reads (into a
+    /// mesh whose indices are all in range) or fails with an error that names the file.
+    #[test]
+    fn damaged_files_are_errors_not_panics(
+        which in 0usize..4,
+        damages in prop::collection::vec(damage(), 1..6),
+    ) {
+        use terratile::mesh::io::{obj, ply};
+        let (name, mut bytes) = seed_files().swap_remove(which);
+        for d in &damages {
+            apply(&mut bytes, d);
+        }
+        let path = Path::new(name);
+        let got = if name.ends_with(".obj") {
+            obj::parse_obj(path, &bytes)
+        } else {
+            ply::parse_ply(path, &bytes)
+        };
+        match got {
+            Ok((m, _)) => {
+                let n = m.positions.len() as u32;
+                prop_assert!(m.indices.iter().flatten().all(|&v| v < n));
+                prop_assert!(m.positions.iter().all(|p| p.is_finite()));
+            }
+            Err(e) => prop_assert!(e.to_string().contains(name), "{}", e),
+        }
+    }
+}
