@@ -18,10 +18,11 @@ use terratile::output::exr::{encode_tile, ExrCompression};
 use terratile::output::MeshFormat;
 use terratile::points::{self, ReadOptions};
 use terratile::terrain::extract::{self, ExtractParams, Refiner};
-use terratile::terrain::heightfield::choose_z_offset;
+use terratile::terrain::fill::FillParams;
 use terratile::terrain::quadtree::{self, build, QuadtreeParams};
+use terratile::terrain::resample::ResampleParams;
 use terratile::terrain::tiles::{tile, TileParams, TileSet};
-use terratile::terrain::{CellState, Heightfield};
+use terratile::terrain::{self, CellState, Heightfield};
 use terratile::NoProgress;
 
 /// A rough 4097² terrain (waves and noise), deterministic.
@@ -50,8 +51,8 @@ fn grid_4097() -> TileSet {
     .expect("tile")
 }
 
-/// Per-cell mean grid of a real survey, holes grown shut (benchmark input only; the
-/// pipeline's own resampler and filler are the terrain stages').
+/// A real survey through the pipeline's own grid stages (default resampling, holes filled),
+/// tiled at `size`.
 fn real_set(rel: &str, size: usize) -> Option<TileSet> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/data/lidar")
@@ -61,68 +62,47 @@ fn real_set(rel: &str, size: usize) -> Option<TileSet> {
         return None;
     }
     let c = points::read(&path, &ReadOptions::default(), &NoProgress).ok()?;
-    let b = c.bounds();
-    let n = (c.len() as f64).sqrt().round() as usize;
-    let cell = [
-        (b.max[0] - b.min[0]) / n as f64,
-        (b.max[1] - b.min[1]) / n as f64,
-    ];
-    let zo = choose_z_offset(b.min[2], b.max[2]);
-    let mut hf = Heightfield::empty(n, n, [b.min[0], b.min[1]], cell, zo, c.crs().cloned());
-    let mut sum = vec![0.0f64; n * n];
-    for k in 0..c.len() {
-        let i = (((c.x[k] - b.min[0]) / cell[0]) as usize).min(n - 1);
-        let j = (((c.y[k] - b.min[1]) / cell[1]) as usize).min(n - 1);
-        sum[j * n + i] += c.z[k] - zo;
-        hf.counts[[j, i]] += 1;
-    }
-    for j in 0..n {
-        for i in 0..n {
-            if hf.counts[[j, i]] > 0 {
-                hf.heights[[j, i]] = (sum[j * n + i] / hf.counts[[j, i]] as f64) as f32;
-                hf.state[[j, i]] = CellState::Measured;
-            }
-        }
-    }
-    loop {
-        let mut fills = Vec::new();
-        for j in 0..n {
-            for i in 0..n {
-                if hf.state[[j, i]].has_height() {
-                    continue;
-                }
-                let mut acc = (0.0f32, 0);
-                for (a, bb) in [
-                    (i.wrapping_sub(1), j),
-                    (i + 1, j),
-                    (i, j.wrapping_sub(1)),
-                    (i, j + 1),
-                ] {
-                    if a < n && bb < n && hf.state[[bb, a]].has_height() {
-                        acc = (acc.0 + hf.heights[[bb, a]], acc.1 + 1);
-                    }
-                }
-                if acc.1 > 0 {
-                    fills.push((i, j, acc.0 / acc.1 as f32));
-                }
-            }
-        }
-        if fills.is_empty() {
-            break;
-        }
-        for (i, j, h) in fills {
-            hf.heights[[j, i]] = h;
-            hf.state[[j, i]] = CellState::Interpolated;
-        }
-    }
+    let g = terrain::grid_stages(
+        &c,
+        None,
+        &ResampleParams::default(),
+        Some(&FillParams::default()),
+        &NoProgress,
+    )
+    .ok()?;
     tile(
-        &hf,
+        &g.resampled.grid,
         &TileParams {
             size: Some(size),
             ..Default::default()
         },
     )
     .ok()
+}
+
+/// What a refiner at the default 0.5 m tolerance borrows: CSite4 tiled at 257, its
+/// quadtree, its vertical error tree and the criterion.
+struct Csite4 {
+    set: TileSet,
+    qt: quadtree::Quadtree,
+    err: Vec<quadtree::NodeValues>,
+    crit: extract::Criterion,
+}
+
+impl Csite4 {
+    fn load() -> Option<Csite4> {
+        let set = real_set("CSite4_orig-utm.laz", 257)?;
+        let qt = build(&set, &QuadtreeParams::default()).expect("d2");
+        let err = quadtree::vertical_error(&set);
+        let crit = ExtractParams::default()
+            .criterion(&set, &qt)
+            .expect("criterion");
+        Some(Csite4 { set, qt, err, crit })
+    }
+
+    fn refiner(&self) -> Refiner<'_> {
+        Refiner::new(&self.set, &self.qt, Some(&self.err), self.crit).expect("refiner")
+    }
 }
 
 fn d2_vs_decode(c: &mut Criterion) {
@@ -172,40 +152,30 @@ fn exr_compression(c: &mut Criterion) {
 }
 
 fn extraction(c: &mut Criterion) {
-    let Some(set) = real_set("CSite4_orig-utm.laz", 257) else {
+    let Some(cs) = Csite4::load() else {
         return;
     };
-    let qt = build(&set, &QuadtreeParams::default()).expect("d2");
-    let crit = ExtractParams::default()
-        .criterion(&set, &qt)
-        .expect("criterion");
+    let set = &cs.set;
     let mut g = c.benchmark_group("extract");
     g.sample_size(10);
     g.bench_function("vertical_error_tree", |b| {
-        b.iter(|| black_box(quadtree::vertical_error(&set)))
+        b.iter(|| black_box(quadtree::vertical_error(set)))
     });
-    let err = quadtree::vertical_error(&set);
-    let r = Refiner::new(&set, &qt, Some(&err), crit).expect("refiner");
+    let r = cs.refiner();
     g.bench_function("tolerance_0.5m", |b| {
-        b.iter(|| black_box(extract::extract(&set, &r).expect("extract")))
+        b.iter(|| black_box(extract::extract(set, &r).expect("extract")))
     });
     g.finish();
 }
 
 fn mesh_encoding(c: &mut Criterion) {
-    let Some(set) = real_set("CSite4_orig-utm.laz", 257) else {
+    let Some(cs) = Csite4::load() else {
         return;
     };
-    let qt = build(&set, &QuadtreeParams::default()).expect("d2");
-    let crit = ExtractParams::default()
-        .criterion(&set, &qt)
-        .expect("criterion");
-    let err = quadtree::vertical_error(&set);
-    let r = Refiner::new(&set, &qt, Some(&err), crit).expect("refiner");
-    let meshes: Vec<_> = extract::extract(&set, &r)
+    let meshes: Vec<_> = extract::extract(&cs.set, &cs.refiner())
         .expect("extract")
         .iter()
-        .map(|t| extract::to_trimesh(&set, t))
+        .map(|t| extract::to_trimesh(&cs.set, t))
         .collect();
     let mut g = c.benchmark_group("mesh_encoding");
     g.sample_size(10);
