@@ -141,12 +141,7 @@ fn baseline_glb_reads_back_and_grid_time_counts_the_tile_stages() {
         .filter(|s| !matches!(s["stage"].as_str(), Some("read" | "baseline")))
         .map(|s| s["seconds"].as_f64().unwrap())
         .sum();
-    let names: Vec<&str> = v["stages"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|s| s["stage"].as_str().unwrap())
-        .collect();
+    let names: Vec<&str> = common::stage_names(&v);
     for stage in ["tiles", "quadtree", "write"] {
         assert!(names.contains(&stage), "{names:?}");
     }

@@ -123,12 +123,7 @@ fn run_reports_every_stage_and_writes_the_removed_points() {
     let r = run_with(d.path(), "[denoise]\nwrite_removed = true\n");
     r.ok();
     let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
-    let stages: Vec<&str> = v["stages"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|s| s["stage"].as_str().unwrap())
-        .collect();
+    let stages: Vec<&str> = common::stage_names(&v);
     assert_eq!(
         stages,
         ["read", "denoise", "resample", "fill", "tiles", "quadtree", "extract", "write"],

@@ -165,12 +165,7 @@ fn default_pipeline_writes_the_whole_set() {
         .collect();
     listed.sort();
     assert_eq!(listed, files.keys().cloned().collect::<Vec<_>>());
-    let stages: Vec<&str> = v["stages"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|s| s["stage"].as_str().unwrap())
-        .collect();
+    let stages: Vec<&str> = common::stage_names(&v);
     assert!(
         stages.ends_with(&["tiles", "quadtree", "extract", "write"]),
         "{stages:?}"

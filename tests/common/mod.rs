@@ -206,3 +206,13 @@ pub fn default_job() -> tempfile::TempDir {
     }
     dir
 }
+
+/// The stage names of a run summary printed with `--json`, in order.
+pub fn stage_names(summary: &serde_json::Value) -> Vec<&str> {
+    summary["stages"]
+        .as_array()
+        .expect("a stages array")
+        .iter()
+        .map(|s| s["stage"].as_str().expect("a stage name"))
+        .collect()
+}
