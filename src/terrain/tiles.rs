@@ -352,6 +352,18 @@ pub fn resample_to(hf: &Heightfield, cols: usize, rows: usize) -> Heightfield {
 mod tests {
     use super::*;
 
+    /// `hf` tiled at `size` with no preset.
+    fn tile_at(hf: &Heightfield, size: usize) -> TileSet {
+        tile(
+            hf,
+            &TileParams {
+                size: Some(size),
+                preset: Preset::None,
+            },
+        )
+        .unwrap()
+    }
+
     fn ramp(cols: usize, rows: usize) -> Heightfield {
         let mut hf = Heightfield::empty(cols, rows, [1000.0, 2000.0], [0.5, 0.5], 0.0, None);
         for j in 0..rows {
@@ -398,14 +410,7 @@ mod tests {
     #[test]
     fn tiles_share_borders_and_pad_by_replication() {
         let hf = ramp(300, 130);
-        let set = tile(
-            &hf,
-            &TileParams {
-                size: Some(129),
-                preset: Preset::None,
-            },
-        )
-        .unwrap();
+        let set = tile_at(&hf, 129);
         // 300 samples: 128 + 128 + 44 → 3 tiles; 130 rows: 2 tiles.
         assert_eq!(set.grid, [3, 2]);
         let t = set.tile(2, 1).unwrap();
@@ -425,14 +430,7 @@ mod tests {
     #[test]
     fn exact_fit_needs_no_padding() {
         let hf = ramp(129, 65);
-        let set = tile(
-            &hf,
-            &TileParams {
-                size: Some(65),
-                preset: Preset::None,
-            },
-        )
-        .unwrap();
+        let set = tile_at(&hf, 65);
         assert_eq!(set.grid, [2, 1]);
         assert!(set.tiles.iter().all(|t| t.valid == [65, 65]));
     }
@@ -442,27 +440,13 @@ mod tests {
         let mut hf = ramp(70, 70);
         hf.heights[[69, 69]] = f32::NAN;
         hf.state[[69, 69]] = CellState::Empty;
-        let set = tile(
-            &hf,
-            &TileParams {
-                size: Some(65),
-                preset: Preset::None,
-            },
-        )
-        .unwrap();
+        let set = tile_at(&hf, 65);
         // Sample (69, 69) is inside tile (1,1) only; its replicas in the padding do not count.
         assert_eq!(set.holes(), 1);
         // A hole on the shared border is in two tiles' valid extents but counts once.
         hf.heights[[10, 64]] = f32::NAN;
         hf.state[[10, 64]] = CellState::Empty;
-        let set = tile(
-            &hf,
-            &TileParams {
-                size: Some(65),
-                preset: Preset::None,
-            },
-        )
-        .unwrap();
+        let set = tile_at(&hf, 65);
         assert_eq!(set.tiles.iter().map(|t| t.holes).sum::<usize>(), 3);
         assert_eq!(set.holes(), 2);
         assert!(set.tile(1, 1).unwrap().heights[[10, 10]].is_nan());
