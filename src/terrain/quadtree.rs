@@ -361,10 +361,7 @@ where
     out.par_iter_mut()
         .zip(set.tiles.par_iter())
         .for_each(|(m, tile)| {
-            let h = tile
-                .heights
-                .as_slice()
-                .expect("tile heights are contiguous");
+            let h = tile.height_slice();
             let (l1, rest) = m.levels.split_at_mut(1);
             fused_levels_1_2(&raw, h, n, k, tile.holes == 0, &mut l1[0], &mut rest[0]);
         });
@@ -376,10 +373,7 @@ where
         out.par_iter_mut()
             .zip(set.tiles.par_iter())
             .for_each(|(m, tile)| {
-                let h = tile
-                    .heights
-                    .as_slice()
-                    .expect("tile heights are contiguous");
+                let h = tile.height_slice();
                 let (lower, rest) = m.levels.split_at_mut(level as usize - 1);
                 // Level m − 1 has 2 × nodes per side: children of (a, b) are (2a.., 2b..).
                 let low: &[f32] = &lower[level as usize - 2];

@@ -101,6 +101,15 @@ pub struct Tile {
     pub z_range: Option<[f32; 2]>,
 }
 
+impl Tile {
+    /// The heights as one row-major slice (tiles are built contiguous).
+    pub fn height_slice(&self) -> &[f32] {
+        self.heights
+            .as_slice()
+            .expect("tile heights are contiguous")
+    }
+}
+
 /// A heightfield cut into tiles, with the georeference of the whole set.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TileSet {
