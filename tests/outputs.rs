@@ -19,6 +19,14 @@ use terratile::terrain::Heightfield;
 use terratile::NoProgress;
 use tiles_support::*;
 
+/// Tiles of `size` samples, no preset.
+fn sized(size: usize) -> TileParams {
+    TileParams {
+        size: Some(size),
+        ..Default::default()
+    }
+}
+
 fn write_all(
     hf: &Heightfield,
     params: &TileParams,
@@ -85,15 +93,7 @@ fn real_tiles_round_trip_through_every_output() {
         preview_size: 600,
         ..Default::default()
     };
-    let (set, w) = write_all(
-        &hf,
-        &TileParams {
-            size: Some(65),
-            ..Default::default()
-        },
-        &out,
-        dir.path(),
-    );
+    let (set, w) = write_all(&hf, &sized(65), &out, dir.path());
     let qt = build(&set, &QuadtreeParams::default()).unwrap();
     assert!(w.triangles > 0);
     // Every EXR: every sample of height and d2 equal, no mask (no holes).
@@ -214,15 +214,7 @@ fn holes_are_masked_and_kept_through_reassembly() {
         preview_size: 300,
         ..Default::default()
     };
-    let (set, _) = write_all(
-        &hf,
-        &TileParams {
-            size: Some(129),
-            ..Default::default()
-        },
-        &out,
-        dir.path(),
-    );
+    let (set, _) = write_all(&hf, &sized(129), &out, dir.path());
     let (g, _, _, _) = reassemble(dir.path());
     for (a, b) in g.iter().zip(hf.heights.iter()) {
         assert_eq!(a.to_bits(), b.to_bits());
@@ -269,18 +261,7 @@ fn outputs_are_byte_identical_for_any_thread_count() {
             preview_size: 400,
             ..Default::default()
         };
-        let w = pool.install(|| {
-            write_all(
-                &hf,
-                &TileParams {
-                    size: Some(65),
-                    ..Default::default()
-                },
-                &out,
-                dir.path(),
-            )
-            .1
-        });
+        let w = pool.install(|| write_all(&hf, &sized(65), &out, dir.path()).1);
         let files: BTreeMap<String, Vec<u8>> = w
             .files
             .iter()
