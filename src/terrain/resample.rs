@@ -196,14 +196,7 @@ pub fn resample(
     keep: Option<&[bool]>,
     params: &ResampleParams,
 ) -> Result<Resampled> {
-    resample_xyz(
-        &cloud.x,
-        &cloud.y,
-        &cloud.z,
-        keep,
-        params,
-        cloud.crs().cloned(),
-    )
+    resample_reusing(cloud, keep, params, &mut Vec::new())
 }
 
 /// [`resample`] reusing `scratch` (left there by [`super::denoise::denoise_reusing`]) for
