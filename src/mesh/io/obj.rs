@@ -450,8 +450,8 @@ pub fn write_obj(mesh: &TriMesh, w: &mut dyn Write) -> std::io::Result<()> {
         let p = mesh.positions[i];
         match &mesh.colors {
             Some(c) => {
-                let c = c[i].map(linear_to_srgb);
-                put_line(out, fb, b"v", &[p.x, p.y, p.z, c[0], c[1], c[2]]);
+                let s = |k: usize| linear_to_srgb(c[i][k]);
+                put_line(out, fb, b"v", &[p.x, p.y, p.z, s(0), s(1), s(2)]);
             }
             None => put_line(out, fb, b"v", &p.to_array()),
         }
