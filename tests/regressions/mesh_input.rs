@@ -1,0 +1,1 @@
+//! Regressions: mesh_input.

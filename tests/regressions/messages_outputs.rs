@@ -1,0 +1,1 @@
+//! Regressions: messages_outputs.
