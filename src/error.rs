@@ -130,3 +130,40 @@ impl Error {
         }
     }
 }
+
+/// `s` on one line, safe for a terminal: every control character (CR, LF, tab, ESC, DEL,
+/// the C1 range) and the bidirectional-override characters are written as escapes
+/// (`\r`, `\n`, `\u{1b}`, …), so a file name, a TOML value or file content echoed in a
+/// message can neither break the one-line error rule nor drive the terminal. Other text,
+/// quotes and backslashes included, is kept as is.
+pub fn one_line(s: &str) -> std::borrow::Cow<'_, str> {
+    let unsafe_char =
+        |c: char| c.is_control() || matches!(c, '\u{202a}'..='\u{202e}' | '\u{2066}'..='\u{2069}');
+    if !s.chars().any(unsafe_char) {
+        return std::borrow::Cow::Borrowed(s);
+    }
+    let mut out = String::with_capacity(s.len() + 8);
+    for c in s.chars() {
+        if unsafe_char(c) {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    std::borrow::Cow::Owned(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_line_escapes_control_characters_only() {
+        assert_eq!(one_line("a.las: byte 4: bad"), "a.las: byte 4: bad");
+        assert_eq!(one_line("a\r\nb\tc"), "a\\r\\nb\\tc");
+        assert_eq!(one_line("\u{1b}[31mred"), "\\u{1b}[31mred");
+        assert_eq!(one_line("x\u{9b}y\u{7f}"), "x\\u{9b}y\\u{7f}");
+        assert_eq!(one_line("\u{202e}gpj.exe"), "\\u{202e}gpj.exe");
+        assert_eq!(one_line("é \"q\" \\ ü"), "é \"q\" \\ ü");
+    }
+}

@@ -6,7 +6,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Mutex;
-use terratile::error::{Error, Result};
+use terratile::error::{one_line, Error, Result};
 use terratile::points::{self, ClassFilter, Format, ReadOptions};
 use terratile::progress::Progress;
 
@@ -17,7 +17,7 @@ struct Cli {
     /// Worker threads (default: one per core).
     #[arg(long, global = true, value_name = "N")]
     threads: Option<usize>,
-    /// No progress bars.
+    /// No progress bars (results, warnings and errors are still printed).
     #[arg(long, short, global = true)]
     quiet: bool,
     #[command(subcommand)]
@@ -152,12 +152,13 @@ fn parse_refine_box(s: &str) -> std::result::Result<terratile::simplify::RefineB
         .map(|x| {
             x.trim()
                 .parse::<f64>()
-                .map_err(|_| format!("`{x}` is not a number"))
+                .map_err(|_| format!("`{}` is not a number", one_line(x)))
         })
         .collect::<std::result::Result<_, _>>()?;
     if v.len() != 6 && v.len() != 7 {
         return Err(format!(
-            "`{s}`: expected XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX[,FACTOR]"
+            "`{}`: expected XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX[,FACTOR]",
+            one_line(s)
         ));
     }
     Ok(terratile::simplify::RefineBox {
@@ -238,7 +239,8 @@ fn parse_count(s: &str) -> std::result::Result<u64, String> {
         Ok(0) => Err("0 is not a point count".into()),
         Ok(n) => Ok(n),
         Err(_) => Err(format!(
-            "`{s}` is not a point count (a whole number such as 430674)"
+            "`{}` is not a point count (a whole number such as 430674)",
+            one_line(s)
         )),
     }
 }
@@ -314,11 +316,11 @@ enum GenFormat {
 fn parse_pair<T: std::str::FromStr>(s: &str) -> std::result::Result<(T, T), String> {
     let (a, b) = s
         .split_once(['x', 'X', ','])
-        .ok_or_else(|| format!("`{s}`: expected AxB"))?;
+        .ok_or_else(|| format!("`{}`: expected AxB", one_line(s)))?;
     let p = |v: &str| {
         v.trim()
             .parse::<T>()
-            .map_err(|_| format!("`{s}`: `{v}` is not a number"))
+            .map_err(|_| format!("`{}`: `{}` is not a number", one_line(s), one_line(v)))
     };
     Ok((p(a)?, p(b)?))
 }
@@ -349,10 +351,10 @@ impl Progress for Bars {
             ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr())
         };
         let style =
-            ProgressStyle::with_template("{msg:40!} [{elapsed_precise}] {wide_bar} {percent:>3}%")
+            ProgressStyle::with_template("{msg:40} [{elapsed_precise}] {wide_bar} {percent:>3}%")
                 .unwrap_or_else(|_| ProgressStyle::default_bar());
         bar.set_style(style);
-        bar.set_message(label.to_string());
+        bar.set_message(terratile::progress::bar_label(label, 40));
         if let Ok(mut b) = self.bar.lock() {
             *b = Some(bar);
         }
@@ -397,7 +399,7 @@ fn run(cli: Cli) -> Result<()> {
             let summary = terratile::pipeline::run(&loaded, progress)?;
             if json {
                 print_json(&summary)?;
-            } else if !cli.quiet {
+            } else {
                 print!("{summary}");
             }
         }
@@ -417,7 +419,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Generate(g) => {
             progress.start("generating", 0);
-            let r = generate(&g, cli.quiet);
+            let r = generate(&g);
             progress.finish();
             r?
         }
@@ -437,9 +439,7 @@ fn run(cli: Cli) -> Result<()> {
             let n = points::convert(&input, &output, sel);
             progress.finish();
             let n = n?;
-            if !cli.quiet {
-                println!("{}: {n} points", output.display());
-            }
+            println!("{}: {n} points", output.display());
         }
         Command::Bench(BenchCommand::Read {
             file,
@@ -493,11 +493,12 @@ fn run(cli: Cli) -> Result<()> {
             };
             let t = terratile::bench::table1(&file, &counts, repeat, seed, Some(&probe))?;
             for s in &t.skipped {
-                eprintln!(
-                    "terratile: bench table1: skipping {s} points: {} holds {}",
+                let line = format!(
+                    "bench table1: skipping {s} points: {} holds {}",
                     file.display(),
                     t.file_points
                 );
+                eprintln!("terratile: {}", one_line(&line));
             }
             if let Some(p) = &plot {
                 terratile::bench::plot_table1(&t, p)?;
@@ -517,7 +518,7 @@ fn run(cli: Cli) -> Result<()> {
             let mb = terratile::bench::table1_memory(&file, count, seed, &method)?;
             println!("{}", mb.map_or("none".into(), |m| m.to_string()));
         }
-        Command::Simplify(a) => simplify(a, cli.quiet)?,
+        Command::Simplify(a) => simplify(a)?,
         Command::Compare {
             original,
             simplified,
@@ -538,7 +539,7 @@ fn run(cli: Cli) -> Result<()> {
     Ok(())
 }
 
-fn simplify(a: SimplifyArgs, quiet: bool) -> Result<()> {
+fn simplify(a: SimplifyArgs) -> Result<()> {
     use terratile::simplify::{Method, Representative, SimplifyParams};
     let params = SimplifyParams {
         method: match a.method {
@@ -564,20 +565,18 @@ fn simplify(a: SimplifyArgs, quiet: bool) -> Result<()> {
         samples: a.samples.unwrap_or(0),
     });
     let r = terratile::simplify::simplify_file(&a.input, &a.output, &params, error.as_ref())?;
-    if !quiet {
-        for w in &r.warnings {
-            eprintln!("terratile: warning: {w}");
-        }
+    for w in &r.warnings {
+        eprintln!("terratile: warning: {}", one_line(w));
     }
     if a.json {
         print_json(&r)?;
-    } else if !quiet {
+    } else {
         print!("{r}");
     }
     Ok(())
 }
 
-fn generate(g: &GenerateArgs, quiet: bool) -> Result<()> {
+fn generate(g: &GenerateArgs) -> Result<()> {
     use terratile::generate::{self as gen, GenerateParams, OutFormat};
     if g.tiles.0 == 0 || g.tiles.1 == 0 {
         return Err(Error::Usage("--tiles: at least 1x1".into()));
@@ -602,30 +601,81 @@ fn generate(g: &GenerateArgs, quiet: bool) -> Result<()> {
         std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
     }
     let written = gen::write_scene(&scene, &g.output, &formats, g.tiles)?;
-    if !quiet {
-        for (p, c) in &written {
-            println!("{}: {} points", p.display(), c.len());
-        }
+    for (p, c) in &written {
+        println!("{}: {} points", p.display(), c.len());
     }
     Ok(())
 }
 
+/// A command-line error from clap as one line: clap's message and its list of possible
+/// values, without the usage block and the `--help` hint (which span two to three more
+/// lines). Argument values are escaped before rendering, so a line break or an escape
+/// sequence in an argument is written `\n`, `\u{1b}`, never echoed raw. `e` must come from
+/// a command with plain styles (clap's own styling would be ESC sequences too).
+fn clap_error_line(mut e: clap::Error) -> String {
+    use clap::error::{ContextValue, ErrorKind};
+    if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand {
+        return "a command is required: run, info, generate, convert, bench, simplify or compare \
+                (see terratile --help)"
+            .into();
+    }
+    let escaped: Vec<_> = e
+        .context()
+        .filter_map(|(k, v)| match v {
+            ContextValue::String(s) => Some((k, ContextValue::String(one_line(s).into_owned()))),
+            ContextValue::Strings(v) => Some((
+                k,
+                ContextValue::Strings(v.iter().map(|s| one_line(s).into_owned()).collect()),
+            )),
+            _ => None,
+        })
+        .collect();
+    for (k, v) in escaped {
+        e.insert(k, v);
+    }
+    let text = e.render().ansi().to_string();
+    let head = text.split("\nUsage:").next().unwrap_or(&text);
+    let parts: Vec<&str> = head
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with("For more information"))
+        .collect();
+    let line = parts.join(" ").replace(" tip: ", "; tip: ");
+    let line = line.strip_prefix("error: ").unwrap_or(&line);
+    format!("{} (see terratile --help)", one_line(line))
+}
+
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    let quiet = cli.quiet;
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            use clap::error::ErrorKind;
+            if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) {
+                // `--help` and `--version` print as clap lays them out, exit 0.
+                let _ = e.print();
+                return ExitCode::from(e.exit_code() as u8);
+            }
+            // The same error again without styles, to be made one line.
+            use clap::CommandFactory;
+            let plain = Cli::command()
+                .styles(clap::builder::Styles::plain())
+                .try_get_matches()
+                .err()
+                .unwrap_or(e);
+            eprintln!("terratile: {}", clap_error_line(plain));
+            return ExitCode::from(2);
+        }
+    };
     let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(cli)));
     match outcome {
         Ok(Ok(())) => ExitCode::SUCCESS,
         Ok(Err(e)) => {
-            eprintln!("terratile: {e}");
+            // One line whatever the input held (file names, TOML values, file content).
+            eprintln!("terratile: {}", one_line(&e.to_string()));
             ExitCode::from(e.exit_code() as u8)
         }
         Err(_) => {
-            if !quiet {
-                eprintln!(
-                    "terratile: internal error (this is a bug; please report it with the input)"
-                );
-            }
+            eprintln!("terratile: internal error (this is a bug; please report it with the input)");
             ExitCode::from(1)
         }
     }
