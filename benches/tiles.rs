@@ -182,13 +182,13 @@ fn mesh_encoding(c: &mut Criterion) {
     for f in [MeshFormat::Ply, MeshFormat::Obj, MeshFormat::Glb] {
         let bytes: usize = meshes
             .iter()
-            .map(|m| f.encode(m, "tile").expect("encode").len())
+            .map(|m| f.encode(m, "tile", 1.0).expect("encode").len())
             .sum();
         eprintln!("{}: {bytes} bytes over {} tiles", f.ext(), meshes.len());
         g.bench_function(f.ext(), |b| {
             b.iter(|| {
                 for m in &meshes {
-                    black_box(f.encode(m, "tile").expect("encode"));
+                    black_box(f.encode(m, "tile", 1.0).expect("encode"));
                 }
             })
         });

@@ -43,6 +43,29 @@ pub struct RunSummary {
     /// Every `[[assets]]` entry: what was simplified, its error and where it was placed.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub assets: Vec<crate::assets::AssetReport>,
+    /// The Delaunay baseline's times and memory (with `[baseline]`): measurements differ
+    /// from run to run, so they are reported here and not in `baseline.json`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub baseline: Option<BaselineMeasurements>,
+}
+
+/// The run-to-run varying figures of the Delaunay baseline (seconds, MB).
+#[derive(Debug, Clone, Serialize)]
+pub struct BaselineMeasurements {
+    /// Seconds to centre and merge the points.
+    pub prepare_s: f64,
+    /// Seconds to build the triangulation.
+    pub build_s: f64,
+    /// Seconds of the grid pipeline of the same run (every stage from denoise to writing).
+    pub grid_s: f64,
+    /// build_s / grid_s.
+    pub ratio: f64,
+    /// Seconds to rasterise the TIN onto the grid.
+    pub rasterise_s: f64,
+    /// Peak resident memory of the run before the baseline, MB.
+    pub grid_peak_mb: Option<f64>,
+    /// Peak resident memory while building the TIN (the points included), MB.
+    pub tin_peak_mb: Option<f64>,
 }
 
 impl std::fmt::Display for RunSummary {
@@ -198,6 +221,7 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
             ],
         }],
         output_dir: out_dir.clone(),
+        baseline: None,
         files: Vec::new(),
         assets: Vec::new(),
     };
@@ -344,7 +368,8 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
                 .extension()
                 .is_some_and(|e| e.eq_ignore_ascii_case("glb"));
             if glb {
-                let bytes = crate::output::glb::glb_bytes(&mesh, "tin")?;
+                let mpu = grid.crs.as_ref().map_or(1.0, |c| c.metres_per_unit());
+                let bytes = crate::output::glb::glb_bytes(&mesh, "tin", mpu)?;
                 crate::fsutil::write_bytes_atomic(&path, &bytes)?;
             } else {
                 crate::mesh::io::write(&mesh, &path)?;
@@ -359,6 +384,16 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
         let acc = |s: &Option<terrain::accuracy::ErrorStats>| {
             s.map_or("—".into(), |s| format!("{:.3} m", s.rmse))
         };
+        let mb = |m: Option<f64>| m.map_or("—".into(), |m| format!("{m:.0} MB"));
+        summary.baseline = Some(BaselineMeasurements {
+            prepare_s: report.prepare_s,
+            build_s: report.build_s,
+            grid_s: report.grid_s,
+            ratio: report.ratio,
+            rasterise_s: report.rasterise_s,
+            grid_peak_mb: report.grid_peak_mb,
+            tin_peak_mb: report.tin_peak_mb,
+        });
         summary.stages.push(StageReport {
             stage: "baseline".into(),
             seconds,
@@ -372,6 +407,8 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
                 fig("grid − TIN rmse", format!("{:.3} m", report.raster.rmse_m)),
                 fig("held-out rmse grid", acc(&report.grid_accuracy)),
                 fig("held-out rmse TIN", acc(&report.tin_accuracy)),
+                fig("peak memory grid", mb(report.grid_peak_mb)),
+                fig("peak memory TIN", mb(report.tin_peak_mb)),
             ],
         });
     }

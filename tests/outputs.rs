@@ -155,8 +155,8 @@ fn real_tiles_round_trip_through_every_output() {
         .all(|n| (n[0] * n[0] + n[1] * n[1] + n[2] * n[2] - 1.0).abs() < 1e-4));
     let tri_count = reader.read_indices().unwrap().into_u32().count() / 3;
     assert_eq!(Some(tri_count as u64), m["tiles"][0]["triangles"].as_u64());
-    // PLY and OBJ read back through the mesh module: same triangles, positions (z up) and
-    // normals as the glb (y up).
+    // PLY and OBJ read back through the mesh module: same triangles, positions (z up, CRS
+    // units: feet here) as the glb (y up, metres).
     let glb_pos: Vec<[f32; 3]> = reader.read_positions().unwrap().collect();
     for ext in ["ply", "obj"] {
         let mesh =
@@ -164,8 +164,10 @@ fn real_tiles_round_trip_through_every_output() {
                 .unwrap();
         assert_eq!(mesh.triangle_count(), tri_count, "{ext}");
         assert!(mesh.normals.is_some(), "{ext}");
+        assert_eq!(mesh.vertex_count(), glb_pos.len(), "{ext}");
+        let ft = 0.3048f32;
         for (p, g) in mesh.positions.iter().zip(&glb_pos) {
-            assert_eq!([p.x, p.z, -p.y], *g, "{ext}");
+            assert_eq!([p.x * ft, p.z * ft, -p.y * ft], *g, "{ext}");
         }
     }
     // Previews.

@@ -6,7 +6,8 @@
 //! JSON. The tests read every file back with the `gltf` crate, which validates it.
 //!
 //! glTF is y-up: terratile's x east, y north, z up become glTF (x, z, −y), a rotation, so the
-//! counter-clockwise winding is kept.
+//! counter-clockwise winding is kept. glTF's unit is the metre: positions are scaled by the
+//! CRS's metres per unit (Oregon Lambert in international feet: × 0.3048).
 
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
@@ -17,18 +18,20 @@ const ELEMENT_ARRAY_BUFFER: u32 = 34963;
 const FLOAT: u32 = 5126;
 const UNSIGNED_INT: u32 = 5125;
 
-/// `mesh` (z up) as a .glb file named `name` inside.
-pub fn glb_bytes(mesh: &TriMesh, name: &str) -> Result<Vec<u8>> {
+/// `mesh` (z up, in units of `metres_per_unit` metres) as a .glb file named `name` inside,
+/// positions in metres.
+pub fn glb_bytes(mesh: &TriMesh, name: &str, metres_per_unit: f64) -> Result<Vec<u8>> {
     let n = mesh.positions.len();
     if n == 0 || mesh.indices.is_empty() {
         return Err(Error::Internal(format!("glb: mesh `{name}` is empty")));
     }
     let y_up = |v: glam::Vec3| [v.x, v.z, -v.y];
+    let m = metres_per_unit as f32;
     let mut bin: Vec<u8> = Vec::with_capacity(n * 24 + mesh.indices.len() * 12);
     let mut min = [f32::INFINITY; 3];
     let mut max = [f32::NEG_INFINITY; 3];
     for p in &mesh.positions {
-        let q = y_up(*p);
+        let q = y_up(*p * m);
         for k in 0..3 {
             min[k] = min[k].min(q[k]);
             max[k] = max[k].max(q[k]);
@@ -118,7 +121,7 @@ mod tests {
             colors: None,
             uvs: None,
         };
-        let bytes = glb_bytes(&mesh, "tile_000_000").unwrap();
+        let bytes = glb_bytes(&mesh, "tile_000_000", 1.0).unwrap();
         assert_eq!(bytes.len() % 4, 0);
         let g = gltf::Gltf::from_slice(&bytes).unwrap();
         let blob = g.blob.as_deref().unwrap();

@@ -152,6 +152,9 @@ pub struct MeshInfo {
     pub origin: [f64; 3],
     /// Axes of each format.
     pub axes: String,
+    /// Units of each format's positions (glb: metres; PLY and OBJ: CRS units).
+    #[serde(default)]
+    pub units: String,
     /// How the meshes were triangulated.
     pub criterion: String,
     /// Skirt depth, height units (0: none).
@@ -163,9 +166,9 @@ pub struct MeshInfo {
 pub struct UnityInfo {
     /// TerrainData.heightmapResolution.
     pub heightmap_resolution: usize,
-    /// TerrainData.size: x width, y height range, z length (CRS units).
+    /// TerrainData.size: x width, y height range, z length, in metres (Unity's unit).
     pub terrain_size: [f64; 3],
-    /// World height of heightmap value 0 (Terrain position y).
+    /// World height of heightmap value 0 (Terrain position y), in metres.
     pub position_y: f64,
 }
 

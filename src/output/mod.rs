@@ -61,8 +61,15 @@ impl MeshFormat {
         }
     }
 
-    /// `mesh` encoded in this format (`name` labels it where the format has names).
-    pub fn encode(self, mesh: &crate::mesh::TriMesh, name: &str) -> Result<Vec<u8>> {
+    /// `mesh` encoded in this format (`name` labels it where the format has names). Its
+    /// positions are in units of `metres_per_unit` metres: PLY and OBJ keep them (CRS units,
+    /// like the EXR tiles), glb writes metres (glTF's unit).
+    pub fn encode(
+        self,
+        mesh: &crate::mesh::TriMesh,
+        name: &str,
+        metres_per_unit: f64,
+    ) -> Result<Vec<u8>> {
         use crate::mesh::io::{obj, ply};
         let mut out = Vec::new();
         let io = |e: std::io::Error| Error::Internal(format!("{name}: {e}"));
@@ -78,7 +85,7 @@ impl MeshFormat {
                 out.reserve(40 * lines + 48 * mesh.triangle_count());
                 obj::write_obj(mesh, &mut out).map_err(io)?
             }
-            MeshFormat::Glb => out = glb::glb_bytes(mesh, name)?,
+            MeshFormat::Glb => out = glb::glb_bytes(mesh, name, metres_per_unit)?,
         }
         Ok(out)
     }
@@ -113,6 +120,13 @@ pub fn validate(out: &OutputConfig) -> Result<()> {
 /// True when the switches ask for a mesh (files or the wireframe picture).
 pub fn wants_meshes(out: &OutputConfig) -> bool {
     !out.meshes.is_empty() || out.wireframe
+}
+
+/// Metres per CRS unit of the set (1 without a CRS or when the CRS says nothing about
+/// units). The one conversion behind every engine-facing number: glb positions, the
+/// manifest's `unity` and `unreal` blocks.
+pub fn metres_per_unit(set: &TileSet) -> f64 {
+    set.crs.as_ref().map_or(1.0, |c| c.metres_per_unit())
 }
 
 fn tile_name(set: &TileSet, t: usize) -> String {
@@ -187,6 +201,7 @@ pub fn write_terrain(
 
     let t1 = Instant::now();
     let enc = HeightEncoding::for_set(set);
+    let unit_m = metres_per_unit(set);
     for (on, sub) in [
         (out.exr, "tiles"),
         (out.png || out.raw, "heightmaps"),
@@ -235,7 +250,7 @@ pub fn write_terrain(
                     let mesh = extract::to_trimesh(set, &tris[t]);
                     for f in &out.meshes {
                         let rel = format!("meshes/{name}.{}", f.ext());
-                        put(dir, &rel, &f.encode(&mesh, &name)?)?;
+                        put(dir, &rel, &f.encode(&mesh, &name, unit_m)?)?;
                         files.insert(f.ext().to_string(), rel);
                     }
                 }
@@ -323,7 +338,7 @@ fn build_manifest(
 ) -> Result<Manifest> {
     let first = set.sample_xy(0.0, 0.0);
     let z_range = set.z_range();
-    let unit_m = set.crs.as_ref().map_or(1.0, |c| c.metres_per_unit());
+    let unit_m = metres_per_unit(set);
     let tiles = set
         .tiles
         .par_iter()
@@ -389,6 +404,10 @@ fn build_manifest(
                     formats: out.meshes.iter().map(|f| f.ext().to_string()).collect(),
                     origin: [first[0], first[1], set.z_offset],
                     axes: "glb: x east, y up, z south (glTF); others: x east, y north, z up".into(),
+                    units: format!(
+                        "glb: metres (glTF); ply, obj: CRS units ({unit_m} m each), like the EXR tiles; \
+                         origin: CRS units"
+                    ),
                     criterion: criterion_text(params, set, qt)?,
                     skirt_depth: params.skirt_depth_units(set),
                 })
@@ -398,11 +417,11 @@ fn build_manifest(
         unity: (set.preset == Preset::Unity).then(|| UnityInfo {
             heightmap_resolution: set.tile_size,
             terrain_size: [
-                (set.tile_size - 1) as f64 * set.cell_size[0],
-                65535.0 * enc.z_scale,
-                (set.tile_size - 1) as f64 * set.cell_size[1],
+                (set.tile_size - 1) as f64 * set.cell_size[0] * unit_m,
+                65535.0 * enc.z_scale * unit_m,
+                (set.tile_size - 1) as f64 * set.cell_size[1] * unit_m,
             ],
-            position_y: enc.z_offset,
+            position_y: enc.z_offset * unit_m,
         }),
         unreal: (set.preset == Preset::Unreal).then(|| {
             // Unreal: height(cm) = location_z + (value − 32768) · scale_z / 128.

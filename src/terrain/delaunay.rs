@@ -458,7 +458,9 @@ pub struct RasterDiff {
     pub mean_m: f64,
 }
 
-/// What the baseline computed (times in seconds, errors in metres).
+/// What the baseline computed (times in seconds, errors in metres). Times, their ratio and
+/// memory differ from run to run: they are not serialised (the report file is a
+/// deterministic output); the run summary carries them as [`crate::pipeline::BaselineMeasurements`].
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct BaselineReport {
     /// The method used (`auto` resolved).
@@ -472,14 +474,19 @@ pub struct BaselineReport {
     /// TIN triangles.
     pub triangles: usize,
     /// Seconds to centre and merge the points.
+    #[serde(skip)]
     pub prepare_s: f64,
     /// Seconds to build the triangulation.
+    #[serde(skip)]
     pub build_s: f64,
     /// Seconds of the grid stages of the same run (denoise + resample + fill).
+    #[serde(skip)]
     pub grid_s: f64,
     /// build_s / grid_s.
+    #[serde(skip)]
     pub ratio: f64,
     /// Seconds to rasterise the TIN onto the grid.
+    #[serde(skip)]
     pub rasterise_s: f64,
     /// Grid cells against the rasterised TIN.
     pub raster: RasterDiff,
@@ -494,8 +501,10 @@ pub struct BaselineReport {
     /// See `grid_accuracy_ground`.
     pub tin_accuracy_ground: Option<ErrorStats>,
     /// Peak resident memory of the run before the baseline (read and grid stages), MB.
+    #[serde(skip)]
     pub grid_peak_mb: Option<f64>,
     /// Peak resident memory while building the TIN (the points included), MB.
+    #[serde(skip)]
     pub tin_peak_mb: Option<f64>,
 }
 

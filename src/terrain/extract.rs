@@ -534,23 +534,40 @@ pub fn add_skirts(tri: &mut TileTriangulation, depth: f32) {
 /// A tile triangulation as a mesh: positions relative to the set's first sample centre
 /// (x east, y north, z up, z relative to `z_offset`), normals from the whole heightfield's
 /// gradient (so they agree across tile borders whatever the level of detail).
+///
+/// Only the vertices the triangles use are kept (the triangulation also holds vertices of
+/// the clipped padding and of left-out midpoints): they keep their relative order and the
+/// indices are remapped, so the same triangulation always gives the same mesh.
 pub fn to_trimesh(set: &TileSet, tri: &TileTriangulation) -> TriMesh {
     let tile = &set.tiles[tri.tile];
     let [cx, cy] = set.cell_size;
-    let positions: Vec<Vec3> = tri
-        .uv
+    // New index of every used vertex, in the old order; u32::MAX for unused ones.
+    let mut remap = vec![u32::MAX; tri.uv.len()];
+    for f in &tri.triangles {
+        for &v in f {
+            remap[v as usize] = 0;
+        }
+    }
+    let mut used = Vec::new();
+    for (old, slot) in remap.iter_mut().enumerate() {
+        if *slot == 0 {
+            *slot = used.len() as u32;
+            used.push(old);
+        }
+    }
+    let positions: Vec<Vec3> = used
         .iter()
-        .zip(&tri.z)
-        .map(|(p, z)| {
+        .map(|&v| {
+            let p = tri.uv[v];
             let gi = tile.origin[0] as f64 + p[0];
             let gj = tile.origin[1] as f64 + p[1];
-            Vec3::new((gi * cx) as f32, (gj * cy) as f32, *z)
+            Vec3::new((gi * cx) as f32, (gj * cy) as f32, tri.z[v])
         })
         .collect();
-    let normals: Vec<Vec3> = tri
-        .uv
+    let normals: Vec<Vec3> = used
         .iter()
-        .map(|p| {
+        .map(|&v| {
+            let p = tri.uv[v];
             normal_at(
                 set,
                 tile.origin[0] as f64 + p[0],
@@ -558,9 +575,14 @@ pub fn to_trimesh(set: &TileSet, tri: &TileTriangulation) -> TriMesh {
             )
         })
         .collect();
+    let indices = tri
+        .triangles
+        .iter()
+        .map(|f| f.map(|v| remap[v as usize]))
+        .collect();
     TriMesh {
         positions,
-        indices: tri.triangles.clone(),
+        indices,
         normals: Some(normals),
         colors: None,
         uvs: None,

@@ -1,1 +1,324 @@
-//! Regressions: messages_outputs.
+//! Regressions: messages_outputs (issue 14: error messages, outputs that were wrong, a
+//! newcomer's path).
+
+use crate::common::{self, terratile};
+
+/// Asserts that stderr is one line with no raw control character (CR, ESC, …) in it.
+fn one_clean_line(r: &common::Run) {
+    let text = r.stderr.strip_suffix('\n').unwrap_or(&r.stderr);
+    assert!(
+        !text.is_empty() && !text.chars().any(char::is_control),
+        "expected one line without control characters\n{}",
+        r.context()
+    );
+}
+
+/// A file name with CR, LF and an ESC sequence was echoed raw in the error line: the line
+/// broke in two and the terminal obeyed the escape (here: clear the screen).
+#[test]
+fn error_line_escapes_control_characters_in_file_names() {
+    let d = tempfile::tempdir().unwrap();
+    let name = "a\rb\nc\u{1b}[2Jd.las";
+    std::fs::write(d.path().join(name), b"LASF\x01\x02").unwrap();
+    let r = terratile(d.path(), &["info", name]);
+    assert_eq!(r.code, 2, "{}", r.context());
+    one_clean_line(&r);
+    assert!(
+        r.stderr.contains("a\\rb\\nc\\u{1b}[2Jd.las"),
+        "{}",
+        r.context()
+    );
+}
+
+/// A TOML string value holding an escape sequence came back raw in the config error.
+#[test]
+fn error_line_escapes_control_characters_in_toml_values() {
+    let d = tempfile::tempdir().unwrap();
+    std::fs::write(
+        d.path().join("p.toml"),
+        "[input]\npaths = [\"x.las\"]\nformat = \"la\\u001b[31ms\\r\"\n",
+    )
+    .unwrap();
+    let r = terratile(d.path(), &["run", "p.toml"]);
+    assert_eq!(r.code, 2, "{}", r.context());
+    one_clean_line(&r);
+    assert!(r.stderr.contains("input.format"), "{}", r.context());
+    assert!(r.stderr.contains("la\\u{1b}[31ms\\r"), "{}", r.context());
+}
+
+/// Argument-parser (clap) errors took two to three lines (message, usage, a `--help` hint),
+/// and echoed control characters of the arguments raw.
+#[test]
+fn clap_errors_are_one_line_exit_2() {
+    let d = tempfile::tempdir().unwrap();
+    let cases: [&[&str]; 7] = [
+        &[],
+        &["bogus"],
+        &["--threads", "x", "run"],
+        &["run", "--bogus"],
+        &["info"],
+        &[
+            "simplify", "a.obj", "b.obj", "--method", "foo", "--ratio", "0.5",
+        ],
+        &["generate", "-o", "x.las", "--size", "1\n\u{1b}[31m2"],
+    ];
+    for args in cases {
+        let r = terratile(d.path(), args);
+        assert_eq!(r.code, 2, "{}", r.context());
+        one_clean_line(&r);
+        assert!(r.stderr.starts_with("terratile: "), "{}", r.context());
+        assert!(!r.stderr.contains("Usage:"), "{}", r.context());
+    }
+    let r = terratile(
+        d.path(),
+        &["simplify", "a", "b", "--method", "foo", "--ratio", "1"],
+    );
+    assert!(
+        r.stderr.contains("uniform, floating, octree"),
+        "{}",
+        r.context()
+    );
+    let r = terratile(
+        d.path(),
+        &["generate", "-o", "x.las", "--size", "1\n\u{1b}[31m2"],
+    );
+    assert!(r.stderr.contains("1\\n\\u{1b}[31m2"), "{}", r.context());
+    // --help and --version print as before, exit 0.
+    let r = terratile(d.path(), &["--help"]);
+    assert_eq!(r.code, 0, "{}", r.context());
+    assert!(r.stdout.contains("Usage: terratile"), "{}", r.context());
+    let r = terratile(d.path(), &["run", "--help"]);
+    assert_eq!(r.code, 0, "{}", r.context());
+    let r = terratile(d.path(), &["--version"]);
+    assert_eq!(r.code, 0, "{}", r.context());
+    assert!(r.stdout.starts_with("terratile "), "{}", r.context());
+}
+
+/// The progress bar cut its label at 40 characters, so `reading /…/shared/data/lidar/`
+/// showed the start of the path and never the file name.
+#[test]
+fn progress_label_shows_the_file_name() {
+    use terratile::progress::bar_label;
+    let l = bar_label("reading /work/wt/shared/data/lidar/autzen_trim.las", 40);
+    assert_eq!(l, "reading …/autzen_trim.las");
+    assert_eq!(bar_label("denoise", 40), "denoise");
+    let long = format!("parsing /d/{}.xyz", "n".repeat(60));
+    let l = bar_label(&long, 40);
+    assert_eq!(l.chars().count(), 40);
+    assert!(l.starts_with('…') && l.ends_with("nnn.xyz"), "{l}");
+    assert_eq!(bar_label("reading a\rb.las", 40), "reading a\\rb.las");
+}
+
+/// `run -q` dropped the run summary (the README says `--quiet` only hides progress bars)
+/// while `info -q` printed as usual: `--quiet` now means no progress bars, everywhere;
+/// results, warnings and errors are printed as without it.
+#[test]
+fn quiet_hides_only_progress_bars() {
+    let job = common::default_job();
+    let r = terratile(job.path(), &["run", "-q"]);
+    r.ok();
+    assert!(
+        r.stdout.contains("stages:") && r.stdout.contains("output: "),
+        "{}",
+        r.context()
+    );
+    assert!(r.stderr.is_empty(), "{}", r.context());
+    let loud = terratile(job.path(), &["info", "fixtures/survey-0-0.las"]);
+    let quiet = terratile(job.path(), &["info", "-q", "fixtures/survey-0-0.las"]);
+    loud.ok();
+    quiet.ok();
+    assert!(!quiet.stdout.is_empty());
+    assert_eq!(loud.stdout, quiet.stdout);
+    let g = terratile(
+        job.path(),
+        &["--quiet", "generate", "-o", "g.las", "--points", "500"],
+    );
+    g.ok();
+    assert!(g.stdout.contains("g.las: 500 points"), "{}", g.context());
+}
+
+/// Positions of a glb file (glTF axes) and its POSITION accessor's min and max.
+fn glb_positions(path: &std::path::Path) -> (Vec<[f32; 3]>, [f32; 3], [f32; 3], usize) {
+    let bytes = std::fs::read(path).unwrap();
+    let g = gltf::Gltf::from_slice(&bytes).unwrap();
+    let prim = g.meshes().next().unwrap().primitives().next().unwrap();
+    let acc = prim.get(&gltf::Semantic::Positions).unwrap();
+    let as3 = |v: serde_json::Value| -> [f32; 3] {
+        let a = v.as_array().unwrap();
+        [0, 1, 2].map(|k| a[k].as_f64().unwrap() as f32)
+    };
+    let (min, max) = (as3(acc.min().unwrap()), as3(acc.max().unwrap()));
+    let reader = prim.reader(|_| g.blob.as_deref());
+    let pos: Vec<[f32; 3]> = reader.read_positions().unwrap().collect();
+    let used: std::collections::BTreeSet<u32> = reader.read_indices().unwrap().into_u32().collect();
+    (pos, min, max, used.len())
+}
+
+/// A pipeline file for `input` into `out` with `extra` TOML appended.
+fn pipeline(dir: &std::path::Path, input: &str, extra: &str) {
+    std::fs::write(
+        dir.join("p.toml"),
+        format!("[input]\npaths = [{input:?}]\n[output]\ndir = \"out\"\n{extra}"),
+    )
+    .unwrap();
+}
+
+/// Meshes of padded tiles kept the padding's vertices unused (default job `tile_000_001`:
+/// 17,984 vertices, 4,412 used), and the glTF POSITION bounds then covered 517 × 398 m for a
+/// 46 × 36 m mesh. Every written mesh now references all its vertices, in every format.
+#[test]
+fn tile_meshes_hold_only_used_vertices() {
+    let job = common::default_job();
+    let d = job.path();
+    let text: String = std::fs::read_to_string(d.join("pipeline.toml"))
+        .unwrap()
+        .lines()
+        .filter(|l| {
+            !["meshes ", "exr ", "png ", "raw "]
+                .iter()
+                .any(|k| l.starts_with(k))
+        })
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let text = text.replace(
+        "[output]\n",
+        "[output]\nmeshes = [\"ply\", \"obj\", \"glb\"]\nexr = false\npng = false\nraw = false\n",
+    );
+    std::fs::write(d.join("pipeline.toml"), text).unwrap();
+    terratile(d, &["run", "-q"]).ok();
+    let mut meshes = 0;
+    for e in std::fs::read_dir(d.join("out/meshes")).unwrap().flatten() {
+        let p = e.path();
+        match p.extension().and_then(|e| e.to_str()) {
+            Some("glb") => {
+                let (pos, min, max, used) = glb_positions(&p);
+                assert_eq!(used, pos.len(), "{}: unused vertices", p.display());
+                let mut lo = [f32::INFINITY; 3];
+                let mut hi = [f32::NEG_INFINITY; 3];
+                for q in &pos {
+                    for k in 0..3 {
+                        lo[k] = lo[k].min(q[k]);
+                        hi[k] = hi[k].max(q[k]);
+                    }
+                }
+                assert_eq!((min, max), (lo, hi), "{}", p.display());
+            }
+            Some("ply" | "obj") => {
+                let m = terratile::mesh::io::read(&p).unwrap();
+                let mut used = vec![false; m.vertex_count()];
+                for f in &m.indices {
+                    for &v in f {
+                        used[v as usize] = true;
+                    }
+                }
+                let unused = used.iter().filter(|u| !**u).count();
+                assert_eq!(unused, 0, "{}: {unused} unused vertices", p.display());
+            }
+            _ => continue,
+        }
+        meshes += 1;
+    }
+    // 2 × 1 tiles of 257 over the fixtures' grid: 2 padded tiles in each of 3 formats.
+    assert!(meshes >= 6, "{meshes} meshes");
+}
+
+/// For a CRS in feet (autzen_trim.las: Oregon Lambert, international feet) glb positions
+/// were written in feet (glTF is metres) and the manifest's `unity` block (terrain size,
+/// position y) in feet, while the `unreal` block was converted.
+#[test]
+fn engine_facing_numbers_are_metres_for_a_crs_in_feet() {
+    let Some(las) = common::data_file("lidar/autzen_trim.las") else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    pipeline(
+        d.path(),
+        las.to_str().unwrap(),
+        "meshes = [\"ply\", \"glb\"]\nexr = false\npng = false\nrelief = false\nwireframe = false\n\
+         [tiles]\npreset = \"unity\"\n",
+    );
+    terratile(d.path(), &["run", "-q", "p.toml"]).ok();
+    let out = d.path().join("out");
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("manifest.json")).unwrap()).unwrap();
+    let ft = m["crs"]["metres_per_unit"].as_f64().unwrap();
+    assert!((ft - 0.3048).abs() < 1e-12, "autzen is in feet: {ft}");
+    let size = m["tiling"]["tile_size"].as_f64().unwrap();
+    let cell = m["grid"]["cell_size"][0].as_f64().unwrap();
+    let u = &m["unity"];
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs().max(1.0);
+    assert!(
+        close(
+            u["terrain_size"][0].as_f64().unwrap(),
+            (size - 1.0) * cell * ft
+        ),
+        "{u}"
+    );
+    let z_scale = m["heightmaps"]["z_scale"].as_f64().unwrap();
+    let z_offset = m["heightmaps"]["z_offset"].as_f64().unwrap();
+    assert!(
+        close(
+            u["terrain_size"][1].as_f64().unwrap(),
+            65535.0 * z_scale * ft
+        ),
+        "{u}"
+    );
+    assert!(
+        close(u["position_y"].as_f64().unwrap(), z_offset * ft),
+        "{u}"
+    );
+    // glb: the PLY's positions (CRS units, z up) in metres (y up).
+    let ply = terratile::mesh::io::read(&out.join("meshes/tile_000_000.ply")).unwrap();
+    let (glb, min, max, _) = glb_positions(&out.join("meshes/tile_000_000.glb"));
+    assert_eq!(glb.len(), ply.vertex_count());
+    for (g, p) in glb.iter().zip(&ply.positions) {
+        let want = [p.x * ft as f32, p.z * ft as f32, -p.y * ft as f32];
+        for k in 0..3 {
+            assert!((g[k] - want[k]).abs() <= 1e-3, "{g:?} vs {want:?}");
+        }
+    }
+    // The mesh spans a tile of (size − 1) cells at most, in metres.
+    let span = (max[0] - min[0]).max(max[2] - min[2]) as f64;
+    assert!(span <= (size - 1.0) * cell * ft + 1e-3, "{span} m");
+}
+
+/// `baseline.json` carried build and grid times, their ratio and peak memory, which differ
+/// on every run, against the promise of byte-identical outputs: the measurements now go to
+/// the run summary, and two runs give byte-identical output directories.
+#[test]
+fn baseline_outputs_are_byte_identical_across_runs() {
+    let job = common::default_job();
+    let d = job.path();
+    let text = std::fs::read_to_string(d.join("pipeline.toml")).unwrap();
+    let text = text.replace("[baseline]\nenabled = false", "[baseline]\nenabled = true");
+    assert!(text.contains("[baseline]\nenabled = true"), "{text}");
+    std::fs::write(d.join("pipeline.toml"), &text).unwrap();
+    let r = terratile(d, &["run", "-q", "--json"]);
+    r.ok();
+    let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+    assert!(
+        v["baseline"]["build_s"].as_f64().unwrap() > 0.0,
+        "{}",
+        r.stdout
+    );
+    std::fs::rename(d.join("out"), d.join("first")).unwrap();
+    terratile(d, &["run", "-q", "--threads", "1"]).ok();
+    let a = common::walk(&d.join("first"));
+    let b = common::walk(&d.join("out"));
+    let rel = |v: &[std::path::PathBuf], root: &str| -> Vec<std::path::PathBuf> {
+        v.iter()
+            .map(|p| p.strip_prefix(d.join(root)).unwrap().to_path_buf())
+            .collect()
+    };
+    assert_eq!(rel(&a, "first"), rel(&b, "out"));
+    assert!(b.iter().any(|p| p.ends_with("baseline.json")));
+    for (x, y) in a.iter().zip(&b) {
+        if x.is_file() {
+            assert!(
+                std::fs::read(x).unwrap() == std::fs::read(y).unwrap(),
+                "{} differs between runs",
+                y.display()
+            );
+        }
+    }
+}
