@@ -108,7 +108,7 @@ pub struct OutputConfig {
     /// Write `preview/wireframe.png`, the CLOD mesh over the relief (default true).
     #[serde(default = "yes")]
     pub wireframe: bool,
-    /// Tile mesh formats to write (default `["ply", "obj", "glb"]`; `[]` for none).
+    /// Tile mesh formats to write (default `["glb"]`; `[]` for none).
     #[serde(default = "default_meshes")]
     pub meshes: Vec<crate::output::MeshFormat>,
     /// Longer side of the preview pictures in pixels (default 2048; small grids are

@@ -91,6 +91,11 @@ fn real_tiles_round_trip_through_every_output() {
     let dir = tempfile::tempdir().unwrap();
     let out = OutputConfig {
         preview_size: 600,
+        meshes: vec![
+            output::MeshFormat::Ply,
+            output::MeshFormat::Obj,
+            output::MeshFormat::Glb,
+        ],
         ..Default::default()
     };
     let (set, w) = write_all(&hf, &sized(65), &out, dir.path());

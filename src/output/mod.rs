@@ -49,8 +49,11 @@ pub enum MeshFormat {
 }
 
 impl MeshFormat {
-    /// The formats written by default.
-    pub const DEFAULT: [MeshFormat; 3] = [MeshFormat::Ply, MeshFormat::Obj, MeshFormat::Glb];
+    /// The formats written by default: glb alone. Game engines and 3-D tools import it
+    /// directly (Unity through glTFast, Unreal, Godot, Blender), it is the smallest of the
+    /// three (about a third of OBJ's bytes) and the fastest to write; writing all three made
+    /// autzen_full's 56 MB of LAZ into 1.1 GB of output.
+    pub const DEFAULT: [MeshFormat; 1] = [MeshFormat::Glb];
 
     /// File extension.
     pub fn ext(self) -> &'static str {

@@ -322,3 +322,134 @@ fn baseline_outputs_are_byte_identical_across_runs() {
         }
     }
 }
+
+/// The README's pipeline example (the one ```toml block).
+fn readme_pipeline_block() -> String {
+    let readme = std::fs::read_to_string(common::repo().join("README.md")).unwrap();
+    let start = readme
+        .find("```toml\n")
+        .expect("a ```toml block in the README")
+        + 8;
+    let len = readme[start..].find("```").unwrap();
+    readme[start..start + len].to_string()
+}
+
+/// The README's pipeline example did not run: it set `size` and `cell_size` together (an
+/// error) and named an asset that does not exist. It now runs as printed on the default
+/// job's fixtures, and its `[[assets]]` entry, uncommented, runs with a model in place.
+#[test]
+fn readme_pipeline_example_runs() {
+    let job = common::default_job();
+    let d = job.path();
+    let block = readme_pipeline_block();
+    std::fs::write(d.join("readme.toml"), &block).unwrap();
+    terratile::config::load(&d.join("readme.toml")).unwrap();
+    terratile(d, &["run", "-q", "readme.toml"]).ok();
+    // The commented [[assets]] example, switched on.
+    let assets: String = block
+        .lines()
+        .map(|l| {
+            let t = l.trim_start();
+            let on = [
+                "# [[assets]]",
+                "# input",
+                "# output",
+                "# simplify",
+                "# place",
+            ]
+            .iter()
+            .any(|k| t.starts_with(k));
+            format!("{}\n", if on { &t[2..] } else { l })
+        })
+        .collect();
+    assert!(assets.contains("\n[[assets]]"), "{assets}");
+    std::fs::create_dir(d.join("models")).unwrap();
+    // A bumpy 12 × 12 patch, y up (288 triangles: enough for the octree at 25 %).
+    let n = 13;
+    let mut obj = String::new();
+    for j in 0..n {
+        for i in 0..n {
+            let y = ((i as f64 * 0.7).sin() + (j as f64 * 0.5).cos()) * 0.3;
+            obj.push_str(&format!("v {i} {y:.4} {j}\n"));
+        }
+    }
+    for j in 0..n - 1 {
+        for i in 0..n - 1 {
+            let v = j * n + i + 1;
+            obj.push_str(&format!(
+                "f {v} {} {}\nf {v} {} {}\n",
+                v + n,
+                v + n + 1,
+                v + n + 1,
+                v + 1
+            ));
+        }
+    }
+    std::fs::write(d.join("models/rock.obj"), obj).unwrap();
+    std::fs::write(d.join("assets.toml"), assets).unwrap();
+    let r = terratile(d, &["run", "-q", "assets.toml"]);
+    r.ok();
+    assert!(d.join("out/assets/rock.ply").is_file(), "{}", r.context());
+}
+
+/// The README said "the defaults are the values shown" while `keep_classes`, `max_points`,
+/// `voxel_size`, `cell_size` and `size` were not defaults. Every uncommented key of its
+/// example (but the required `paths`) must equal the code's default, and every key the code
+/// has must be documented there (set or commented out).
+#[test]
+fn readme_defaults_match_the_code() {
+    let block = readme_pipeline_block();
+    let readme: toml::Table = toml::from_str(&block).unwrap();
+    let defaults =
+        terratile::config::parse(std::path::Path::new("p.toml"), "[input]\npaths = [\"x\"]\n")
+            .unwrap();
+    let defaults = toml::Table::try_from(&defaults).unwrap();
+    let same = |a: &toml::Value, b: &toml::Value| match (a, b) {
+        (toml::Value::Integer(x), toml::Value::Float(y))
+        | (toml::Value::Float(y), toml::Value::Integer(x)) => *x as f64 == *y,
+        _ => a == b,
+    };
+    let mut checked = 0;
+    for (table, keys) in &readme {
+        let keys = keys
+            .as_table()
+            .unwrap_or_else(|| panic!("[{table}] is a table"));
+        for (key, value) in keys {
+            if (table.as_str(), key.as_str()) == ("input", "paths") {
+                continue;
+            }
+            let want = defaults
+                .get(table)
+                .and_then(|t| t.get(key))
+                .unwrap_or_else(|| panic!("README: {table}.{key} = {value} has no default"));
+            assert!(
+                same(value, want),
+                "README: {table}.{key} = {value}, the code's default is {want}"
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked >= 30, "{checked} keys checked");
+    // Every key the code has (its defaults serialised) appears in the README's block.
+    let mut table = String::new();
+    let mut documented = std::collections::BTreeSet::new();
+    for line in block.lines() {
+        let t = line.trim_start_matches(['#', ' ']);
+        if let Some(h) = t.strip_prefix('[') {
+            table = h
+                .trim_matches(|c| c == '[' || c == ']')
+                .split(']')
+                .next()
+                .unwrap()
+                .to_string();
+        } else if let Some((k, _)) = t.split_once(" = ") {
+            documented.insert(format!("{table}.{}", k.trim()));
+        }
+    }
+    for (table, keys) in &defaults {
+        for key in keys.as_table().into_iter().flat_map(|t| t.keys()) {
+            let k = format!("{table}.{key}");
+            assert!(documented.contains(&k), "README does not document {k}");
+        }
+    }
+}
