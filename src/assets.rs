@@ -1,5 +1,5 @@
 //! The `[[assets]]` stage: model meshes (buildings, rocks, props) simplified by vertex
-//! clustering (SPEC §7), scored by the Metro-style error (SPEC §8) and placed on the
+//! clustering (Kim et al. 1999), scored by the Metro-style error (Cignoni et al. 1998) and placed on the
 //! terrain: turned to z-up, scaled, rotated about the vertical, centred on (x, y) and set
 //! down with their lowest point on the terrain height there (bilinear in the run's
 //! heightfield).

@@ -3,7 +3,7 @@
 //! Point clouds (LAS/LAZ/XYZ) are read through memory maps into a struct-of-arrays
 //! [`points::PointCloud`]; the terrain stages (noise removal, resampling, hole filling,
 //! Röttger quadtree error metrics) turn them into tiled heightfields that game engines load.
-//! See `README.md` for the pipeline file and `../shared/SPEC.md` for the algorithms.
+//! See `README.md` for the pipeline file, the algorithms and the papers they come from.
 #![deny(missing_docs)]
 #![deny(unsafe_code)]
 

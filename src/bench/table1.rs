@@ -1,4 +1,4 @@
-//! `bench table1`: the paper's Table 1 (seed 003 §3) redone on a real survey. For each point
+//! `bench table1`: the paper's Table 1 (Kim & Shin §3) redone on a real survey. For each point
 //! count, a seeded random subset of the file (file order kept) goes through the grid pipeline
 //! and through spade's Delaunay triangulation (bulk loading and incremental insertion), the
 //! three interleaved and repeated; the table gives the median times, the peak memory each

@@ -1,4 +1,4 @@
-//! `bench terrain`: the grid stages of seed 003 (read, denoise, resample, fill) against the
+//! `bench terrain`: the grid stages of Kim & Shin (read, denoise, resample, fill) against the
 //! Delaunay triangulation of the same denoised points (spade, bulk loading and incremental
 //! insertion in file order), in one process, with the peak memory of each side. The tile
 //! stages follow (tiles, quadtree d2, writing the EXR tiles with the default compression, the

@@ -1,4 +1,4 @@
-//! One OpenEXR file per tile (SPEC §6), written with the `exr` crate: f32 channels `height`
+//! One OpenEXR file per tile, written with the `exr` crate: f32 channels `height`
 //! (world z − z_offset) and `d2` (Röttger's metric at node centres, 0 elsewhere), plus `mask`
 //! (1 data, 0 hole) when the tile has holes. Scan lines run north to south (row 0 of the image
 //! is the tile's northern row, as in any image viewer). The georeference is in header

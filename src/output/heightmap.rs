@@ -1,4 +1,4 @@
-//! 16-bit heightmaps (SPEC §6): one PNG and one RAW per tile, and under the `unreal` preset
+//! 16-bit heightmaps: one PNG and one RAW per tile, and under the `unreal` preset
 //! one of each for the whole landscape. One encoding for the whole set, so that neighbouring
 //! tiles agree on their shared border: world z = `z_offset` + value · `z_scale`. When the set
 //! has holes, value 0 is reserved for them (`nodata`) and data runs from 1 to 65535.

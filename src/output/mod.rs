@@ -1,4 +1,4 @@
-//! Writers of the tiled terrain (SPEC §6): EXR tiles, the JSON manifest, 16-bit PNG/RAW
+//! Writers of the tiled terrain: EXR tiles, the JSON manifest, 16-bit PNG/RAW
 //! heightmaps, shaded-relief and wireframe previews, and per-tile meshes. [`write_terrain`]
 //! writes the whole set into a directory (the pipeline passes its staged directory, which
 //! replaces the previous output only when everything succeeded).
@@ -10,8 +10,8 @@
 //! heightmaps/tile_CCC_RRR.png    16-bit greyscale, north up
 //! heightmaps/tile_CCC_RRR.raw    16-bit little-endian, south row first (Unity)
 //! heightmaps/landscape.png|.r16  whole landscape (unreal preset)
-//! meshes/tile_CCC_RRR.ply|.obj   binary PLY and OBJ with normals, z up
-//! meshes/tile_CCC_RRR.glb        glTF binary, y up
+//! meshes/tile_CCC_RRR.glb        glTF binary, y up, metres (the default format)
+//! meshes/tile_CCC_RRR.ply|.obj   binary PLY and OBJ with normals, z up, CRS units
 //! preview/relief.png             shaded relief
 //! preview/wireframe.png          the CLOD mesh over the relief
 //! ```

@@ -1,4 +1,4 @@
-//! Pictures of the terrain (SPEC §6; the paper's Fig. 3 as images): a shaded-relief PNG of the
+//! Pictures of the terrain (Kim & Shin's Fig. 3 as images): a shaded-relief PNG of the
 //! whole heightfield (hypsometric tint × Lambert hillshade, light from the north-west at 45°,
 //! the usual cartographic convention), and the same picture with a CLOD mesh drawn over it
 //! (anti-aliased lines, Xiaolin Wu) and the tile borders in red.

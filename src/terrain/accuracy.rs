@@ -1,4 +1,4 @@
-//! Vertical accuracy of a surface at held-out points (SPEC §6: "its surface scores the
+//! Vertical accuracy of a surface at held-out points ("its surface scores the
 //! grid"): a seeded split of the points into a training set and a hold-out set, and the
 //! RMSE, 95th-percentile and largest absolute error of a surface at the held-out points.
 

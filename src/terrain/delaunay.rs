@@ -1,4 +1,4 @@
-//! The Delaunay baseline of seed 003 §3 (SPEC §6): a 2.5-D Delaunay triangulation (TIN) of
+//! The Delaunay baseline of Kim & Shin §3: a 2.5-D Delaunay triangulation (TIN) of
 //! the denoised points, built with `spade`, against which the grid pipeline's time, memory
 //! and accuracy are measured; as the `[baseline]` stage ([`baseline`]) it writes the TIN as a
 //! mesh and a report, and [`Tin::rasterise`] samples it on the pipeline's grid so that the two

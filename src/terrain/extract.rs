@@ -1,4 +1,4 @@
-//! Continuous-LOD triangulation of a tile from its quadtree (SPEC §5; seed 003 §2.4 steps
+//! Continuous-LOD triangulation of a tile from its quadtree (Kim & Shin §2.4 steps
 //! (3)–(4), after Röttger et al. 1998): walk the tree top-down, subdivide a node while the
 //! criterion asks for it, and at each leaf emit a triangle fan around its centre through its
 //! corners and those edge midpoints whose same-size neighbour exists. Where the neighbour is

@@ -1,9 +1,9 @@
-//! Hole filling, seed 003 §2.3 (Kim & Shin; SPEC §4): radius-bounded bilinear interpolation
+//! Hole filling, Kim & Shin §2.3: radius-bounded bilinear interpolation
 //! from the nearest measured cells to the left, right, below and above.
 //!
 //! For an empty cell, the nearest *measured* cell along its row to the left (distance dl,
 //! height L) and to the right (dr, R), and along its column below (dd, D) and above (du, U),
-//! each within `radius` cells, are combined as SPEC §4 says:
+//! each within `radius` cells, are combined as Kim & Shin §2.3 says:
 //! hx = (L·dr + R·dl)/(dl + dr), hy = (D·du + U·dd)/(dd + du) and, with both pairs,
 //! h = (hx/(dl+dr) + hy/(dd+du)) / (1/(dl+dr) + 1/(dd+du)); with an incomplete pair, the
 //! neighbours found are averaged with inverse-distance weights (which is the pair formula
@@ -350,7 +350,7 @@ pub(crate) struct Neighbours {
 }
 
 impl Neighbours {
-    /// SPEC §4's combination; None without any neighbour.
+    /// Kim & Shin's combination (§2.3); None without any neighbour.
     pub fn interpolate(&self) -> Option<f64> {
         if let (Some((dl, l)), Some((dr, r)), Some((dd, d)), Some((du, u))) =
             (self.left, self.right, self.down, self.up)

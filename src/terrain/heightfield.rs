@@ -1,5 +1,5 @@
 //! The regular grid every terrain stage after resampling works on: f32 heights in an ndarray
-//! `Array2` indexed `[row j, col i]` (row 0 at min y, SPEC conventions), per-cell sample
+//! `Array2` indexed `[row j, col i]` (row 0 at min y), per-cell sample
 //! counts, per-cell state (measured, interpolated, fallback, empty), and the georeference
 //! that places it in the world.
 //!

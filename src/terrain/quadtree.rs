@@ -1,4 +1,4 @@
-//! Röttger quadtree error metrics (SPEC §5; seed 003 §2.4, after Röttger, Heidrich, Slusallek
+//! Röttger quadtree error metrics (Kim & Shin §2.4, after Röttger, Heidrich, Slusallek
 //! and Seidel 1998, "Real-time generation of continuous levels of detail for height fields").
 //!
 //! A tile of (2^k + 1)² samples is a quadtree: a node has a centre sample (ci, cj) and an edge
@@ -25,7 +25,7 @@
 //! The same machinery, with K = 1 and an exact per-node measure, gives the *vertical error*
 //! tree of the view-independent extraction (see [`vertical_error`]).
 //!
-//! Storage: SPEC §5's interchange form is one (2^k + 1)² matrix per tile with each value at
+//! Storage: the interchange form is one (2^k + 1)² matrix per tile with each value at
 //! its node's centre (that is what the EXR `d2` channel holds, see [`NodeValues::to_matrix`]).
 //! In memory the values are kept level by level ([`NodeValues`]), which is the same data in a
 //! third of the space: two thirds of the matrix are samples that are no node's centre, and
@@ -159,7 +159,7 @@ impl NodeValues {
         self.levels[tz as usize][(cj >> (tz + 1)) * nodes + (ci >> (tz + 1))] = v;
     }
 
-    /// SPEC §5's matrix: `[row j, col i]`, each value at its node's centre, 0 elsewhere.
+    /// The interchange matrix: `[row j, col i]`, each value at its node's centre, 0 elsewhere.
     pub fn to_matrix(&self) -> Array2<f32> {
         let mut m = Array2::zeros((self.size, self.size));
         self.for_each(|ci, cj, v| m[[cj, ci]] = v);

@@ -1,6 +1,6 @@
 //! Slow, obvious implementations of the terrain stages — the "twins" the fast paths are
 //! tested against, on generated data and on the real tiles. They follow the same
-//! definitions (SPEC §2–§4 and the module docs of [denoise](mod@super::denoise),
+//! definitions (Kim & Shin §2.1–§2.3 and the module docs of [denoise](mod@super::denoise),
 //! [resample](mod@super::resample) and [fill](mod@super::fill)) in the plainest way: voxel
 //! counts in a `HashMap`, neighbourhoods by 27 look-ups, cell means by sorting the points by
 //! cell, neighbours by walking cell by cell. The fast paths must equal them exactly. Not for
@@ -189,7 +189,7 @@ pub fn resample(
 }
 
 /// Hole filling: for every empty cell, walk left, right, down and up cell by cell to the
-/// nearest measured cell within the radius, combine as SPEC §4, then the fallback.
+/// nearest measured cell within the radius, combine as Kim & Shin §2.3, then the fallback.
 pub fn fill(hf: &Heightfield, params: &FillParams) -> Result<Heightfield> {
     params.validate()?;
     let mut out = hf.clone();

@@ -1,4 +1,4 @@
-//! Resampling the denoised points to a regular grid, seed 003 §2.2 (Kim & Shin; SPEC §3).
+//! Resampling the denoised points to a regular grid, Kim & Shin §2.2.
 //!
 //! The paper's rule: with Pt points left after noise removal, an N × N grid with
 //! N = round(sqrt(Pt)) over the points' x/y range, so that there is about one point per cell;

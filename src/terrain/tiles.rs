@@ -1,6 +1,6 @@
 //! Cutting the filled heightfield into square tiles of (2^k + 1)² samples that share their
-//! border rows and columns (SPEC §6; the block shape is the one Röttger et al. 1998 need for
-//! their quadtree, seed 003 §2.4). The last tiles of a row or column are padded by edge
+//! border rows and columns (the block shape is the one Röttger et al. 1998 need for
+//! their quadtree, Kim & Shin §2.4). The last tiles of a row or column are padded by edge
 //! replication and remember how much of them is real data (the *valid extent*).
 //!
 //! Engine presets: `unity` keeps the quadtree tiles (Unity terrains are 2^n + 1 squares up to
