@@ -666,6 +666,29 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    // A panic is a bug; it too is reported on one line (the default hook takes two or more,
+    // and echoes its message raw). The word `panicked` stays, for whoever greps for it.
+    std::panic::set_hook(Box::new(|info| {
+        let msg = info
+            .payload()
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| info.payload().downcast_ref::<String>().cloned())
+            .unwrap_or_default();
+        let at = info
+            .location()
+            .map(|l| format!(" at {}:{}", l.file(), l.line()))
+            .unwrap_or_default();
+        eprintln!(
+            "terratile: internal error: panicked{at}: {} (this is a bug; please report it with the input)",
+            one_line(&msg)
+        );
+        // With RUST_BACKTRACE set, the backtrace follows (asked for, so many lines are fine).
+        let bt = std::backtrace::Backtrace::capture();
+        if bt.status() == std::backtrace::BacktraceStatus::Captured {
+            eprintln!("{bt}");
+        }
+    }));
     let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(cli)));
     match outcome {
         Ok(Ok(())) => ExitCode::SUCCESS,
@@ -674,9 +697,7 @@ fn main() -> ExitCode {
             eprintln!("terratile: {}", one_line(&e.to_string()));
             ExitCode::from(e.exit_code() as u8)
         }
-        Err(_) => {
-            eprintln!("terratile: internal error (this is a bug; please report it with the input)");
-            ExitCode::from(1)
-        }
+        // The panic hook has printed the line.
+        Err(_) => ExitCode::from(1),
     }
 }
