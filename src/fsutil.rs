@@ -630,6 +630,50 @@ mod tests {
     }
 
     #[test]
+    fn swap_exchanges_in_one_step_on_linux() {
+        let d = tempfile::tempdir().unwrap();
+        let (tmp, target) = (d.path().join(".out.tmp-1"), d.path().join("out"));
+        std::fs::create_dir(&tmp).unwrap();
+        std::fs::write(tmp.join("f"), "new").unwrap();
+        std::fs::create_dir(&target).unwrap();
+        std::fs::write(target.join("f"), "old").unwrap();
+        let old = swap(&tmp, &target, true).unwrap().unwrap();
+        assert_eq!(std::fs::read_to_string(target.join("f")).unwrap(), "new");
+        assert_eq!(std::fs::read_to_string(old.join("f")).unwrap(), "old");
+        // RENAME_EXCHANGE leaves the old tree at the staging name; the two-rename fallback
+        // would have moved it to `.out.old-PID`, with a moment of no `out` between.
+        #[cfg(target_os = "linux")]
+        assert_eq!(old, tmp);
+        // Without a previous output: NOREPLACE, and no old tree.
+        let fresh = d.path().join("fresh");
+        std::fs::create_dir(d.path().join(".fresh.tmp-1")).unwrap();
+        assert_eq!(
+            swap(&d.path().join(".fresh.tmp-1"), &fresh, false).unwrap(),
+            None
+        );
+        assert!(fresh.is_dir());
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn old_output_of_a_run_killed_between_two_renames_is_put_back() {
+        let mut c = std::process::Command::new("true").spawn().unwrap();
+        let dead = c.id();
+        c.wait().unwrap();
+        let d = tempfile::tempdir().unwrap();
+        let target = d.path().join("out");
+        let old = d.path().join(format!(".out.old-{dead}"));
+        std::fs::create_dir(&old).unwrap();
+        std::fs::write(old.join(MARKER), MARKER_TEXT).unwrap();
+        assert_eq!(remove_stale_temps(&target), 1);
+        assert!(target.join(MARKER).is_file() && !old.exists());
+        // With an output in place, a stale old tree is removed instead.
+        std::fs::create_dir(&old).unwrap();
+        assert_eq!(remove_stale_temps(&target), 1);
+        assert!(target.join(MARKER).is_file() && !old.exists());
+    }
+
+    #[test]
     fn resolve_folds_the_missing_part() {
         let d = tempfile::tempdir().unwrap();
         let real = std::fs::canonicalize(d.path()).unwrap();

@@ -462,3 +462,46 @@ fn concurrent_runs_into_one_directory_mixed() {
     }
     assert!(refused > 0, "two runs started together never met the lock");
 }
+
+#[cfg(unix)]
+#[test]
+fn interrupted_convert_left_its_temporary_file() {
+    // `convert` killed by SIGINT/SIGTERM left `.OUT.tmp-PID` beside its output. Now removed;
+    // the output is either absent or whole (it is renamed into place in one step).
+    let root = job(3_000_000, "big.las");
+    let p = root.path();
+    for sig in ["TERM", "INT"] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_terratile"))
+            .args(["convert", "big.las", "c.las"])
+            .current_dir(p)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let start = Instant::now();
+        while child.try_wait().unwrap().is_none() && start.elapsed() < Duration::from_secs(60) {
+            let writing = std::fs::read_dir(p)
+                .unwrap()
+                .flatten()
+                .any(|e| e.file_name().to_string_lossy().starts_with(".c.las.tmp-"));
+            if writing {
+                signal(&child, sig);
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        let out = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let code = out.status.code();
+        let expected = if sig == "TERM" { 143 } else { 130 };
+        assert!(
+            code == Some(expected) || code == Some(0),
+            "exit {code:?}\n{stderr}"
+        );
+        no_temporaries(p, &stderr);
+        if p.join("c.las").exists() {
+            terratile(p, &["info", "c.las"]).ok();
+            std::fs::remove_file(p.join("c.las")).unwrap();
+        }
+    }
+}
