@@ -364,14 +364,18 @@ impl StagedDir {
             ));
         }
         let inside = |p: &Path| resolve(p).is_ok_and(|r| r.starts_with(&abs));
-        if inside(base) {
+        if let Some(b) = resolve(base).ok().filter(|b| b.starts_with(&abs)) {
+            let what = if b == abs {
+                "is the pipeline file's own directory".to_string()
+            } else {
+                format!(
+                    "contains the pipeline file's directory {}",
+                    normalize_lexically(base).display()
+                )
+            };
             return Err(refuse(
                 &shown,
-                format!(
-                    "is the pipeline's own directory or contains it ({}): refusing to replace \
-                     it; name a subdirectory such as \"out\"",
-                    normalize_lexically(base).display()
-                ),
+                format!("{what}: refusing to replace it; name a subdirectory such as \"out\""),
             ));
         }
         if std::env::current_dir().is_ok_and(|cwd| inside(&cwd)) {

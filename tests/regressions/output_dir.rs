@@ -90,7 +90,7 @@ fn output_dir_dot_dotdot_empty_or_the_pipeline_dir_was_replaced() {
         );
         let before = snapshot(root.path());
         let r = terratile(root.path(), &["run", "t/p.toml"]);
-        r.input_error(&["pipeline's own directory"]);
+        r.input_error(&["the pipeline file's", "refusing"]);
         assert_eq!(
             snapshot(root.path()),
             before,
