@@ -14,6 +14,7 @@ pub mod error;
 pub mod fsutil;
 pub mod generate;
 pub mod mesh;
+pub mod outnames;
 pub mod output;
 pub mod pipeline;
 pub mod points;

@@ -391,6 +391,8 @@ fn run(cli: Cli) -> Result<()> {
             .build_global()
             .map_err(|e| Error::Internal(e.to_string()))?;
     }
+    // SIGINT/SIGTERM remove this process's staging and temporary files, then exit 130/143.
+    terratile::fsutil::clean_up_on_signals()?;
     let bars = Bars::new(cli.quiet);
     let progress: &dyn Progress = &bars;
     match cli.command {
@@ -435,6 +437,8 @@ fn run(cli: Cli) -> Result<()> {
                 (None, Some(n)) => points::Selection::Sample { n, seed },
                 (None, None) => points::Selection::All,
             };
+            // `.NAME.tmp-PID` files that killed runs left beside the output.
+            terratile::fsutil::remove_stale_temps(&output);
             progress.start(&format!("converting {}", input.display()), 0);
             let n = points::convert(&input, &output, sel);
             progress.finish();
@@ -564,6 +568,7 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
     let error = (!a.no_error).then(|| terratile::mesh::HausdorffParams {
         samples: a.samples.unwrap_or(0),
     });
+    terratile::fsutil::remove_stale_temps(&a.output);
     let r = terratile::simplify::simplify_file(&a.input, &a.output, &params, error.as_ref())?;
     for w in &r.warnings {
         eprintln!("terratile: warning: {}", one_line(w));

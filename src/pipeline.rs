@@ -4,7 +4,7 @@
 
 use crate::config::LoadedPipeline;
 use crate::error::{Error, Result};
-use crate::fsutil::StagedDir;
+use crate::fsutil::{normalize_lexically, Keep, StagedDir};
 use crate::points::{self, Bounds, LasWriteOptions, PointCloud, SourceInfo};
 use crate::progress::Progress;
 use crate::terrain::{self, Heightfield};
@@ -196,6 +196,23 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
     // Cheap checks of the asset entries before any work.
     crate::assets::validate(&cfg.assets, &pipeline.base_dir())
         .map_err(|(key, message)| pipeline.key_error(&key, message))?;
+    crate::outnames::check(cfg).map_err(|(key, message)| pipeline.key_error(&key, message))?;
+    // The output directory is checked, locked and staged before any point is read.
+    let base = pipeline.base_dir();
+    let asset_inputs: Vec<PathBuf> = cfg.assets.iter().map(|a| base.join(&a.input)).collect();
+    let mut keep = vec![Keep {
+        what: "pipeline file",
+        path: &pipeline.path,
+    }];
+    keep.extend(files.iter().map(|path| Keep {
+        what: "input file",
+        path,
+    }));
+    keep.extend(asset_inputs.iter().map(|path| Keep {
+        what: "asset input",
+        path,
+    }));
+    let staged = StagedDir::new(&out_dir, &base, &keep)?;
 
     let t = Instant::now();
     let cloud = points::read_all(&files, &opts, progress)?;
@@ -207,8 +224,12 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
         });
     }
     let bounds = cloud.bounds();
+    let mut inputs = cloud.sources.clone();
+    for s in &mut inputs {
+        s.path = normalize_lexically(&s.path);
+    }
     let mut summary = RunSummary {
-        inputs: cloud.sources.clone(),
+        inputs,
         points: cloud.len() as u64,
         bounds: Some(bounds),
         crs: cloud.crs().map(|c| c.text()),
@@ -220,12 +241,11 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
                 ("points".into(), cloud.len().to_string()),
             ],
         }],
-        output_dir: out_dir.clone(),
+        output_dir: normalize_lexically(&out_dir),
         baseline: None,
         files: Vec::new(),
         assets: Vec::new(),
     };
-    let staged = StagedDir::new(&out_dir)?;
     let fig = |k: &str, v: String| (k.to_string(), v);
 
     // Noise removal, resampling and hole filling.
@@ -353,8 +373,15 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
         report.grid_peak_mb = grid_peak.map(|p| p as f64 / 1e6);
         report.tin_peak_mb = crate::bench::peak_rss().map(|p| p as f64 / 1e6);
         let b = &cfg.baseline;
-        let in_staged = |name: &str| -> Result<std::path::PathBuf> {
+        let in_staged = |key: &str, name: &str| -> Result<std::path::PathBuf> {
             let p = staged.path().join(name);
+            // Checked up front (outnames); this catches what that check cannot foresee.
+            if p.exists() {
+                return Err(pipeline.key_error(
+                    key,
+                    format!("`{name}` collides with another output of the run"),
+                ));
+            }
             if let Some(parent) = p.parent() {
                 std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
             }
@@ -363,7 +390,7 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
         if !b.mesh.is_empty() {
             let origin = [grid.corner[0], grid.corner[1], grid.z_offset];
             let mesh = tin.to_mesh(origin);
-            let path = in_staged(&b.mesh)?;
+            let path = in_staged("baseline.mesh", &b.mesh)?;
             let glb = path
                 .extension()
                 .is_some_and(|e| e.eq_ignore_ascii_case("glb"));
@@ -379,7 +406,7 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
         drop(tin);
         let json =
             serde_json::to_vec_pretty(&report).map_err(|e| Error::Internal(e.to_string()))?;
-        crate::fsutil::write_bytes_atomic(&in_staged(&b.report)?, &json)?;
+        crate::fsutil::write_bytes_atomic(&in_staged("baseline.report", &b.report)?, &json)?;
         summary.files.push(b.report.clone());
         let acc = |s: &Option<terrain::accuracy::ErrorStats>| {
             s.map_or("—".into(), |s| format!("{:.3} m", s.rmse))
@@ -417,7 +444,16 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
     if !cfg.assets.is_empty() {
         let origin = [grid.corner[0], grid.corner[1], grid.z_offset];
         let t = Instant::now();
-        for a in &cfg.assets {
+        for (i, a) in cfg.assets.iter().enumerate() {
+            if staged.path().join(&a.output).exists() {
+                return Err(pipeline.key_error(
+                    &format!("assets[{i}].output"),
+                    format!(
+                        "`{}` collides with another output of the run",
+                        a.output.display()
+                    ),
+                ));
+            }
             let r = crate::assets::run_asset(
                 a,
                 &pipeline.base_dir(),
