@@ -154,7 +154,20 @@ impl<'a> LazDecoder<'a> {
         };
         let data = (bytes.len() as u64).saturating_sub(at + 8);
         let (mut points, mut stored) = (0u64, 0u64);
+        // The decompressor holds a whole chunk's records; no chunk may be larger than the
+        // file's points (or 1 Mi points, for a file smaller than its chunk size).
+        let max_chunk = h.point_count.max(1 << 20);
         for (k, e) in table.as_ref().iter().enumerate() {
+            if e.point_count > max_chunk {
+                return Err(Error::format(
+                    path,
+                    at,
+                    format!(
+                        "LAZ chunk {k} claims {} points, more than the file's {} (or 2^20)",
+                        e.point_count, h.point_count
+                    ),
+                ));
+            }
             stored = stored.saturating_add(e.byte_count);
             points = points.saturating_add(e.point_count);
             if stored > data {

@@ -427,12 +427,25 @@ pub fn map_file(path: &Path) -> Result<memmap2::Mmap> {
 /// ```
 pub fn read(path: &Path, opts: &ReadOptions, progress: &dyn Progress) -> Result<PointCloud> {
     let map = map_file(path)?;
+    read_bytes(path, &map, opts, progress)
+}
+
+/// [`read`] on the bytes of a file already in memory; `path` names it in messages.
+pub fn read_bytes(
+    path: &Path,
+    map: &[u8],
+    opts: &ReadOptions,
+    progress: &dyn Progress,
+) -> Result<PointCloud> {
+    if map.is_empty() {
+        return Err(Error::format(path, 0, "empty file"));
+    }
     let format = match opts.format {
         Some(f) => f,
-        None => detect_format(path, &map)?,
+        None => detect_format(path, map)?,
     };
     match format {
-        Format::Las | Format::Laz => las_read::read_las(path, &map, opts, progress),
+        Format::Las | Format::Laz => las_read::read_las(path, map, opts, progress),
         Format::Xyz => {
             if opts.classes.has_keep_list() {
                 return Err(Error::Usage(format!(
@@ -440,7 +453,7 @@ pub fn read(path: &Path, opts: &ReadOptions, progress: &dyn Progress) -> Result<
                     path.display()
                 )));
             }
-            let mut cloud = parse_xyz(path, &map, progress)?;
+            let mut cloud = parse_xyz(path, map, progress)?;
             if let Some(cap) = opts.max_points {
                 cloud.truncate(cap as usize);
             }

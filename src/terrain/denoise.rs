@@ -960,6 +960,53 @@ mod tests {
     }
 
     #[test]
+    fn squeezed_lattice_equals_the_slow_twin() {
+        // One far-away point, and a second copy of the scene far away: the lattice is
+        // squeezed (the box holds ~1e12 voxel columns) and must decide exactly as the
+        // uncompressed reference does, with given and with derived voxel sizes.
+        let s = scene(5, 20_000);
+        let mut far = s.cloud.clone();
+        far.x.push(far.x[0] + 1e12);
+        far.y.push(far.y[0]);
+        far.z.push(far.z[0]);
+        let mut twin = s.cloud.clone();
+        for i in 0..s.cloud.len() {
+            twin.x.push(s.cloud.x[i] + 1e9);
+            twin.y.push(s.cloud.y[i] - 3e8);
+            twin.z.push(s.cloud.z[i]);
+        }
+        for (name, c) in [("far", &far), ("twin", &twin)] {
+            for p in [
+                DenoiseParams {
+                    voxel_size: Some(1.5),
+                    voxel_height: Some(1.0),
+                    ..Default::default()
+                },
+                DenoiseParams {
+                    voxel_size: Some(1.5),
+                    ..Default::default()
+                },
+                DenoiseParams::default(),
+            ] {
+                let (bounds, _) = crate::terrain::bounds_of(&c.x, &c.y, &c.z, None);
+                let st = p.resolve(&bounds, c.len(), 1.0).unwrap();
+                let lat = Lattice::new(&bounds, &st, &c.x, &c.y).unwrap();
+                if p.voxel_size.is_some() {
+                    assert!(lat.squeeze.is_some(), "{name}: not squeezed");
+                    assert!(lat.column_count() < 64 * c.len() as u64, "{name}");
+                }
+                let fast = denoise(c, &p, 1.0);
+                let slow = reference::denoise(&c.x, &c.y, &c.z, &p, 1.0);
+                match (fast, slow) {
+                    (Ok(f), Ok(sl)) => assert_eq!(f.keep, sl, "{name} {p:?}"),
+                    (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
+                    (a, b) => panic!("{name}: {a:?} vs {b:?}"),
+                }
+            }
+        }
+    }
+
+    #[test]
     fn removes_a_dense_mirror_patch_under_the_ground() {
         // A multipath "mirror": 40 points on a flat 8 × 3 m patch 25 m under the terrain,
         // dense enough to pass any count test.
