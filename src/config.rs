@@ -203,6 +203,32 @@ impl LoadedPipeline {
         }
     }
 
+    /// A stage's `Param` error as an error at its key in this file (others unchanged).
+    pub fn param_error(&self, e: Error) -> Error {
+        match e {
+            // A figure of the data rather than a key ("x range"): the file, then the stage.
+            Error::Param {
+                stage,
+                param,
+                value,
+                message,
+            } if param.contains(' ') => Error::Usage(format!(
+                "{}: {stage}: {param} = {value}: {message}",
+                self.path.display()
+            )),
+            Error::Param {
+                stage,
+                param,
+                value,
+                message,
+            } => self.key_error(&format!("{stage}.{param}"), format!("{value}: {message}")),
+            Error::Data { stage, message } => {
+                Error::Usage(format!("{}: {stage}: {message}", self.path.display()))
+            }
+            other => other,
+        }
+    }
+
     /// The input files: every path and glob expanded, sorted within each pattern,
     /// duplicates removed. A pattern that matches nothing is an error.
     pub fn input_files(&self) -> Result<Vec<PathBuf>> {
@@ -218,11 +244,10 @@ impl LoadedPipeline {
             let full = base.join(pat);
             let is_glob = pat.contains(['*', '?', '[']);
             if !is_glob {
-                if !full.is_file() {
-                    return Err(self.key_error(
-                        "input.paths",
-                        format!("input file {} does not exist", full.display()),
-                    ));
+                if let Some(why) = crate::points::not_a_regular_file(&full) {
+                    return Err(
+                        self.key_error("input.paths", format!("input {} {why}", full.display()))
+                    );
                 }
                 if !out.contains(&full) {
                     out.push(full);
@@ -250,9 +275,26 @@ impl LoadedPipeline {
     }
 }
 
+/// Deserialises an optional fixed-length array (`size = [w, h]`), refusing a wrong number of
+/// elements: serde's own array support stops after N and silently drops the rest.
+pub(crate) fn exact_array<'de, D, T, const N: usize>(d: D) -> Result<Option<[T; N]>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    use serde::de::Error as _;
+    let Some(v) = Option::<Vec<T>>::deserialize(d)? else {
+        return Ok(None);
+    };
+    let n = v.len();
+    v.try_into().map(Some).map_err(|_| {
+        D::Error::invalid_length(n, &format!("an array of exactly {N} elements").as_str())
+    })
+}
+
 /// Reads and checks a pipeline file.
 pub fn load(path: &Path) -> Result<LoadedPipeline> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let text = read_pipeline_text(path)?;
     let config = parse(path, &text)?;
     let loaded = LoadedPipeline {
         config,
@@ -261,6 +303,44 @@ pub fn load(path: &Path) -> Result<LoadedPipeline> {
     };
     loaded.check_stages()?;
     Ok(loaded)
+}
+
+/// Largest pipeline file read: 1 MiB (a real one is a few kilobytes).
+pub const MAX_PIPELINE_BYTES: u64 = 1 << 20;
+
+/// The text of a pipeline file: a regular file of at most [`MAX_PIPELINE_BYTES`], UTF-8.
+fn read_pipeline_text(path: &Path) -> Result<String> {
+    use std::io::Read;
+    if let Some(why) = crate::points::not_a_regular_file(path) {
+        return Err(Error::Usage(format!(
+            "{}: pipeline file {why}",
+            path.display()
+        )));
+    }
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut bytes = Vec::new();
+    file.take(MAX_PIPELINE_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| Error::io(path, e))?;
+    if bytes.len() as u64 > MAX_PIPELINE_BYTES {
+        return Err(Error::Usage(format!(
+            "{}: pipeline file is larger than {} bytes (1 MiB); a pipeline file is a few kilobytes of TOML",
+            path.display(),
+            MAX_PIPELINE_BYTES
+        )));
+    }
+    String::from_utf8(bytes).map_err(|e| {
+        let at = e.utf8_error().valid_up_to();
+        let text = String::from_utf8_lossy(&e.as_bytes()[..at]).into_owned();
+        let (line, column) = line_col(&text, text.len());
+        Error::Config {
+            path: path.to_path_buf(),
+            line,
+            column,
+            key: "(syntax)".into(),
+            message: format!("byte {at} is not UTF-8"),
+        }
+    })
 }
 
 impl LoadedPipeline {
@@ -277,6 +357,9 @@ impl LoadedPipeline {
             } => self.key_error(&format!("{stage}.{param}"), format!("{value}: {message}")),
             other => other,
         };
+        if c.input.max_points == Some(0) {
+            return Err(self.key_error("input.max_points", "0: must be at least 1"));
+        }
         c.denoise.validate().map_err(at_key)?;
         c.resample.validate().map_err(at_key)?;
         c.fill.validate().map_err(at_key)?;

@@ -303,6 +303,45 @@ fn scan_line(world: &World, v0: f64, spacing: f64, seed: u64, out: &mut Vec<Ret>
     }
 }
 
+/// Most tiles `generate --tiles` writes (files in one directory).
+pub const MAX_TILES: u64 = 65_536;
+/// Largest scene area in m² (200 km × 200 km): the tree index is one cell per 400 m².
+pub const MAX_AREA: f64 = 4e10;
+/// Bytes `generate` holds per point at its peak: the scan returns (about 1.1 per point,
+/// 40 bytes each), the sample's indices and the cloud (29 bytes), plus the LAS being built.
+pub const BYTES_PER_POINT: u64 = 120;
+
+/// Checks `generate`'s counts against what the machine can do before any work: the points
+/// against the memory budget, the area and the tile count against fixed bounds.
+pub fn check_bounds(points: u64, size: Option<[f64; 2]>, tiles: (usize, usize)) -> Result<()> {
+    let need = points.saturating_mul(BYTES_PER_POINT);
+    let budget = crate::memory::budget();
+    if need > budget {
+        return Err(Error::Usage(format!(
+            "--points {points}: needs about {}, more than the memory budget of {} (fewer points, or raise --max-memory)",
+            crate::memory::human(need),
+            crate::memory::human(budget)
+        )));
+    }
+    if let Some([w, h]) = size {
+        if w * h > MAX_AREA {
+            return Err(Error::Usage(format!(
+                "--size {w}x{h}: at most {MAX_AREA:e} m² (200 km × 200 km)"
+            )));
+        }
+    }
+    let t = tiles.0 as u64 * tiles.1 as u64;
+    if t > MAX_TILES.min(points) {
+        return Err(Error::Usage(format!(
+            "--tiles {}x{}: {t} tiles, at most {} (65536, and no more than the points)",
+            tiles.0,
+            tiles.1,
+            MAX_TILES.min(points)
+        )));
+    }
+    Ok(())
+}
+
 /// Generates a scene.
 ///
 /// ```
@@ -325,12 +364,12 @@ pub fn generate(params: &GenerateParams) -> Result<Scene> {
         let side = (params.points as f64 / 1.5).sqrt();
         [side, side]
     });
-    if !(w > 1.0 && h > 1.0 && w.is_finite() && h.is_finite()) {
+    if !(w > 1.0 && h > 1.0 && w.is_finite() && h.is_finite()) || w * h > MAX_AREA {
         return Err(Error::param(
             "generate",
             "size",
             format!("{w}x{h}"),
-            "width and height must be > 1 m",
+            "width and height must be > 1 m, the area at most 4e10 m²",
         ));
     }
     let mut rng = SplitMix64::new(params.seed);

@@ -20,6 +20,9 @@ struct Cli {
     /// No progress bars (results, warnings and errors are still printed).
     #[arg(long, short, global = true)]
     quiet: bool,
+    /// Memory budget, e.g. 8GiB (default: half of physical memory).
+    #[arg(long, global = true, value_name = "SIZE", value_parser = terratile::memory::parse_size)]
+    max_memory: Option<u64>,
     #[command(subcommand)]
     command: Command,
 }
@@ -382,9 +385,18 @@ fn print_json<T: serde::Serialize>(v: &T) -> Result<()> {
 }
 
 fn run(cli: Cli) -> Result<()> {
+    if let Some(m) = cli.max_memory {
+        terratile::memory::set_budget(m);
+    }
     if let Some(n) = cli.threads {
         if n == 0 {
             return Err(Error::Usage("--threads must be at least 1".into()));
+        }
+        let max = terratile::memory::max_threads();
+        if n > max {
+            return Err(Error::Usage(format!(
+                "--threads {n}: at most {max} (eight per core of this machine, at least 64)"
+            )));
         }
         rayon::ThreadPoolBuilder::new()
             .num_threads(n)
@@ -586,6 +598,7 @@ fn generate(g: &GenerateArgs) -> Result<()> {
     if g.tiles.0 == 0 || g.tiles.1 == 0 {
         return Err(Error::Usage("--tiles: at least 1x1".into()));
     }
+    gen::check_bounds(g.points, g.size.map(|(w, h)| [w, h]), g.tiles)?;
     let params = GenerateParams {
         seed: g.seed,
         points: g.points,

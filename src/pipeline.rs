@@ -218,11 +218,12 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
     let cloud = points::read_all(&files, &opts, progress)?;
     let read_s = t.elapsed().as_secs_f64();
     if cloud.is_empty() {
-        return Err(Error::Data {
-            stage: "read",
-            message: "no points left after the class filter".into(),
-        });
+        return Err(crate::memory::empty_input(pipeline, &cloud));
     }
+    // The memory the stages will need, before they allocate it.
+    crate::memory::estimate_pipeline(pipeline, &cloud)?
+        .check(crate::memory::budget())
+        .map_err(|(key, message)| pipeline.key_error(&key, message))?;
     let bounds = cloud.bounds();
     let mut inputs = cloud.sources.clone();
     for s in &mut inputs {
@@ -255,7 +256,8 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
         &cfg.resample,
         cfg.fill.enabled.then_some(&cfg.fill),
         progress,
-    )?;
+    )
+    .map_err(|e| pipeline.param_error(e))?;
     let keep = if let Some(d) = g.denoised {
         let st = &d.settings;
         let mut figures = vec![
@@ -272,13 +274,17 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
         ];
         if cfg.denoise.write_removed {
             let removed: Vec<bool> = d.keep.iter().map(|k| !k).collect();
-            let noise = cloud.select(&removed);
-            let opts = LasWriteOptions {
-                crs: cloud.crs().cloned(),
-                classification: Some(7),
-                ..Default::default()
-            };
-            points::write_las(&staged.path().join(NOISE_FILE), &noise, &opts)?;
+            let path = staged.path().join(NOISE_FILE);
+            // LAS/LAZ inputs of one point format: the removed records, byte for byte.
+            if !points::write_selected_records(&path, &cloud.sources, &opts, &removed, 7)? {
+                let noise = cloud.select(&removed);
+                let opts = LasWriteOptions {
+                    crs: cloud.crs().cloned(),
+                    classification: Some(7),
+                    ..Default::default()
+                };
+                points::write_las(&path, &noise, &opts)?;
+            }
             summary.files.push(NOISE_FILE.into());
             figures.push(fig("written", NOISE_FILE.into()));
         }

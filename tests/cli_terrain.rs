@@ -103,7 +103,7 @@ fn points_on_one_line_or_one_spot() {
         .collect();
     xyz(d.path(), "line.xyz", &line);
     run_file(d.path(), "line.xyz", "").input_error(&[
-        "denoise: voxel_size = auto",
+        "p.toml:1:1: denoise.voxel_size: auto:",
         "zero-width range",
         "one line or one spot",
     ]);
@@ -114,7 +114,8 @@ fn points_on_one_line_or_one_spot() {
     xyz(d.path(), "spot.xyz", &spot);
     run_file(d.path(), "spot.xyz", "[denoise]\nenabled = false\n")
         .input_error(&["resample: x range = 0:", "x = 7.5"]);
-    run_file(d.path(), "spot.xyz", "").input_error(&["denoise: voxel_size = auto", "zero-width"]);
+    run_file(d.path(), "spot.xyz", "")
+        .input_error(&["p.toml:1:1: denoise.voxel_size: auto:", "zero-width"]);
 }
 
 #[test]

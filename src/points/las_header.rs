@@ -14,10 +14,16 @@ pub(crate) mod off {
     pub const OFFSET_TO_POINTS: u64 = 96;
     pub const POINT_FORMAT: u64 = 104;
     pub const RECORD_LENGTH: u64 = 105;
+    pub const COUNT_LEGACY: u64 = 107;
     pub const SCALE: u64 = 131;
     pub const OFFSET: u64 = 155;
+    pub const START_OF_EVLRS: u64 = 235;
     pub const COUNT_14: u64 = 247;
 }
+
+/// Largest coordinate magnitude a LAS header may produce: far beyond any survey, far below
+/// where f32 heights (3.4e38) or squared distances overflow.
+pub(crate) const MAX_COORDINATE: f64 = 1e30;
 
 /// Smallest record length of each point format 0–10 (LAS 1.4 R15, Tables 7–17).
 pub(crate) const MIN_RECORD_LEN: [u16; 11] = [20, 28, 26, 34, 57, 63, 30, 36, 38, 59, 67];
@@ -208,6 +214,33 @@ impl LasHeader {
                 ));
             }
         }
+        // The largest coordinate a record can hold is |scale| · 2^31 + |offset|: reject the
+        // header when that passes MAX_COORDINATE (coordinates would overflow to ±inf in the
+        // stages' arithmetic and heights to inf as f32, then turn into NaN downstream).
+        for k in 0..3 {
+            let axis = ["x", "y", "z"][k];
+            let reach = scale[k].abs() * 2147483648.0;
+            if reach.is_nan() || reach > MAX_COORDINATE {
+                return Err(Error::format(
+                    path,
+                    off::SCALE + 8 * k as u64,
+                    format!(
+                        "{axis} scale factor {:e} puts coordinates beyond ±{MAX_COORDINATE:e} (scale × 2^31 = {reach:e})",
+                        scale[k]
+                    ),
+                ));
+            }
+            if reach + offset[k].abs() > MAX_COORDINATE {
+                return Err(Error::format(
+                    path,
+                    off::OFFSET + 8 * k as u64,
+                    format!(
+                        "{axis} offset {:e} puts coordinates beyond ±{MAX_COORDINATE:e}",
+                        offset[k]
+                    ),
+                ));
+            }
+        }
         let legacy = raw.number_of_point_records as u64;
         let point_count = match raw.large_file {
             Some(lf) if legacy == 0 => lf.number_of_point_records,
@@ -268,21 +301,51 @@ impl LasHeader {
             at += 54 + vlr.data.len() as u64;
             vlrs.push(Vlr::from_raw(vlr, false));
         }
-        // EVLRs (LAS 1.4) after the point data; a broken EVLR table only loses the CRS it may
-        // hold, so it is skipped rather than failing the read.
+        // EVLRs (LAS 1.4) after the point data. An EVLR table that points into the header or
+        // the VLRs, or whose records run past the end of the file, is an error at the field
+        // at fault: it may hold the CRS, and silently losing the CRS would change the units.
+        // Every length is checked against the bytes present before anything is allocated.
         if let Some(evlr) = raw.evlr {
+            let count = evlr.number_of_evlrs;
             let mut at = evlr.start_of_first_evlr;
-            for _ in 0..evlr.number_of_evlrs {
-                if at == 0 || at >= len {
-                    break;
+            if count > 0 && at != 0 && at < offset_to_points {
+                return Err(Error::format(
+                    path,
+                    off::START_OF_EVLRS,
+                    format!(
+                        "first EVLR offset {at} lies before the point data (byte {offset_to_points})"
+                    ),
+                ));
+            }
+            for k in 0..if at == 0 { 0 } else { count } {
+                if at.checked_add(60).is_none_or(|end| end > len) {
+                    return Err(Error::format(
+                        path,
+                        if k == 0 { off::START_OF_EVLRS } else { at },
+                        format!(
+                            "EVLR {k} of {count} at byte {at} runs past the end of the file ({len} bytes)"
+                        ),
+                    ));
                 }
-                match las::raw::Vlr::read_from(&bytes[at as usize..], true) {
-                    Ok(v) => {
-                        at += 60 + v.data.len() as u64;
-                        vlrs.push(Vlr::from_raw(v, true));
-                    }
-                    Err(_) => break,
+                let data_len = u64::from_le_bytes(
+                    bytes[at as usize + 20..at as usize + 28]
+                        .try_into()
+                        .unwrap_or([0; 8]),
+                );
+                if data_len > len - (at + 60) {
+                    return Err(Error::format(
+                        path,
+                        at + 20,
+                        format!(
+                            "EVLR {k} of {count} claims {data_len} bytes of data, the file holds {} after its header",
+                            len - (at + 60)
+                        ),
+                    ));
                 }
+                let v = las::raw::Vlr::read_from(&bytes[at as usize..], true)
+                    .map_err(|e| Error::format(path, at, format!("unreadable EVLR {k}: {e}")))?;
+                at += 60 + data_len;
+                vlrs.push(Vlr::from_raw(v, true));
             }
         }
         let crs = Crs::from_vlrs(&vlrs);

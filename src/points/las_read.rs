@@ -36,16 +36,27 @@ pub(crate) fn read_las(
         offset: h.offset,
     };
     let mut cloud = PointCloud::default();
-    progress.start(&format!("reading {}", path.display()), h.point_count);
+    let wanted = opts
+        .max_points
+        .map_or(h.point_count, |c| c.min(h.point_count));
+    let fits = || {
+        crate::memory::check_alloc(wanted.saturating_mul(crate::memory::POINT_BYTES), || {
+            format!("{}: {wanted} points", path.display())
+        })
+    };
 
     if !h.compressed {
         let records = uncompressed_records(path, bytes, &h)?;
+        fits()?;
+        progress.start(&format!("reading {}", path.display()), h.point_count);
         las_records::decode(records, &layout, &opts.classes, opts.max_points, &mut cloud);
         progress.advance(h.point_count);
     } else {
-        let expected = opts
-            .max_points
-            .map_or(h.point_count, |c| c.min(h.point_count)) as usize;
+        // Reserved only once the chunk table vouches for the header's point count.
+        let mut dec = LazDecoder::new(path, bytes, &h)?;
+        fits()?;
+        progress.start(&format!("reading {}", path.display()), h.point_count);
+        let expected = wanted as usize;
         cloud.x.reserve_exact(expected);
         cloud.y.reserve_exact(expected);
         cloud.z.reserve_exact(expected);
@@ -53,7 +64,6 @@ pub(crate) fn read_las(
         cloud.return_number.reserve_exact(expected);
         cloud.number_of_returns.reserve_exact(expected);
         cloud.intensity.reserve_exact(expected);
-        let mut dec = LazDecoder::new(path, bytes, &h)?;
         let mut buf = Vec::new();
         let mut done = 0u64;
         while done < h.point_count {
@@ -131,6 +141,61 @@ impl<'a> LazDecoder<'a> {
         let laz_vlr = guard(path, at, || laz::LazVlr::read_from(vlr.data.as_slice()))?
             .map_err(|e| Error::format(path, at, format!("unreadable LASzip VLR: {e}")))?;
         check_chunk_table(path, bytes, h)?;
+        // The chunk table's entries, checked against the bytes present and the header's
+        // point count before the decompressor sizes its buffers from them.
+        let table = {
+            let mut c = Cursor::new(bytes);
+            c.seek(SeekFrom::Start(at))
+                .map_err(|e| Error::io(path, e))?;
+            guard(path, at, || {
+                laz::laszip::ChunkTable::read_from(&mut c, &laz_vlr)
+            })?
+            .map_err(|e| Error::format(path, at, format!("unreadable LAZ chunk table: {e}")))?
+        };
+        let data = (bytes.len() as u64).saturating_sub(at + 8);
+        let (mut points, mut stored) = (0u64, 0u64);
+        // The decompressor holds a whole chunk's records; no chunk may be larger than the
+        // file's points (or 1 Mi points, for a file smaller than its chunk size).
+        let max_chunk = h.point_count.max(1 << 20);
+        for (k, e) in table.as_ref().iter().enumerate() {
+            if e.point_count > max_chunk {
+                return Err(Error::format(
+                    path,
+                    at,
+                    format!(
+                        "LAZ chunk {k} claims {} points, more than the file's {} (or 2^20)",
+                        e.point_count, h.point_count
+                    ),
+                ));
+            }
+            stored = stored.saturating_add(e.byte_count);
+            points = points.saturating_add(e.point_count);
+            if stored > data {
+                return Err(Error::format(
+                    path,
+                    at,
+                    format!(
+                        "LAZ chunk table: chunks 0 to {k} claim {stored} bytes, the file holds {data} after byte {}",
+                        at + 8
+                    ),
+                ));
+            }
+        }
+        if points < h.point_count {
+            let field = if h.raw.number_of_point_records == 0 {
+                super::las_header::off::COUNT_14
+            } else {
+                super::las_header::off::COUNT_LEGACY
+            };
+            return Err(Error::format(
+                path,
+                field,
+                format!(
+                    "the header promises {} points, the LAZ chunk table holds at most {points}",
+                    h.point_count
+                ),
+            ));
+        }
         let item_size = laz_vlr.items_size() as usize;
         if item_size != h.record_length as usize {
             return Err(Error::format(
@@ -227,7 +292,44 @@ pub fn raw_records<'a>(path: &Path, bytes: &'a [u8]) -> Result<(LasHeader, Cow<'
         return Ok((h, Cow::Borrowed(r)));
     }
     let mut dec = LazDecoder::new(path, bytes, &h)?;
+    crate::memory::check_alloc(h.point_count.saturating_mul(h.record_length as u64), || {
+        format!("{}: {} decompressed points", path.display(), h.point_count)
+    })?;
+    // In batches, so that memory grows only as far as the data really decompresses.
+    let mut out = Vec::new();
     let mut buf = Vec::new();
-    dec.next_batch(h.point_count, &mut buf)?;
-    Ok((h, Cow::Owned(buf)))
+    let mut done = 0u64;
+    while done < h.point_count {
+        let n = LAZ_BATCH.min(h.point_count - done);
+        dec.next_batch(n, &mut buf)?;
+        out.extend_from_slice(&buf);
+        done += n;
+    }
+    Ok((h, Cow::Owned(out)))
+}
+
+/// Calls `f` with the point records of a LAS or LAZ file in file order, in batches of whole
+/// records (the mapped bytes for LAS, decompressed batches of [`LAZ_BATCH`] for LAZ).
+pub(crate) fn for_each_batch(
+    path: &Path,
+    bytes: &[u8],
+    h: &LasHeader,
+    mut f: impl FnMut(&[u8]) -> Result<bool>,
+) -> Result<()> {
+    if !h.compressed {
+        f(uncompressed_records(path, bytes, h)?)?;
+        return Ok(());
+    }
+    let mut dec = LazDecoder::new(path, bytes, h)?;
+    let mut buf = Vec::new();
+    let mut done = 0u64;
+    while done < h.point_count {
+        let n = LAZ_BATCH.min(h.point_count - done);
+        dec.next_batch(n, &mut buf)?;
+        if !f(&buf)? {
+            break;
+        }
+        done += n;
+    }
+    Ok(())
 }

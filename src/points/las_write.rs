@@ -207,3 +207,87 @@ pub fn write_raw_las(
         std::io::Write::write_all(w, records).map_err(|e| Error::io(path, e))
     })
 }
+
+/// Writes the records of the cloud points flagged in `select` (one flag per point of the
+/// cloud read from `sources` with `opts`) to an uncompressed LAS at `path`, byte for byte in
+/// the inputs' point format (colour, GPS time and extra bytes kept), each with its class set
+/// to `class`. Returns false, writing nothing, when the sources are not all LAS/LAZ of one
+/// point format, record length, scale and offset (the caller then writes plain points).
+pub fn write_selected_records(
+    path: &Path,
+    sources: &[super::SourceInfo],
+    opts: &super::ReadOptions,
+    select: &[bool],
+    class: u8,
+) -> Result<bool> {
+    use super::Format;
+    let Some(first) = sources.first() else {
+        return Ok(false);
+    };
+    let same = sources.iter().all(|s| {
+        matches!(s.format, Format::Las | Format::Laz)
+            && s.point_format == first.point_format
+            && s.record_length == first.record_length
+            && s.scale == first.scale
+            && s.offset == first.offset
+    });
+    if !same {
+        return Ok(false);
+    }
+    let mut header = None;
+    let mut out: Vec<u8> = Vec::new();
+    let mut bounds = super::Bounds::EMPTY;
+    let mut index = 0usize;
+    for s in sources {
+        let map = super::map_file(&s.path)?;
+        let h = LasHeader::parse(&s.path, &map)?;
+        let len = h.record_length as usize;
+        let extended = h.point_format >= 6;
+        let mut left = s.points_read;
+        super::las_read::for_each_batch(&s.path, &map, &h, |recs| {
+            for r in recs.chunks_exact(len) {
+                if left == 0 {
+                    return Ok(false);
+                }
+                let c = if extended { r[16] } else { r[15] & 0x1F };
+                if !opts.classes.keeps(c) {
+                    continue;
+                }
+                left -= 1;
+                let keep = select.get(index).copied().unwrap_or(false);
+                index += 1;
+                if !keep {
+                    continue;
+                }
+                let at = out.len();
+                out.extend_from_slice(r);
+                let rec = &mut out[at..];
+                if extended {
+                    rec[16] = class;
+                } else {
+                    rec[15] = (rec[15] & 0xE0) | (class & 0x1F);
+                }
+                let xyz = |k: usize| {
+                    let v =
+                        i32::from_le_bytes([r[4 * k], r[4 * k + 1], r[4 * k + 2], r[4 * k + 3]]);
+                    h.scale[k] * f64::from(v) + h.offset[k]
+                };
+                bounds.add([xyz(0), xyz(1), xyz(2)]);
+            }
+            Ok(left > 0)
+        })?;
+        header.get_or_insert(h);
+    }
+    if index != select.len() {
+        return Err(Error::Internal(format!(
+            "{}: re-reading the inputs found {index} points, the run read {}",
+            path.display(),
+            select.len()
+        )));
+    }
+    let Some(h) = header else {
+        return Ok(false);
+    };
+    write_raw_las(path, &h, &out, &bounds)?;
+    Ok(true)
+}

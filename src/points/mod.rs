@@ -18,7 +18,7 @@ pub use convert::{convert, Selection};
 pub use crs::{Crs, LinearUnit};
 pub use las_header::{LasHeader, Vlr};
 pub use las_read::raw_records;
-pub use las_write::{write_las, write_raw_las, LasWriteOptions};
+pub use las_write::{write_las, write_raw_las, write_selected_records, LasWriteOptions};
 pub use stats::{class_name, CloudStats, FileInfo, Histogram};
 pub use xyz::parse_xyz;
 
@@ -334,42 +334,71 @@ pub fn detect_format(path: &Path, head: &[u8]) -> Result<Format> {
             Format::Las
         });
     }
-    // Text: the first kilobyte is printable ASCII/UTF-8 with line breaks.
+    // Text: the first kilobyte is printable ASCII (or bytes ≥ 0x80) with line breaks. Bytes
+    // that are not UTF-8 are left to the XYZ parser, which names the line they spoil.
     let probe = &head[..head.len().min(1024)];
-    let texty = probe
+    let bad = probe
         .iter()
-        .all(|&b| b == b'\n' || b == b'\r' || b == b'\t' || (0x20..0x7f).contains(&b) || b >= 0x80);
-    if texty && std::str::from_utf8(probe).is_ok_or_cut() {
-        return Ok(Format::Xyz);
+        .position(|&b| !(b == b'\n' || b == b'\r' || b == b'\t' || b >= 0x20) || b == 0x7f);
+    match bad {
+        None => Ok(Format::Xyz),
+        Some(at) => Err(Error::format(
+            path,
+            at as u64,
+            format!(
+                "unrecognised format: no LASF signature, and byte 0x{:02x} is not text",
+                probe[at]
+            ),
+        )),
     }
-    let sig: String = head[..head.len().min(4)]
-        .iter()
-        .map(|&b| format!("{b:02x}"))
-        .collect::<Vec<_>>()
-        .join(" ");
-    Err(Error::format(
-        path,
-        0,
-        format!("unrecognised format: signature {sig} is neither LASF nor text"),
-    ))
 }
 
-trait Utf8Probe {
-    fn is_ok_or_cut(&self) -> bool;
-}
-
-impl Utf8Probe for std::result::Result<&str, std::str::Utf8Error> {
-    /// A probe cut in the middle of a multi-byte character still counts as text.
-    fn is_ok_or_cut(&self) -> bool {
-        match self {
-            Ok(_) => true,
-            Err(e) => e.error_len().is_none(),
+/// Why `path` cannot be read as a file ("does not exist", "is a directory", "is a FIFO
+/// …"), or `None` for a regular file (symbolic links followed). Reading a FIFO or a device
+/// would block or never end, and mapping one fails with an obscure system error.
+pub fn not_a_regular_file(path: &Path) -> Option<String> {
+    let meta = match std::fs::metadata(path) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Some("does not exist".into()),
+        Err(e) => return Some(format!("cannot be read: {e}")),
+    };
+    let t = meta.file_type();
+    if t.is_file() {
+        return None;
+    }
+    let kind = if t.is_dir() {
+        "a directory"
+    } else {
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::FileTypeExt;
+            if t.is_fifo() {
+                "a FIFO (named pipe)"
+            } else if t.is_char_device() || t.is_block_device() {
+                "a device"
+            } else if t.is_socket() {
+                "a socket"
+            } else {
+                "something other than a file"
+            }
         }
-    }
+        #[cfg(not(unix))]
+        {
+            "something other than a file"
+        }
+    };
+    Some(format!("is {kind}, not a regular file"))
 }
 
 /// A read-only memory map of `path` (the one place terratile uses `unsafe`).
 pub fn map_file(path: &Path) -> Result<memmap2::Mmap> {
+    // A missing file keeps the system's own message; anything else that is not a regular
+    // file is refused before it is opened (opening a FIFO blocks).
+    if std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
+        if let Some(why) = not_a_regular_file(path) {
+            return Err(Error::Usage(format!("{}: {why}", path.display())));
+        }
+    }
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     if len == 0 {
@@ -398,12 +427,25 @@ pub fn map_file(path: &Path) -> Result<memmap2::Mmap> {
 /// ```
 pub fn read(path: &Path, opts: &ReadOptions, progress: &dyn Progress) -> Result<PointCloud> {
     let map = map_file(path)?;
+    read_bytes(path, &map, opts, progress)
+}
+
+/// [`read`] on the bytes of a file already in memory; `path` names it in messages.
+pub fn read_bytes(
+    path: &Path,
+    map: &[u8],
+    opts: &ReadOptions,
+    progress: &dyn Progress,
+) -> Result<PointCloud> {
+    if map.is_empty() {
+        return Err(Error::format(path, 0, "empty file"));
+    }
     let format = match opts.format {
         Some(f) => f,
-        None => detect_format(path, &map)?,
+        None => detect_format(path, map)?,
     };
     match format {
-        Format::Las | Format::Laz => las_read::read_las(path, &map, opts, progress),
+        Format::Las | Format::Laz => las_read::read_las(path, map, opts, progress),
         Format::Xyz => {
             if opts.classes.has_keep_list() {
                 return Err(Error::Usage(format!(
@@ -411,7 +453,7 @@ pub fn read(path: &Path, opts: &ReadOptions, progress: &dyn Progress) -> Result<
                     path.display()
                 )));
             }
-            let mut cloud = parse_xyz(path, &map, progress)?;
+            let mut cloud = parse_xyz(path, map, progress)?;
             if let Some(cap) = opts.max_points {
                 cloud.truncate(cap as usize);
             }

@@ -254,36 +254,49 @@ impl DenoiseParams {
 }
 
 /// The voxel lattice over a bounding box.
-#[derive(Debug, Clone, Copy)]
+///
+/// When the box holds far more voxel columns than the points could occupy (one point far
+/// from the rest stretches it), empty runs of low-layer columns are squeezed out: along each
+/// axis the occupied low-layer column indices are renumbered so that a gap of two or more
+/// empty low-layer columns becomes exactly two. Both the 3×3 voxel neighbourhood and the
+/// 3×3 low-layer window only relate columns at most one low-layer column apart, so every
+/// count and every floor is unchanged, while the bookkeeping is bounded by the points, not
+/// by the box. (`reference::denoise` works on the uncompressed indices, [`Lattice::raw_cell`].)
+#[derive(Debug, Clone)]
 pub(crate) struct Lattice {
     origin: [f64; 3],
     inv: [f64; 3],
-    /// Columns along x and y.
+    /// Uncompressed columns along x and y.
+    raw: [u64; 2],
+    /// Columns along x and y (after compression).
     pub ncx: u32,
     pub ncy: u32,
     /// Voxel columns per low-layer column, along each axis.
     pub ratio: u32,
     /// Voxel layers per low-layer slab (half the gap).
     pub slab: u32,
+    /// Per axis: the occupied uncompressed low-layer column indices, sorted, and their
+    /// compressed numbers (`None`: no compression).
+    squeeze: Option<std::sync::Arc<[Squeeze; 2]>>,
 }
 
+/// One axis of a compressed lattice: occupied uncompressed low-layer column indices, sorted,
+/// and their compressed numbers.
+type Squeeze = (Vec<u64>, Vec<u32>);
+
+/// Above this many voxel columns per point (and 2^20 in all) the lattice is compressed.
+const SQUEEZE_COLUMNS_PER_POINT: u64 = 4;
+
 impl Lattice {
-    pub(crate) fn new(b: &Bounds, s: &DenoiseSettings) -> Result<Lattice> {
+    /// The lattice of `s` over `b`, compressed when needed for the points `x`, `y`.
+    pub(crate) fn new(b: &Bounds, s: &DenoiseSettings, x: &[f64], y: &[f64]) -> Result<Lattice> {
         let [w, h, d] = b.size();
         let cells = |ext: f64, size: f64| (ext / size).floor() + 1.0;
-        let (ncx, ncy, ncz) = (
+        let (fx, fy, ncz) = (
             cells(w, s.voxel_size),
             cells(h, s.voxel_size),
             cells(d, s.voxel_height),
         );
-        if ncx * ncy > u32::MAX as f64 / 2.0 {
-            return Err(Error::param(
-                "denoise",
-                "voxel_size",
-                s.voxel_size,
-                format!("too small for an extent of {w} × {h}: more than 2^31 voxel columns"),
-            ));
-        }
         if ncz > u32::MAX as f64 / 2.0 {
             return Err(Error::param(
                 "denoise",
@@ -292,23 +305,103 @@ impl Lattice {
                 format!("too small for a z range of {d}: more than 2^31 voxel layers"),
             ));
         }
-        let ratio = (s.low_column / s.voxel_size).round().max(1.0) as u32;
+        if fx * fy >= 1.8e19 || (fx * fy).is_nan() {
+            return Err(Error::param(
+                "denoise",
+                "voxel_size",
+                s.voxel_size,
+                format!("too small for an extent of {w} × {h}: more than 2^64 voxel columns"),
+            ));
+        }
+        let ratio = (s.low_column / s.voxel_size).round().clamp(1.0, 1e9) as u32;
         let slab = s.low_gap.map_or(1, |g| {
             ((g / 2.0) / s.voxel_height).ceil().clamp(1.0, 1e9) as u32
         });
-        Ok(Lattice {
+        let mut lat = Lattice {
             origin: b.min,
             inv: [1.0 / s.voxel_size, 1.0 / s.voxel_size, 1.0 / s.voxel_height],
-            ncx: ncx as u32,
-            ncy: ncy as u32,
+            raw: [fx as u64, fy as u64],
+            ncx: 0,
+            ncy: 0,
             ratio,
             slab,
-        })
+            squeeze: None,
+        };
+        let limit = (x.len() as u64 * SQUEEZE_COLUMNS_PER_POINT).max(1 << 20);
+        if fx * fy > limit as f64 {
+            let axis = |v: &[f64], a: usize| {
+                let mut groups: Vec<u64> = v
+                    .par_iter()
+                    .map(|&c| lat.raw_index(c, a) / ratio as u64)
+                    .collect();
+                groups.par_sort_unstable();
+                groups.dedup();
+                let mut numbers = Vec::with_capacity(groups.len());
+                let mut next = 0u64;
+                for (k, &g) in groups.iter().enumerate() {
+                    if k > 0 {
+                        next += (g - groups[k - 1]).min(2);
+                    }
+                    numbers.push(next.min(u32::MAX as u64) as u32);
+                }
+                // Columns: the last low-layer column's members, whole.
+                let cols = (next + 1).saturating_mul(ratio as u64);
+                (groups, numbers, cols)
+            };
+            let (gx, nx, cx) = axis(x, 0);
+            let (gy, ny, cy) = axis(y, 1);
+            lat.squeeze = Some(std::sync::Arc::new([(gx, nx), (gy, ny)]));
+            lat.set_columns(cx as f64, cy as f64, w, h, s)?;
+        } else {
+            lat.set_columns(fx, fy, w, h, s)?;
+        }
+        Ok(lat)
+    }
+
+    fn set_columns(&mut self, cx: f64, cy: f64, w: f64, h: f64, s: &DenoiseSettings) -> Result<()> {
+        if cx * cy > u32::MAX as f64 / 2.0 {
+            return Err(Error::param(
+                "denoise",
+                "voxel_size",
+                s.voxel_size,
+                format!(
+                    "too small for an extent of {w} × {h}: more than 2^31 occupied voxel columns"
+                ),
+            ));
+        }
+        self.ncx = cx as u32;
+        self.ncy = cy as u32;
+        Ok(())
+    }
+
+    /// The uncompressed column index of coordinate `v` along axis `a` (0 x, 1 y).
+    #[inline(always)]
+    fn raw_index(&self, v: f64, a: usize) -> u64 {
+        (((v - self.origin[a]) * self.inv[a]) as u64).min(self.raw[a] - 1)
+    }
+
+    /// The uncompressed (column i, column j, layer) of a point.
+    pub(crate) fn raw_cell(&self, x: f64, y: f64, z: f64) -> (u64, u64, u32) {
+        (
+            self.raw_index(x, 0),
+            self.raw_index(y, 1),
+            ((z - self.origin[2]) * self.inv[2]) as u32,
+        )
     }
 
     /// Column index (x fastest) of a point.
     #[inline(always)]
     fn column(&self, x: f64, y: f64) -> u32 {
+        if let Some(sq) = &self.squeeze {
+            let r = self.ratio as u64;
+            let index = |v: f64, a: usize| {
+                let i = self.raw_index(v, a);
+                let (groups, numbers) = &sq[a];
+                let k = groups.partition_point(|&g| g < i / r);
+                (numbers[k.min(numbers.len() - 1)] as u64 * r + i % r) as u32
+            };
+            return index(y, 1) * self.ncx + index(x, 0);
+        }
         let i = (((x - self.origin[0]) * self.inv[0]) as u32).min(self.ncx - 1);
         let j = (((y - self.origin[1]) * self.inv[1]) as u32).min(self.ncy - 1);
         j * self.ncx + i
@@ -321,6 +414,11 @@ impl Lattice {
             self.column(x, y),
             ((z - self.origin[2]) * self.inv[2]) as u32,
         )
+    }
+
+    /// Voxel columns of the (compressed) lattice.
+    pub(crate) fn column_count(&self) -> u64 {
+        self.ncx as u64 * self.ncy as u64
     }
 
     fn columns(&self) -> usize {
@@ -337,6 +435,21 @@ impl Lattice {
         let (ci, cj) = (c as u32 % self.ncx, c as u32 / self.ncx);
         ((cj / self.ratio) * self.groups_x() + ci / self.ratio) as usize
     }
+}
+
+/// The voxel columns and low-layer columns noise removal will use on `cloud` (after
+/// squeezing out empty space), for the memory estimate; errors as [`denoise`] would give.
+pub fn lattice_size(
+    cloud: &PointCloud,
+    params: &DenoiseParams,
+    metres_per_unit: f64,
+) -> Result<(u64, u64)> {
+    let (x, y, z) = (&cloud.x, &cloud.y, &cloud.z);
+    let (bounds, _) = super::bounds_of(x, y, z, None);
+    let settings = params.resolve(&bounds, x.len(), metres_per_unit)?;
+    let lat = Lattice::new(&bounds, &settings, x, y)?;
+    let groups = lat.groups_x() as u64 * lat.ncy.div_ceil(lat.ratio) as u64;
+    Ok((lat.column_count(), groups))
 }
 
 /// Runs the noise filter on `cloud`. `metres_per_unit` converts the default `low_gap`.
@@ -401,7 +514,7 @@ fn denoise_into(
     }
     let (bounds, _) = super::bounds_of(x, y, z, None);
     let settings = params.resolve(&bounds, n, metres_per_unit)?;
-    let lat = Lattice::new(&bounds, &settings)?;
+    let lat = Lattice::new(&bounds, &settings, x, y)?;
     let sorted = sort_by_column(x, y, z, &lat);
 
     // The count test, at the chosen (or adapted) voxel height; flags follow the sorted keys.
@@ -843,6 +956,53 @@ mod tests {
             let slow = reference::denoise(&c.x, &c.y, &c.z, &p, 1.0).unwrap();
             assert_eq!(fast.keep, slow, "seed {seed} nb {nb} low {low}");
             assert_eq!(fast.kept, slow.iter().filter(|k| **k).count());
+        }
+    }
+
+    #[test]
+    fn squeezed_lattice_equals_the_slow_twin() {
+        // One far-away point, and a second copy of the scene far away: the lattice is
+        // squeezed (the box holds ~1e12 voxel columns) and must decide exactly as the
+        // uncompressed reference does, with given and with derived voxel sizes.
+        let s = scene(5, 20_000);
+        let mut far = s.cloud.clone();
+        far.x.push(far.x[0] + 1e12);
+        far.y.push(far.y[0]);
+        far.z.push(far.z[0]);
+        let mut twin = s.cloud.clone();
+        for i in 0..s.cloud.len() {
+            twin.x.push(s.cloud.x[i] + 1e9);
+            twin.y.push(s.cloud.y[i] - 3e8);
+            twin.z.push(s.cloud.z[i]);
+        }
+        for (name, c) in [("far", &far), ("twin", &twin)] {
+            for p in [
+                DenoiseParams {
+                    voxel_size: Some(1.5),
+                    voxel_height: Some(1.0),
+                    ..Default::default()
+                },
+                DenoiseParams {
+                    voxel_size: Some(1.5),
+                    ..Default::default()
+                },
+                DenoiseParams::default(),
+            ] {
+                let (bounds, _) = crate::terrain::bounds_of(&c.x, &c.y, &c.z, None);
+                let st = p.resolve(&bounds, c.len(), 1.0).unwrap();
+                let lat = Lattice::new(&bounds, &st, &c.x, &c.y).unwrap();
+                if p.voxel_size.is_some() {
+                    assert!(lat.squeeze.is_some(), "{name}: not squeezed");
+                    assert!(lat.column_count() < 64 * c.len() as u64, "{name}");
+                }
+                let fast = denoise(c, &p, 1.0);
+                let slow = reference::denoise(&c.x, &c.y, &c.z, &p, 1.0);
+                match (fast, slow) {
+                    (Ok(f), Ok(sl)) => assert_eq!(f.keep, sl, "{name} {p:?}"),
+                    (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
+                    (a, b) => panic!("{name}: {a:?} vs {b:?}"),
+                }
+            }
         }
     }
 

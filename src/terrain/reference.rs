@@ -27,12 +27,12 @@ pub fn denoise(
         b.add([x[i], y[i], z[i]]);
     }
     let s = params.resolve(&b, x.len(), metres_per_unit)?;
-    let lat = Lattice::new(&b, &s)?;
-    // (column i, column j, layer) of every point, as the lattice computes them.
+    let lat = Lattice::new(&b, &s, x, y)?;
+    // (column i, column j, layer) of every point in the uncompressed lattice.
     let fine: Vec<(i64, i64, i64)> = (0..x.len())
         .map(|i| {
-            let (c, k) = lat.locate(x[i], y[i], z[i]);
-            ((c % lat.ncx) as i64, (c / lat.ncx) as i64, k as i64)
+            let (ci, cj, k) = lat.raw_cell(x[i], y[i], z[i]);
+            (ci as i64, cj as i64, k as i64)
         })
         .collect();
     let count_test = |q: i64| -> Vec<bool> {
