@@ -161,7 +161,12 @@ mod tests {
 
     #[test]
     fn tile_names_and_directories_are_taken() {
-        let e = check(&cfg(&asset("meshes/tile_000_000.ply"))).unwrap_err();
+        // PLY tile meshes asked for (the default is glb alone).
+        let e = check(&cfg(&format!(
+            "[output]\nmeshes = [\"ply\"]\n{}",
+            asset("meshes/tile_000_000.ply")
+        )))
+        .unwrap_err();
         assert_eq!(e.0, "assets[0].output");
         assert!(e.1.contains("output.meshes"), "{e:?}");
         let e = check(&cfg(&asset("Tiles/tile_12_3.EXR"))).unwrap_err();
