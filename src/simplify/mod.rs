@@ -3,7 +3,9 @@
 //! placement, progressive strips) live beside them.
 
 pub mod cluster;
+pub mod prep;
 pub mod quadric;
+pub mod target;
 
 pub use cluster::{
     simplify, Method, RefineBox, Representative, Simplified, SimplifyParams, SimplifyReport,
