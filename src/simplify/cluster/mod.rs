@@ -33,6 +33,7 @@ use serde::{Deserialize, Serialize};
 // The preparation and the target search are shared with the collapse engine; re-exported
 // here so the clustering methods keep their paths.
 pub use crate::simplify::prep::{NormalStats, Prepared};
+use crate::simplify::qem::{Placement, QemReport, QuadricMerge};
 pub use crate::simplify::target::{
     count_distinct, count_surviving, search_scale, search_target, Target,
 };
@@ -47,6 +48,9 @@ pub enum Method {
     Floating,
     /// Adaptive octree clustering (the paper's method).
     Octree,
+    /// Quadric edge collapse (not a clustering: dispatched to `simplify::qem` by
+    /// `simplify::simplify`).
+    Qem,
 }
 
 impl std::fmt::Display for Method {
@@ -55,6 +59,7 @@ impl std::fmt::Display for Method {
             Method::Uniform => "uniform",
             Method::Floating => "floating",
             Method::Octree => "octree",
+            Method::Qem => "qem",
         })
     }
 }
@@ -135,6 +140,21 @@ pub struct SimplifyParams {
     /// true; see [`split_stranded`]).
     #[serde(default)]
     pub split_stranded: Option<bool>,
+    /// QEM: vertex placement (default `optimal`).
+    #[serde(default)]
+    pub placement: Option<Placement>,
+    /// QEM: `sum` (default) or `mean` of the endpoints' quadrics.
+    #[serde(default)]
+    pub quadric_merge: Option<QuadricMerge>,
+    /// QEM: never move a border vertex (default false).
+    #[serde(default)]
+    pub lock_border: Option<bool>,
+    /// QEM: accept no collapse with a larger error (model units); may be the only target.
+    #[serde(default)]
+    pub max_error: Option<f64>,
+    /// QEM: the same in % of the bounding-box diagonal.
+    #[serde(default)]
+    pub max_error_pct: Option<f64>,
 }
 
 impl SimplifyParams {
@@ -168,6 +188,11 @@ impl SimplifyParams {
             theta_avg_weight: None,
             theta_max_weight: None,
             split_stranded: None,
+            placement: None,
+            quadric_merge: None,
+            lock_border: None,
+            max_error: None,
+            max_error_pct: None,
         }
     }
 
@@ -184,6 +209,10 @@ impl SimplifyParams {
     /// Checks the values and returns the target for a mesh of `triangles_in` triangles.
     pub fn target(&self, triangles_in: usize) -> Result<Target> {
         const S: &str = "simplify";
+        self.check_qem_keys()?;
+        if self.method == Method::Qem {
+            return self.qem_target(triangles_in);
+        }
         let given = [
             self.ratio.is_some(),
             self.triangles.is_some(),
@@ -289,13 +318,107 @@ impl SimplifyParams {
     }
 }
 
+impl SimplifyParams {
+    /// QEM keys only with `method = "qem"`, clustering keys not with it, and the error
+    /// bounds non-negative.
+    fn check_qem_keys(&self) -> Result<()> {
+        const S: &str = "simplify";
+        let qem = self.method == Method::Qem;
+        for (name, given) in [
+            ("placement", self.placement.is_some()),
+            ("quadric_merge", self.quadric_merge.is_some()),
+            ("lock_border", self.lock_border.is_some()),
+            ("max_error", self.max_error.is_some()),
+            ("max_error_pct", self.max_error_pct.is_some()),
+        ] {
+            if given && !qem {
+                return Err(Error::param(
+                    S,
+                    name,
+                    self.method,
+                    "only method = \"qem\" takes this key",
+                ));
+            }
+        }
+        for (name, given) in [
+            ("cell_size", self.cell_size.is_some()),
+            ("threshold", self.threshold.is_some()),
+            ("representative", self.representative.is_some()),
+            ("split_stranded", self.split_stranded.is_some()),
+            ("theta_avg_weight", self.theta_avg_weight.is_some()),
+            ("theta_max_weight", self.theta_max_weight.is_some()),
+        ] {
+            if given && qem {
+                return Err(Error::param(
+                    S,
+                    name,
+                    "qem",
+                    "method = \"qem\" does not take this key (a clustering key)",
+                ));
+            }
+        }
+        for (name, e) in [
+            ("max_error", self.max_error),
+            ("max_error_pct", self.max_error_pct),
+        ] {
+            if let Some(e) = e {
+                if !(e.is_finite() && e >= 0.0) {
+                    return Err(Error::param(S, name, e, "must be a number >= 0"));
+                }
+            }
+        }
+        if self.max_error.is_some() && self.max_error_pct.is_some() {
+            return Err(Error::param(
+                S,
+                "max_error",
+                "max_error and max_error_pct",
+                "give one of them",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The QEM target: `ratio` or `triangles`, and/or an error bound (alone: as many
+    /// collapses as the bound allows, `Target::Triangles(1)`).
+    fn qem_target(&self, triangles_in: usize) -> Result<Target> {
+        const S: &str = "simplify";
+        let bound = self.max_error.is_some() || self.max_error_pct.is_some();
+        match (self.ratio, self.triangles) {
+            (Some(_), Some(_)) => Err(Error::param(
+                S,
+                "ratio",
+                "ratio and triangles",
+                "give one of ratio or triangles",
+            )),
+            (Some(r), None) => {
+                if !(r > 0.0 && r <= 1.0) {
+                    return Err(Error::param(S, "ratio", r, "must be in (0, 1]"));
+                }
+                Ok(Target::Triangles(
+                    ((r * triangles_in as f64).round() as u64).max(1),
+                ))
+            }
+            (None, Some(0)) => Err(Error::param(S, "triangles", 0, "must be at least 1")),
+            (None, Some(t)) => Ok(Target::Triangles(t)),
+            (None, None) if bound => Ok(Target::Triangles(1)),
+            (None, None) => Err(Error::param(
+                S,
+                "ratio",
+                "(none)",
+                "give ratio, triangles or max_error (or max_error_pct)",
+            )),
+        }
+    }
+}
+
 /// What a simplification did.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SimplifyReport {
     /// The method.
     pub method: Method,
-    /// The representative rule.
-    pub representative: Representative,
+    /// The representative rule (clustering only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub representative: Option<Representative>,
     /// Input triangles.
     pub triangles_in: usize,
     /// Output triangles.
@@ -312,6 +435,9 @@ pub struct SimplifyReport {
     pub scale: f64,
     /// Clusterings evaluated while searching for the target.
     pub evaluations: usize,
+    /// What the quadric edge collapse did (`method = "qem"` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub qem: Option<QemReport>,
 }
 
 /// A simplified mesh and what was done.
@@ -333,6 +459,14 @@ pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
         });
     }
     let target = params.target(mesh.triangle_count())?;
+    if params.method == Method::Qem {
+        return Err(Error::param(
+            "simplify",
+            "method",
+            "qem",
+            "quadric edge collapse is run by simplify::simplify, not by clustering",
+        ));
+    }
     let prep = Prepared::new(mesh);
     let rep = params.representative();
     let octree_options = octree::OctreeOptions::from_params(params);
@@ -341,6 +475,8 @@ pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
             Method::Uniform => uniform::cluster(&prep, target),
             Method::Floating => floating::cluster(&prep, target),
             Method::Octree => octree::cluster(&prep, target, &octree_options),
+            // Refused at the top: QEM is no clustering.
+            Method::Qem => (Clustering::from_keys(&[0u8; 0]), 0.0, 0),
         };
         let cuts = if params.split_stranded() {
             split_stranded(&prep, &mut clustering)
@@ -384,7 +520,7 @@ pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
     }
     let report = SimplifyReport {
         method: params.method,
-        representative: rep,
+        representative: Some(rep),
         triangles_in: mesh.triangle_count(),
         triangles_out: out.triangle_count(),
         vertices_in: mesh.vertex_count(),
@@ -393,6 +529,7 @@ pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
         stranded_split,
         scale,
         evaluations,
+        qem: None,
     };
     Ok(Simplified { mesh: out, report })
 }
