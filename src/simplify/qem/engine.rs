@@ -76,7 +76,8 @@ pub struct Collapse<'m> {
     border: Vec<bool>,
     locked: Vec<bool>,
     stamp: Vec<u32>,
-    mark: Vec<u32>,
+    /// Refused edges at each vertex (so that only vertices with some are searched).
+    refused_at: Vec<u32>,
     head: Vec<u32>,
     /// The input vertex whose attributes a dense vertex carries.
     source: Vec<u32>,
@@ -90,7 +91,8 @@ pub struct Collapse<'m> {
     next: Vec<u32>,
     // Candidates and scratch.
     heap: BinaryHeap<Reverse<Entry>>,
-    gen: u32,
+    /// Edges refused when they came up and not pushed again since.
+    refused: rustc_hash::FxHashSet<u64>,
     ring: Vec<u32>,
     nb: Vec<u32>,
     nb2: Vec<u32>,
@@ -202,7 +204,7 @@ impl<'m> Collapse<'m> {
             border,
             locked,
             stamp: vec![0; n],
-            mark: vec![0; n],
+            refused_at: vec![0; n],
             head,
             normals: mesh.normals.as_deref().map(|a| pick(a, &source)),
             colors: mesh.colors.as_deref().map(|a| pick(a, &source)),
@@ -213,7 +215,7 @@ impl<'m> Collapse<'m> {
             orig_face,
             next,
             heap: BinaryHeap::new(),
-            gen: 0,
+            refused: Default::default(),
             ring: Vec::new(),
             nb: Vec::new(),
             nb2: Vec::new(),
@@ -463,21 +465,33 @@ impl<'m> Collapse<'m> {
         self.log.push((s, g));
     }
 
-    /// Re-pushes every edge touching s or a neighbour of s, with fresh stamps.
+    /// After a collapse into `s`: the edges of `s` get a new cost (its stamp changes, so
+    /// their old entries are skipped), and the edges of its neighbours that were refused
+    /// before are pushed again (their validity may have changed; their cost has not, so
+    /// the entries still in the heap stay as they are).
     fn update(&mut self, s: u32) {
         let mut ring = std::mem::take(&mut self.ring);
         self.neighbours(s, &mut ring);
-        ring.push(s);
-        self.gen = self.gen.wrapping_add(1);
-        for &w in &ring {
-            self.mark[w as usize] = self.gen;
-            self.stamp[w as usize] = self.stamp[w as usize].wrapping_add(1);
+        let us = s as usize;
+        self.stamp[us] = self.stamp[us].wrapping_add(1);
+        for &x in &ring {
+            let key = edge_key(s, x);
+            if self.refused_at[us] > 0 && self.refused.remove(&key) {
+                self.refused_at[us] -= 1;
+                self.refused_at[x as usize] -= 1;
+            }
+            self.push(s.min(x), s.max(x));
         }
         let mut nb = std::mem::take(&mut self.nb);
         for &w in &ring {
+            if self.refused_at[w as usize] == 0 {
+                continue;
+            }
             self.neighbours(w, &mut nb);
             for &x in &nb {
-                if self.mark[x as usize] != self.gen || w < x {
+                if x != s && self.refused.remove(&edge_key(w, x)) {
+                    self.refused_at[w as usize] -= 1;
+                    self.refused_at[x as usize] -= 1;
                     self.push(w.min(x), w.max(x));
                 }
             }
@@ -509,6 +523,10 @@ impl<'m> Collapse<'m> {
                 self.update(e.a);
             } else {
                 self.rejected += 1;
+                if self.refused.insert(edge_key(e.a, e.b)) {
+                    self.refused_at[ua] += 1;
+                    self.refused_at[ub] += 1;
+                }
             }
         }
     }
@@ -658,6 +676,12 @@ pub(crate) fn optimal(q: &Quadric, a: DVec3, b: DVec3) -> DVec3 {
         }
     }
     best.1
+}
+
+/// An undirected edge as one number.
+#[inline]
+fn edge_key(a: u32, b: u32) -> u64 {
+    (a.min(b) as u64) << 32 | a.max(b) as u64
 }
 
 /// Number of values in both sorted lists.

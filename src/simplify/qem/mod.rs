@@ -10,15 +10,17 @@
 //!
 //! Order: every edge (a, b) has a cost — the quadric error at the placed point — and the
 //! engine repeatedly collapses the *valid* edge of least (cost, a, b). The fast path keeps
-//! the candidates in a binary heap with lazy invalidation: every vertex carries a stamp,
-//! bumped when its neighbourhood changes; an entry whose stamps are old is skipped. A
-//! collapse of (a, b) into `s` changes the faces, the position and the quadric of `s` and the
-//! faces of its neighbours N(s), and nothing else; the cost and the validity of an edge
-//! depend only on its endpoints' quadrics, positions and incident faces, so they can change
-//! only for edges touching {s} ∪ N(s), and exactly those are re-evaluated and pushed again.
-//! An edge found invalid when popped is dropped until such a change re-pushes it. The slow
-//! twin ([`simplify_slow`], tests) recomputes every edge's cost and validity at every step
-//! and takes the minimum: the same sequence, by the argument above.
+//! the candidates in a binary heap with lazy invalidation. A collapse of (a, b) into `s`
+//! changes the faces, the position and the quadric of `s` and the faces of its neighbours
+//! N(s), and nothing else. The cost of an edge depends only on its endpoints' quadrics and
+//! positions, so only the edges of `s` get a new cost: `s`'s stamp changes (its old entries
+//! are skipped when popped) and they are pushed again. The validity of an edge depends only
+//! on its endpoints' faces and their corners' positions, so it can change only for edges
+//! touching {s} ∪ N(s): an edge refused when it came up is kept in a refused set and pushed
+//! again when a collapse touches it. The heap therefore holds, with their current cost,
+//! exactly the edges that are not known to be invalid. The slow twin ([`simplify_slow`],
+//! tests) recomputes every edge's cost and validity at every step and takes the least: the
+//! same sequence, by the argument above (tested).
 //!
 //! Validity checks before each collapse ([`Checks`]): the link condition (the common
 //! neighbours of a and b are exactly the far corners of the triangles on the edge, so the
