@@ -109,7 +109,7 @@ struct SimplifyArgs {
     #[arg(long)]
     lock_border: bool,
     /// QEM: accept no collapse with a larger error: model units, or `P%` of the bbox diagonal.
-    #[arg(long, value_name = "E", allow_negative_numbers = true)]
+    #[arg(long, value_name = "E", allow_hyphen_values = true)]
     max_error: Option<String>,
     /// Keep this fraction of the triangles, in (0, 1].
     #[arg(long, value_name = "R", allow_negative_numbers = true)]

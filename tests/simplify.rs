@@ -551,3 +551,157 @@ fn qem_table() {
         "\noptimal: Metro mean <= meshopt's best on {mean_wins}/{cases}; max <= 1.2 x meshopt's best on {max_ok}/{cases}"
     );
 }
+
+/// A closed tetrahedron: no collapse of it is valid (each would leave two copies of one
+/// triangle).
+const TETRA: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n";
+
+/// A bumpy open grid as OBJ, with `extra` appended.
+fn grid_obj(n: usize, extra: &str) -> String {
+    let mut s = String::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, y) = (i as f64 / n as f64, j as f64 / n as f64);
+            s += &format!("v {x} {y} {}\n", 0.1 * (6.0 * x).sin() * (4.0 * y).cos());
+        }
+    }
+    let id = |i: usize, j: usize| j * (n + 1) + i + 1;
+    for j in 0..n {
+        for i in 0..n {
+            s += &format!("f {} {} {}\n", id(i, j), id(i + 1, j), id(i + 1, j + 1));
+            s += &format!("f {} {} {}\n", id(i, j), id(i + 1, j + 1), id(i, j + 1));
+        }
+    }
+    s + extra
+}
+
+#[test]
+fn qem_refuses_bad_parameters() {
+    let d = tempfile::tempdir().unwrap();
+    std::fs::write(d.path().join("m.obj"), grid_obj(4, "")).unwrap();
+    for (args, needle) in [
+        (&["--ratio", "0.5", "--max-error", "-1"][..], "max_error"),
+        (&["--max-error", "-0.5%"][..], "max_error_pct"),
+        (&["--max-error", "abc"][..], "--max-error"),
+        (&["--ratio", "1.5"][..], "ratio"),
+        (&["--triangles", "0"][..], "triangles"),
+        (&["--ratio", "0.5", "--triangles", "3"][..], "ratio"),
+        (&["--cell-size", "0.1"][..], "cell_size"),
+    ] {
+        let mut a = vec!["simplify", "m.obj", "out.obj", "--method", "qem"];
+        a.extend_from_slice(args);
+        let r = common::terratile(d.path(), &a);
+        r.input_error(&[needle]);
+        r.left_nothing("out.obj");
+    }
+    // An unknown placement is a usage error (clap's own message).
+    let r = common::terratile(
+        d.path(),
+        &[
+            "simplify",
+            "m.obj",
+            "out.obj",
+            "--method",
+            "qem",
+            "--ratio",
+            "0.5",
+            "--placement",
+            "nearest",
+        ],
+    );
+    assert_eq!(r.code, 2, "{}", r.context());
+    assert!(r.stderr.contains("nearest"), "{}", r.context());
+    r.left_nothing("out.obj");
+    // QEM keys with a clustering method.
+    let r = common::terratile(
+        d.path(),
+        &[
+            "simplify",
+            "m.obj",
+            "out.obj",
+            "--ratio",
+            "0.5",
+            "--lock-border",
+        ],
+    );
+    r.input_error(&["lock_border"]);
+}
+
+#[test]
+fn qem_stops_with_a_warning_where_no_collapse_is_valid() {
+    let d = tempfile::tempdir().unwrap();
+    std::fs::write(d.path().join("t.obj"), TETRA).unwrap();
+    let r = common::terratile(
+        d.path(),
+        &[
+            "simplify",
+            "t.obj",
+            "out.obj",
+            "--method",
+            "qem",
+            "--triangles",
+            "1",
+            "--no-error",
+        ],
+    );
+    r.ok();
+    assert!(
+        r.stderr.contains("warning") && r.stderr.contains("target 1"),
+        "{}",
+        r.context()
+    );
+    let out = io::read(&d.path().join("out.obj")).unwrap();
+    assert_eq!(out.triangle_count(), 4);
+}
+
+#[test]
+fn qem_leaves_non_manifold_parts_alone_and_counts_them() {
+    // Two extra triangles on one inner edge of the grid: three triangles on that edge.
+    let d = tempfile::tempdir().unwrap();
+    let extra = "v 0.5 0.5 1\nv 0.5 0.5 -1\nf 13 14 26\nf 14 13 27\n";
+    std::fs::write(d.path().join("m.obj"), grid_obj(4, extra)).unwrap();
+    let r = common::terratile(
+        d.path(),
+        &[
+            "simplify",
+            "m.obj",
+            "out.obj",
+            "--method",
+            "qem",
+            "--ratio",
+            "0.3",
+            "--json",
+            "--no-error",
+        ],
+    );
+    r.ok();
+    let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+    assert!(
+        v["qem"]["non_manifold_vertices"].as_u64().unwrap() >= 2,
+        "{}",
+        r.stdout
+    );
+    let out = io::read(&d.path().join("out.obj")).unwrap();
+    let input = io::read(&d.path().join("m.obj")).unwrap();
+    for v in [12, 13] {
+        assert!(out.positions.contains(&input.positions[v]));
+    }
+}
+
+#[test]
+fn qem_lock_border_keeps_bunny_holes_exactly() {
+    let Some(m) = load("bunny.obj") else { return };
+    let adj = Adjacency::new(&m);
+    let border_in: Vec<u32> = adj
+        .edge_faces
+        .boundary_edges()
+        .flat_map(|e| adj.edge_faces.edge(e))
+        .collect();
+    let mut p = SimplifyParams::ratio(Method::Qem, 0.1);
+    p.lock_border = Some(true);
+    let s = simplify(&m, &p).unwrap();
+    check_output(&m, &s.mesh, "qem lock_border");
+    for v in border_in {
+        assert!(s.mesh.positions.contains(&m.positions[v as usize]), "{v}");
+    }
+}
