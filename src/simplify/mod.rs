@@ -39,6 +39,7 @@ pub fn simplify(mesh: &mesh::TriMesh, params: &SimplifyParams) -> Result<Simplif
         placement: params.placement.unwrap_or_default(),
         merge: params.quadric_merge.unwrap_or_default(),
         lock_border: params.lock_border.unwrap_or(false),
+        cost: qem::Cost::default(),
     };
     let r = qem::simplify(mesh, &p)?;
     let report = SimplifyReport {

@@ -309,7 +309,13 @@ impl<'m> Collapse<'m> {
         Some(Candidate {
             q,
             p,
-            cost: q.eval(p),
+            cost: match self.params.cost {
+                super::Cost::Quadric => q.eval(p),
+                super::Cost::Distance => {
+                    let e = error(&q, p);
+                    e * e
+                }
+            },
         })
     }
 

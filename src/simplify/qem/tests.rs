@@ -63,6 +63,7 @@ fn params(triangles: u64, placement: Placement) -> QemParams {
         placement,
         merge: QuadricMerge::Sum,
         lock_border: false,
+        cost: Cost::Quadric,
     }
 }
 
@@ -184,11 +185,16 @@ fn the_heap_equals_the_slow_twin() {
         (cube(3), 12),
     ] {
         for placement in [Placement::Optimal, Placement::Endpoint] {
-            for merge in [QuadricMerge::Sum, QuadricMerge::Mean] {
+            for (merge, cost) in [
+                (QuadricMerge::Sum, Cost::Quadric),
+                (QuadricMerge::Mean, Cost::Quadric),
+                (QuadricMerge::Sum, Cost::Distance),
+            ] {
                 for lock_border in [false, true] {
                     let p = QemParams {
                         merge,
                         lock_border,
+                        cost,
                         ..params(target, placement)
                     };
                     let prep = Prepared::new(&m);
