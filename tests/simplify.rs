@@ -724,3 +724,50 @@ fn qem_lock_border_keeps_bunny_holes_exactly() {
         assert!(s.mesh.positions.contains(&m.positions[v as usize]), "{v}");
     }
 }
+
+#[test]
+fn qem_runs_as_an_asset_and_its_keys_are_checked() {
+    let dir = common::default_job();
+    let d = dir.path();
+    std::fs::write(d.join("m.obj"), grid_obj(12, "")).unwrap();
+    let base = std::fs::read_to_string(d.join("pipeline.toml")).unwrap();
+    let entry = |simplify: &str| {
+        format!(
+            "{base}\n[[assets]]\ninput = \"m.obj\"\noutput = \"assets/m.obj\"\n\
+             simplify = {simplify}\nplace = {{ x = 513050.0, y = 5403100.0 }}\n"
+        )
+    };
+    for (bad, needle) in [
+        (
+            r#"{ method = "qem", ratio = 0.2, placement = "nearest" }"#,
+            "nearest",
+        ),
+        (
+            r#"{ method = "qem", ratio = 0.2, max_error = -1.0 }"#,
+            "max_error",
+        ),
+        (
+            r#"{ method = "octree", ratio = 0.2, lock_border = true }"#,
+            "lock_border",
+        ),
+    ] {
+        std::fs::write(d.join("pipeline.toml"), entry(bad)).unwrap();
+        let r = common::terratile(d, &["run"]);
+        r.input_error(&["assets[0]", needle]);
+    }
+    std::fs::write(
+        d.join("pipeline.toml"),
+        entry(r#"{ method = "qem", ratio = 0.2, lock_border = true }"#),
+    )
+    .unwrap();
+    let r = common::terratile(d, &["run", "--json"]);
+    r.ok();
+    let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+    assert_eq!(v["assets"][0]["method"], "qem", "{}", r.stdout);
+    let out = io::read(&d.join("out/assets/m.obj")).unwrap();
+    assert!(
+        out.triangle_count() <= 58 && out.triangle_count() > 0,
+        "{}",
+        out.triangle_count()
+    );
+}
