@@ -13,10 +13,14 @@ use terratile::mesh::{io, Bvh, TriMesh};
 use terratile::simplify::{simplify, Method, SimplifyParams};
 
 fn bunny() -> Option<TriMesh> {
+    load("bunny.obj")
+}
+
+fn load(name: &str) -> Option<TriMesh> {
     let dir = std::env::var_os("TERRATILE_DATA")
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    let path = dir.join("meshes/bunny.obj");
+    let path = dir.join("meshes").join(name);
     if !path.is_file() {
         eprintln!(
             "skipping: {} not found (set TERRATILE_DATA)",
@@ -24,7 +28,47 @@ fn bunny() -> Option<TriMesh> {
         );
         return None;
     }
-    Some(io::read(&path).expect("bunny.obj"))
+    Some(io::read(&path).expect("a readable mesh"))
+}
+
+/// Quadric edge collapse (optimal placement) against meshoptimizer's `simplify` (its edge
+/// collapse) on bunny → 10 % and armadillo → 2 % (issue 11: within 2×).
+fn edge_collapse(c: &mut Criterion) {
+    for (name, ratio) in [("bunny.obj", 0.10), ("armadillo.obj", 0.02)] {
+        let Some(mesh) = load(name) else { return };
+        let target = (mesh.triangle_count() as f64 * ratio).round() as usize;
+        let flat: Vec<u32> = mesh.indices.iter().flatten().copied().collect();
+        let bytes: Vec<u8> = mesh
+            .positions
+            .iter()
+            .flat_map(|p| p.to_array())
+            .flat_map(f32::to_le_bytes)
+            .collect();
+        let mut g = c.benchmark_group(format!(
+            "{}_{}pct",
+            name.trim_end_matches(".obj"),
+            ratio * 100.0
+        ));
+        g.sample_size(10);
+        g.bench_function("meshopt_simplify", |b| {
+            b.iter(|| {
+                let adapter = meshopt::VertexDataAdapter::new(&bytes, 12, 0).expect("adapter");
+                black_box(meshopt::simplify(
+                    &flat,
+                    &adapter,
+                    target * 3,
+                    1.0,
+                    meshopt::SimplifyOptions::None,
+                    None,
+                ))
+            })
+        });
+        let params = SimplifyParams::triangles(Method::Qem, target as u64);
+        g.bench_function("terratile_qem_optimal", |b| {
+            b.iter(|| black_box(simplify(&mesh, &params).expect("simplify")))
+        });
+        g.finish();
+    }
 }
 
 fn clustering(c: &mut Criterion) {
@@ -86,5 +130,5 @@ fn hausdorff(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, clustering, hausdorff);
+criterion_group!(benches, clustering, edge_collapse, hausdorff);
 criterion_main!(benches);

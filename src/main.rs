@@ -93,15 +93,27 @@ enum Command {
 }
 
 #[derive(Args, Debug)]
-#[command(group(clap::ArgGroup::new("target").required(true).args(["ratio", "triangles", "cell_size", "threshold"])))]
+#[command(group(clap::ArgGroup::new("target").required(true).multiple(true).args(["ratio", "triangles", "cell_size", "threshold", "max_error"])))]
 struct SimplifyArgs {
     /// Input mesh (.obj or .ply).
     input: PathBuf,
     /// Output mesh (.obj, or .ply for binary PLY).
     output: PathBuf,
-    /// Clustering method.
+    /// Clustering method, or `qem` for quadric edge collapse.
     #[arg(long, value_enum, default_value = "octree")]
     method: MethodArg,
+    /// QEM: vertex placement (default optimal).
+    #[arg(long, value_enum)]
+    placement: Option<PlacementArg>,
+    /// QEM: merge the endpoints' quadrics by their sum (default) or mean.
+    #[arg(long, value_enum)]
+    quadric_merge: Option<MergeArg>,
+    /// QEM: never move a border vertex.
+    #[arg(long)]
+    lock_border: bool,
+    /// QEM: accept no collapse with a larger error: model units, or `P%` of the bbox diagonal.
+    #[arg(long, value_name = "E", allow_hyphen_values = true)]
+    max_error: Option<String>,
     /// Keep this fraction of the triangles, in (0, 1].
     #[arg(long, value_name = "R", allow_negative_numbers = true)]
     ratio: Option<f64>,
@@ -140,6 +152,19 @@ enum MethodArg {
     Uniform,
     Floating,
     Octree,
+    Qem,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum PlacementArg {
+    Optimal,
+    Endpoint,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum MergeArg {
+    Sum,
+    Mean,
 }
 
 #[derive(ValueEnum, Debug, Clone, Copy)]
@@ -562,6 +587,7 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
             MethodArg::Uniform => Method::Uniform,
             MethodArg::Floating => Method::Floating,
             MethodArg::Octree => Method::Octree,
+            MethodArg::Qem => Method::Qem,
         },
         ratio: a.ratio,
         triangles: a.triangles,
@@ -576,7 +602,35 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
         theta_avg_weight: None,
         theta_max_weight: None,
         split_stranded: a.no_split_stranded.then_some(false),
+        placement: a.placement.map(|p| match p {
+            PlacementArg::Optimal => terratile::simplify::Placement::Optimal,
+            PlacementArg::Endpoint => terratile::simplify::Placement::Endpoint,
+        }),
+        quadric_merge: a.quadric_merge.map(|m| match m {
+            MergeArg::Sum => terratile::simplify::QuadricMerge::Sum,
+            MergeArg::Mean => terratile::simplify::QuadricMerge::Mean,
+        }),
+        lock_border: a.lock_border.then_some(true),
+        max_error: None,
+        max_error_pct: None,
     };
+    let mut params = params;
+    if let Some(e) = &a.max_error {
+        let (text, pct) = match e.trim().strip_suffix('%') {
+            Some(t) => (t, true),
+            None => (e.trim(), false),
+        };
+        let v: f64 = text.trim().parse().map_err(|_| {
+            Error::Usage(format!(
+                "--max-error: `{e}` is not a number (model units) or a percentage like 0.5%"
+            ))
+        })?;
+        if pct {
+            params.max_error_pct = Some(v);
+        } else {
+            params.max_error = Some(v);
+        }
+    }
     let error = (!a.no_error).then(|| terratile::mesh::HausdorffParams {
         samples: a.samples.unwrap_or(0),
     });

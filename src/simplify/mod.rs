@@ -3,11 +3,13 @@
 //! placement, progressive strips) live beside them.
 
 pub mod cluster;
+pub mod prep;
+pub mod qem;
 pub mod quadric;
+pub mod target;
 
-pub use cluster::{
-    simplify, Method, RefineBox, Representative, Simplified, SimplifyParams, SimplifyReport,
-};
+pub use cluster::{Method, RefineBox, Representative, Simplified, SimplifyParams, SimplifyReport};
+pub use qem::{Placement, QemReport, QuadricMerge};
 pub use quadric::Quadric;
 
 use crate::error::Result;
@@ -15,6 +17,49 @@ use crate::mesh::{self, HausdorffParams, HausdorffReport};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+
+/// Simplifies `mesh` as `params` say: vertex clustering ([`cluster::simplify`]) or, with
+/// `method = "qem"`, quadric edge collapse ([`qem::simplify`]).
+pub fn simplify(mesh: &mesh::TriMesh, params: &SimplifyParams) -> Result<Simplified> {
+    if params.method != Method::Qem {
+        return cluster::simplify(mesh, params);
+    }
+    mesh.validate("the input mesh")?;
+    let triangles = match params.target(mesh.triangle_count())? {
+        target::Target::Triangles(t) => t,
+        // `SimplifyParams::target` gives QEM a triangle count only.
+        target::Target::Scale(_) => 1,
+    };
+    let diag = mesh.diagonal();
+    let p = qem::QemParams {
+        triangles,
+        max_error: params
+            .max_error
+            .or(params.max_error_pct.map(|pct| pct * 0.01 * diag)),
+        placement: params.placement.unwrap_or_default(),
+        merge: params.quadric_merge.unwrap_or_default(),
+        lock_border: params.lock_border.unwrap_or(false),
+        cost: qem::Cost::default(),
+    };
+    let r = qem::simplify(mesh, &p)?;
+    let report = SimplifyReport {
+        method: Method::Qem,
+        representative: None,
+        triangles_in: mesh.triangle_count(),
+        triangles_out: r.mesh.triangle_count(),
+        vertices_in: mesh.vertex_count(),
+        vertices_out: r.mesh.vertex_count(),
+        clusters: 0,
+        stranded_split: 0,
+        scale: r.report.max_error,
+        evaluations: r.report.collapses,
+        qem: Some(r.report),
+    };
+    Ok(Simplified {
+        mesh: r.mesh,
+        report,
+    })
+}
 
 /// What [`simplify_file`] did.
 #[derive(Debug, Clone, Serialize)]
@@ -50,6 +95,17 @@ pub fn simplify_file(
     let t = Instant::now();
     let s = simplify(&m, params)?;
     let seconds = t.elapsed().as_secs_f64();
+    let mut warnings = warnings;
+    if let Some(q) = &s.report.qem {
+        let asked = params.ratio.is_some() || params.triangles.is_some();
+        if asked && !q.target_reached {
+            warnings.push(format!(
+                "no valid collapse is left at {} triangles (target {}): stopped there",
+                s.mesh.triangle_count(),
+                q.target
+            ));
+        }
+    }
     mesh::io::write(&s.mesh, output)?;
     let error = error.map(|p| mesh::hausdorff(&m, &s.mesh, p)).transpose()?;
     Ok(FileReport {
@@ -65,13 +121,43 @@ pub fn simplify_file(
 impl std::fmt::Display for FileReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let r = &self.report;
+        if let Some(q) = &r.qem {
+            writeln!(
+                f,
+                "{} → {}: qem method, {} placement, {} quadric merge",
+                self.input.display(),
+                self.output.display(),
+                q.placement,
+                q.quadric_merge
+            )?;
+            writeln!(
+                f,
+                "triangles {} → {} ({:.1} %, target {}{}), vertices {} → {}, {} collapses ({} refused), largest error accepted {:.6}, {} non-manifold vertices left alone, {:.1} ms",
+                r.triangles_in,
+                r.triangles_out,
+                100.0 * r.triangles_out as f64 / r.triangles_in.max(1) as f64,
+                q.target,
+                if q.target_reached { "" } else { ", not reached" },
+                r.vertices_in,
+                r.vertices_out,
+                q.collapses,
+                q.rejected,
+                q.max_error,
+                q.non_manifold_vertices,
+                self.seconds * 1e3
+            )?;
+            if let Some(e) = &self.error {
+                write!(f, "{e}")?;
+            }
+            return Ok(());
+        }
         writeln!(
             f,
             "{} → {}: {} method, {} representative",
             self.input.display(),
             self.output.display(),
             r.method,
-            r.representative
+            r.representative.unwrap_or(Representative::Quadric)
         )?;
         writeln!(
             f,

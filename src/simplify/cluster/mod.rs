@@ -22,13 +22,21 @@ pub mod octree;
 pub mod uniform;
 
 use crate::error::{Error, Result};
-use crate::mesh::adjacency::{Csr, VertexFaces};
-use crate::mesh::{Aabb, TriMesh};
+use crate::mesh::adjacency::Csr;
+use crate::mesh::TriMesh;
 use crate::simplify::quadric::Quadric;
 use glam::{DVec3, Vec2, Vec3};
 use rayon::prelude::*;
 use rustc_hash::{FxHashMap, FxHashSet};
 use serde::{Deserialize, Serialize};
+
+// The preparation and the target search are shared with the collapse engine; re-exported
+// here so the clustering methods keep their paths.
+pub use crate::simplify::prep::{NormalStats, Prepared};
+use crate::simplify::qem::{Placement, QemReport, QuadricMerge};
+pub use crate::simplify::target::{
+    count_distinct, count_surviving, search_scale, search_target, Target,
+};
 
 /// Which clustering.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
@@ -40,6 +48,9 @@ pub enum Method {
     Floating,
     /// Adaptive octree clustering (the paper's method).
     Octree,
+    /// Quadric edge collapse (not a clustering: dispatched to `simplify::qem` by
+    /// `simplify::simplify`).
+    Qem,
 }
 
 impl std::fmt::Display for Method {
@@ -48,6 +59,7 @@ impl std::fmt::Display for Method {
             Method::Uniform => "uniform",
             Method::Floating => "floating",
             Method::Octree => "octree",
+            Method::Qem => "qem",
         })
     }
 }
@@ -128,6 +140,21 @@ pub struct SimplifyParams {
     /// true; see [`split_stranded`]).
     #[serde(default)]
     pub split_stranded: Option<bool>,
+    /// QEM: vertex placement (default `optimal`).
+    #[serde(default)]
+    pub placement: Option<Placement>,
+    /// QEM: `sum` (default) or `mean` of the endpoints' quadrics.
+    #[serde(default)]
+    pub quadric_merge: Option<QuadricMerge>,
+    /// QEM: never move a border vertex (default false).
+    #[serde(default)]
+    pub lock_border: Option<bool>,
+    /// QEM: accept no collapse with a larger error (model units); may be the only target.
+    #[serde(default)]
+    pub max_error: Option<f64>,
+    /// QEM: the same in % of the bounding-box diagonal.
+    #[serde(default)]
+    pub max_error_pct: Option<f64>,
 }
 
 impl SimplifyParams {
@@ -161,6 +188,11 @@ impl SimplifyParams {
             theta_avg_weight: None,
             theta_max_weight: None,
             split_stranded: None,
+            placement: None,
+            quadric_merge: None,
+            lock_border: None,
+            max_error: None,
+            max_error_pct: None,
         }
     }
 
@@ -177,6 +209,10 @@ impl SimplifyParams {
     /// Checks the values and returns the target for a mesh of `triangles_in` triangles.
     pub fn target(&self, triangles_in: usize) -> Result<Target> {
         const S: &str = "simplify";
+        self.check_qem_keys()?;
+        if self.method == Method::Qem {
+            return self.qem_target(triangles_in);
+        }
         let given = [
             self.ratio.is_some(),
             self.triangles.is_some(),
@@ -282,13 +318,97 @@ impl SimplifyParams {
     }
 }
 
-/// What a clustering aims at.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Target {
-    /// About this many output triangles (the closest the method's scale parameter reaches).
-    Triangles(u64),
-    /// This cell size (uniform, floating) or split threshold (octree).
-    Scale(f64),
+impl SimplifyParams {
+    /// QEM keys only with `method = "qem"`, clustering keys not with it, and the error
+    /// bounds non-negative.
+    fn check_qem_keys(&self) -> Result<()> {
+        const S: &str = "simplify";
+        let qem = self.method == Method::Qem;
+        for (name, given) in [
+            ("placement", self.placement.is_some()),
+            ("quadric_merge", self.quadric_merge.is_some()),
+            ("lock_border", self.lock_border.is_some()),
+            ("max_error", self.max_error.is_some()),
+            ("max_error_pct", self.max_error_pct.is_some()),
+        ] {
+            if given && !qem {
+                return Err(Error::param(
+                    S,
+                    name,
+                    self.method,
+                    "only method = \"qem\" takes this key",
+                ));
+            }
+        }
+        for (name, given) in [
+            ("cell_size", self.cell_size.is_some()),
+            ("threshold", self.threshold.is_some()),
+            ("representative", self.representative.is_some()),
+            ("split_stranded", self.split_stranded.is_some()),
+            ("theta_avg_weight", self.theta_avg_weight.is_some()),
+            ("theta_max_weight", self.theta_max_weight.is_some()),
+        ] {
+            if given && qem {
+                return Err(Error::param(
+                    S,
+                    name,
+                    "qem",
+                    "method = \"qem\" does not take this key (a clustering key)",
+                ));
+            }
+        }
+        for (name, e) in [
+            ("max_error", self.max_error),
+            ("max_error_pct", self.max_error_pct),
+        ] {
+            if let Some(e) = e {
+                if !(e.is_finite() && e >= 0.0) {
+                    return Err(Error::param(S, name, e, "must be a number >= 0"));
+                }
+            }
+        }
+        if self.max_error.is_some() && self.max_error_pct.is_some() {
+            return Err(Error::param(
+                S,
+                "max_error",
+                "max_error and max_error_pct",
+                "give one of them",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The QEM target: `ratio` or `triangles`, and/or an error bound (alone: as many
+    /// collapses as the bound allows, `Target::Triangles(1)`).
+    fn qem_target(&self, triangles_in: usize) -> Result<Target> {
+        const S: &str = "simplify";
+        let bound = self.max_error.is_some() || self.max_error_pct.is_some();
+        match (self.ratio, self.triangles) {
+            (Some(_), Some(_)) => Err(Error::param(
+                S,
+                "ratio",
+                "ratio and triangles",
+                "give one of ratio or triangles",
+            )),
+            (Some(r), None) => {
+                if !(r > 0.0 && r <= 1.0) {
+                    return Err(Error::param(S, "ratio", r, "must be in (0, 1]"));
+                }
+                Ok(Target::Triangles(
+                    ((r * triangles_in as f64).round() as u64).max(1),
+                ))
+            }
+            (None, Some(0)) => Err(Error::param(S, "triangles", 0, "must be at least 1")),
+            (None, Some(t)) => Ok(Target::Triangles(t)),
+            (None, None) if bound => Ok(Target::Triangles(1)),
+            (None, None) => Err(Error::param(
+                S,
+                "ratio",
+                "(none)",
+                "give ratio, triangles or max_error (or max_error_pct)",
+            )),
+        }
+    }
 }
 
 /// What a simplification did.
@@ -296,8 +416,9 @@ pub enum Target {
 pub struct SimplifyReport {
     /// The method.
     pub method: Method,
-    /// The representative rule.
-    pub representative: Representative,
+    /// The representative rule (clustering only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub representative: Option<Representative>,
     /// Input triangles.
     pub triangles_in: usize,
     /// Output triangles.
@@ -314,6 +435,9 @@ pub struct SimplifyReport {
     pub scale: f64,
     /// Clusterings evaluated while searching for the target.
     pub evaluations: usize,
+    /// What the quadric edge collapse did (`method = "qem"` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub qem: Option<QemReport>,
 }
 
 /// A simplified mesh and what was done.
@@ -335,6 +459,14 @@ pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
         });
     }
     let target = params.target(mesh.triangle_count())?;
+    if params.method == Method::Qem {
+        return Err(Error::param(
+            "simplify",
+            "method",
+            "qem",
+            "quadric edge collapse is run by simplify::simplify, not by clustering",
+        ));
+    }
     let prep = Prepared::new(mesh);
     let rep = params.representative();
     let octree_options = octree::OctreeOptions::from_params(params);
@@ -343,6 +475,8 @@ pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
             Method::Uniform => uniform::cluster(&prep, target),
             Method::Floating => floating::cluster(&prep, target),
             Method::Octree => octree::cluster(&prep, target, &octree_options),
+            // Refused at the top: QEM is no clustering.
+            Method::Qem => (Clustering::from_keys(&[0u8; 0]), 0.0, 0),
         };
         let cuts = if params.split_stranded() {
             split_stranded(&prep, &mut clustering)
@@ -386,7 +520,7 @@ pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
     }
     let report = SimplifyReport {
         method: params.method,
-        representative: rep,
+        representative: Some(rep),
         triangles_in: mesh.triangle_count(),
         triangles_out: out.triangle_count(),
         vertices_in: mesh.vertex_count(),
@@ -395,6 +529,7 @@ pub fn simplify(mesh: &TriMesh, params: &SimplifyParams) -> Result<Simplified> {
         stranded_split,
         scale,
         evaluations,
+        qem: None,
     };
     Ok(Simplified { mesh: out, report })
 }
@@ -518,315 +653,6 @@ fn split_stranded_once(prep: &Prepared, cl: &mut Clustering) -> usize {
     split
 }
 
-/// A mesh made ready for clustering: welded topology and the active vertex set, with the
-/// per-vertex quantities some methods need computed on first use.
-pub struct Prepared<'a> {
-    /// The input.
-    pub mesh: &'a TriMesh,
-    /// Vertex → its welded (canonical) vertex.
-    pub weld: Vec<u32>,
-    /// True when some vertex was welded to another (seams).
-    pub has_seams: bool,
-    /// Triangles over welded vertices.
-    pub faces: Vec<[u32; 3]>,
-    /// Canonical vertices that triangles use, ascending: the vertices being clustered,
-    /// numbered densely (dense index → vertex).
-    pub active: Vec<u32>,
-    /// Vertex → dense index (`u32::MAX` when not active).
-    pub dense_of: Vec<u32>,
-    /// Positions of the active vertices, by dense index.
-    pub dense_pos: Vec<Vec3>,
-    /// Triangles over dense indices.
-    pub dense_faces: Vec<[u32; 3]>,
-    /// Bounds of the active vertices.
-    pub bounds: Aabb,
-    /// Surface area.
-    pub area: f64,
-    vertex_faces: std::sync::OnceLock<VertexFaces>,
-    weights: std::sync::OnceLock<Vec<f64>>,
-    quadrics: std::sync::OnceLock<Vec<Quadric>>,
-    normals: std::sync::OnceLock<Vec<NormalStats>>,
-}
-
-impl<'a> Prepared<'a> {
-    /// Welds `mesh` and finds the active vertices.
-    pub fn new(mesh: &'a TriMesh) -> Prepared<'a> {
-        let weld = mesh.weld_map();
-        let has_seams = weld.iter().enumerate().any(|(i, &w)| i as u32 != w);
-        let faces = mesh.welded_indices(&weld);
-        let mut used = vec![false; mesh.vertex_count()];
-        for t in &faces {
-            for &v in t {
-                used[v as usize] = true;
-            }
-        }
-        let active: Vec<u32> = (0..mesh.vertex_count() as u32)
-            .filter(|&v| used[v as usize])
-            .collect();
-        let mut dense_of = vec![u32::MAX; mesh.vertex_count()];
-        for (d, &v) in active.iter().enumerate() {
-            dense_of[v as usize] = d as u32;
-        }
-        let dense_pos: Vec<Vec3> = active.iter().map(|&v| mesh.positions[v as usize]).collect();
-        let dense_faces: Vec<[u32; 3]> = faces
-            .iter()
-            .map(|t| t.map(|v| dense_of[v as usize]))
-            .collect();
-        let bounds = Aabb::of(dense_pos.iter().copied()).unwrap_or(Aabb {
-            min: Vec3::ZERO,
-            max: Vec3::ZERO,
-        });
-        let area = mesh.area();
-        Prepared {
-            mesh,
-            weld,
-            has_seams,
-            faces,
-            active,
-            dense_of,
-            dense_pos,
-            dense_faces,
-            bounds,
-            area,
-            vertex_faces: Default::default(),
-            weights: Default::default(),
-            quadrics: Default::default(),
-            normals: Default::default(),
-        }
-    }
-
-    /// Position of vertex `v` in f64.
-    #[inline]
-    pub fn pos(&self, v: u32) -> DVec3 {
-        self.mesh.positions[v as usize].as_dvec3()
-    }
-
-    /// Vertex → triangles of the welded mesh.
-    pub fn vertex_faces(&self) -> &VertexFaces {
-        self.vertex_faces
-            .get_or_init(|| VertexFaces::new(&self.faces, self.mesh.vertex_count()))
-    }
-
-    /// Calls `visit(g)` for every other triangle on edge `k` of triangle `f` (corners `k`
-    /// and `k + 1`) of the welded mesh. A local search around one corner: cheaper than
-    /// building an edge table by sorting, which dominated the uniform method's time.
-    #[inline]
-    pub fn across(&self, f: u32, k: usize, mut visit: impl FnMut(u32)) {
-        let t = self.faces[f as usize];
-        let (a, b) = (t[k], t[(k + 1) % 3]);
-        for &g in self.vertex_faces().of(a) {
-            if g != f && self.faces[g as usize].contains(&b) {
-                visit(g);
-            }
-        }
-    }
-
-    /// Low's visual importance per vertex: (longest incident edge) · cos(θ/2), θ the
-    /// largest angle between two incident edges (0 for inactive vertices).
-    pub fn weights(&self) -> &[f64] {
-        self.weights.get_or_init(|| {
-            let vf = self.vertex_faces();
-            (0..self.mesh.vertex_count() as u32)
-                .into_par_iter()
-                .with_min_len(256)
-                .map_init(Vec::new, |nb: &mut Vec<u32>, v| {
-                    nb.clear();
-                    for &f in vf.of(v) {
-                        nb.extend(self.faces[f as usize].iter().filter(|&&u| u != v));
-                    }
-                    nb.sort_unstable();
-                    nb.dedup();
-                    if nb.is_empty() {
-                        return 0.0;
-                    }
-                    let p = self.pos(v);
-                    let mut longest = 0.0f64;
-                    let mut min_cos = 1.0f64;
-                    for (i, &a) in nb.iter().enumerate() {
-                        let ea = self.pos(a) - p;
-                        let la = ea.length();
-                        longest = longest.max(la);
-                        for &b in &nb[i + 1..] {
-                            let eb = self.pos(b) - p;
-                            let lb = eb.length();
-                            if la > 0.0 && lb > 0.0 {
-                                min_cos = min_cos.min(ea.dot(eb) / (la * lb));
-                            }
-                        }
-                    }
-                    let theta = min_cos.clamp(-1.0, 1.0).acos();
-                    longest * (theta * 0.5).cos()
-                })
-                .collect()
-        })
-    }
-
-    /// Per-vertex quadric: the area-weighted planes of the incident triangles, plus, on
-    /// border edges, a plane through the edge perpendicular to its triangle (weighted by
-    /// the squared edge length) so that holes and open borders keep their shape.
-    pub fn quadrics(&self) -> &[Quadric] {
-        self.quadrics.get_or_init(|| {
-            let planes = self.planes();
-            (0..self.mesh.vertex_count() as u32)
-                .into_par_iter()
-                .with_min_len(1024)
-                .map_init(Vec::new, |edges: &mut Vec<u64>, v| {
-                    self.vertex_quadric(v, &planes, edges)
-                })
-                .collect()
-        })
-    }
-
-    /// The quadrics of [`Prepared::quadrics`] and, from the same pass over every vertex's
-    /// triangles (they are loaded for the quadric anyway), the normal statistics the
-    /// octree's split rule needs (see [`NormalStats`]).
-    pub fn quadrics_and_normals(&self) -> (&[Quadric], &[NormalStats]) {
-        if let (Some(q), Some(n)) = (self.quadrics.get(), self.normals.get()) {
-            return (q, n);
-        }
-        let planes = self.planes();
-        let both: Vec<(Quadric, NormalStats)> = (0..self.mesh.vertex_count() as u32)
-            .into_par_iter()
-            .with_min_len(1024)
-            .map_init(
-                || (Vec::new(), Vec::new()),
-                |(edges, fan): &mut (Vec<u64>, Vec<(u32, u32, Vec3)>), v| {
-                    let q = self.vertex_quadric(v, &planes, edges);
-                    // The vertex's triangles as (its two other corners, unit normal).
-                    fan.clear();
-                    let (mut an, mut area) = (DVec3::ZERO, 0.0);
-                    for &f in self.vertex_faces().of(v) {
-                        let (n, _, a) = planes[f as usize];
-                        an += n * (a / 3.0);
-                        area += a / 3.0;
-                        if n != DVec3::ZERO {
-                            let t = self.faces[f as usize];
-                            let k = t.iter().position(|&x| x == v).unwrap_or(0);
-                            fan.push((t[(k + 1) % 3], t[(k + 2) % 3], n.as_vec3()));
-                        }
-                    }
-                    // θmax: the smallest cosine between two triangles sharing an edge at v
-                    // (they share v and one more corner).
-                    let mut min_cos = 1.0f32;
-                    for (i, &(a, b, nf)) in fan.iter().enumerate() {
-                        for &(c, e, ng) in &fan[i + 1..] {
-                            if a == c || a == e || b == c || b == e {
-                                min_cos = min_cos.min(nf.dot(ng));
-                            }
-                        }
-                    }
-                    let stats = NormalStats {
-                        area_normal: an.as_vec3(),
-                        area: area as f32,
-                        theta_max: min_cos.clamp(-1.0, 1.0).acos(),
-                    };
-                    (q, stats)
-                },
-            )
-            .collect();
-        let (q, n): (Vec<Quadric>, Vec<NormalStats>) = both.into_iter().unzip();
-        // Another thread may have filled either meanwhile; the values are the same.
-        let _ = self.quadrics.set(q);
-        let _ = self.normals.set(n);
-        (
-            self.quadrics.get().expect("set above"),
-            self.normals.get().expect("set above"),
-        )
-    }
-
-    /// Per welded triangle: its plane (unit normal, offset) and area, computed once.
-    fn planes(&self) -> Vec<(DVec3, f64, f64)> {
-        self.faces
-            .par_iter()
-            .with_min_len(4096)
-            .map(|t| {
-                let p0 = self.pos(t[0]);
-                let c = (self.pos(t[1]) - p0).cross(self.pos(t[2]) - p0);
-                let len = c.length();
-                let n = if len > 0.0 { c / len } else { DVec3::ZERO };
-                (n, -n.dot(p0), 0.5 * len)
-            })
-            .collect()
-    }
-
-    /// The quadric of vertex `v` (see [`Prepared::quadrics`]); `edges` is scratch.
-    fn vertex_quadric(
-        &self,
-        v: u32,
-        planes: &[(DVec3, f64, f64)],
-        edges: &mut Vec<u64>,
-    ) -> Quadric {
-        let vf = self.vertex_faces();
-        let mut s = Quadric::ZERO;
-        // Inside a surface every neighbour of v is the far end of exactly two of its
-        // triangles' edges. The XOR of a hash of the far ends is then 0, and the exact
-        // (sorting) border search below is skipped: it would otherwise cost a third of the
-        // uniform method's time.
-        let mut parity = 0u64;
-        for &f in vf.of(v) {
-            let (n, d, area) = planes[f as usize];
-            if area > 0.0 {
-                s += Quadric::plane(n, d, area);
-            }
-            let t = self.faces[f as usize];
-            for &u in &t {
-                if u != v {
-                    parity ^= (u as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-                }
-            }
-        }
-        if parity == 0 {
-            return s;
-        }
-        edges.clear();
-        for &f in vf.of(v) {
-            // The two edges of f at v, as (other end << 32 | triangle).
-            let t = self.faces[f as usize];
-            for k in 0..3 {
-                if t[k] == v {
-                    edges.push((t[(k + 1) % 3] as u64) << 32 | f as u64);
-                    edges.push((t[(k + 2) % 3] as u64) << 32 | f as u64);
-                }
-            }
-        }
-        // An edge at v that only one triangle has is a border: add the plane through it,
-        // perpendicular to that triangle.
-        edges.sort_unstable();
-        let mut i = 0;
-        while i < edges.len() {
-            let u = (edges[i] >> 32) as u32;
-            let mut j = i + 1;
-            while j < edges.len() && (edges[j] >> 32) as u32 == u {
-                j += 1;
-            }
-            let n = planes[edges[i] as u32 as usize].0;
-            if j - i == 1 && u != v && n != DVec3::ZERO {
-                let (pa, pb) = (self.pos(v), self.pos(u));
-                let e = pb - pa;
-                let m = e.cross(n).normalize_or_zero();
-                if m != DVec3::ZERO {
-                    s += Quadric::plane(m, -m.dot(pa), e.length_squared());
-                }
-            }
-            i = j;
-        }
-        s
-    }
-}
-
-/// A vertex's normal statistics for the octree's split rule (seed 000 eq. 1–4), in f32: a
-/// split heuristic needs no more, and the octree streams them through every split.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct NormalStats {
-    /// Σ (A/3)·n over the vertex's triangles (A area, n unit normal).
-    pub area_normal: Vec3,
-    /// Σ A/3 over them.
-    pub area: f32,
-    /// The largest angle (radians) between the normals of two of its triangles sharing an
-    /// edge.
-    pub theta_max: f32,
-}
-
 /// An assignment of active vertices to clusters.
 #[derive(Debug, Clone)]
 pub struct Clustering {
@@ -853,143 +679,6 @@ impl Clustering {
             of,
         }
     }
-}
-
-/// Triangles whose three corners have three different keys (the search's estimate of the
-/// output count: duplicates are only removed at the end).
-pub fn count_surviving<K: PartialEq + Sync>(faces: &[[u32; 3]], key: &[K]) -> usize {
-    faces
-        .par_iter()
-        .with_min_len(16384)
-        .filter(|t| {
-            let (a, b, c) = (
-                &key[t[0] as usize],
-                &key[t[1] as usize],
-                &key[t[2] as usize],
-            );
-            a != b && b != c && a != c
-        })
-        .count()
-}
-
-/// Triangles that survive with three different keys, counting a triple of keys once: the
-/// output count (before the rare zero-area check).
-pub fn count_distinct<K: Copy + Ord + std::hash::Hash>(faces: &[[u32; 3]], key: &[K]) -> usize {
-    let mut seen: FxHashSet<[K; 3]> = FxHashSet::default();
-    for t in faces {
-        let mut k = t.map(|v| key[v as usize]);
-        if k[0] == k[1] || k[1] == k[2] || k[0] == k[2] {
-            continue;
-        }
-        k.sort_unstable();
-        seen.insert(k);
-    }
-    seen.len()
-}
-
-/// [`search_scale`] on the fast count, then up to two corrections for the duplicate
-/// triangles (two sheets collapsing onto the same clusters) the fast count includes: the
-/// search is repeated for a target scaled by fast/exact. Returns (scale, evaluations).
-pub fn search_target<K: Copy + Ord + std::hash::Hash + Sync>(
-    faces: &[[u32; 3]],
-    mut keys_at: impl FnMut(f64) -> Vec<K>,
-    target: u64,
-    start: f64,
-    min_scale: f64,
-) -> (f64, usize) {
-    let mut goal = target.max(1);
-    let mut start = start;
-    let mut evals = 0;
-    let mut best = (start, f64::INFINITY);
-    for _round in 0..3 {
-        let (s, fast, e) = search_scale(
-            |s| count_surviving(faces, &keys_at(s)),
-            goal,
-            start,
-            min_scale,
-        );
-        evals += e + 1;
-        let exact = count_distinct(faces, &keys_at(s));
-        let miss = (exact as f64 - target as f64).abs();
-        if miss < best.1 {
-            best = (s, miss);
-        }
-        if miss <= 0.01 * target as f64 || exact == 0 || fast == 0 {
-            break;
-        }
-        goal = ((goal as f64 * target as f64 / exact as f64).round() as u64).max(1);
-        start = s;
-    }
-    (best.0, evals)
-}
-
-/// Finds the scale parameter (cell size) whose `count` is closest to `target`, assuming the
-/// count falls roughly as scale⁻² (a surface cut into cells). Returns (scale, count,
-/// evaluations).
-pub fn search_scale(
-    mut count: impl FnMut(f64) -> usize,
-    target: u64,
-    start: f64,
-    min_scale: f64,
-) -> (f64, usize, usize) {
-    let t = target.max(1) as f64;
-    let mut evals = 0;
-    let mut best = (start, usize::MAX, f64::INFINITY);
-    let mut eval = |s: f64, best: &mut (f64, usize, f64)| {
-        let c = count(s);
-        let miss = (c as f64 - t).abs();
-        if miss < best.2 || (miss == best.2 && c < best.1) {
-            *best = (s, c, miss);
-        }
-        c
-    };
-    // Too many triangles at `lo`, too few at `hi`.
-    let (mut lo, mut hi) = (None::<f64>, None::<f64>);
-    let mut s = start.max(min_scale);
-    while evals < 40 {
-        let c = eval(s, &mut best);
-        evals += 1;
-        // Within 0.5 % of the target is as good as exact for a clustering (each pass
-        // costs a sweep over the mesh).
-        if (c as f64 - t).abs() <= (0.005 * t).max(0.5) {
-            break;
-        }
-        if c as f64 > t {
-            lo = Some(lo.map_or(s, |l: f64| l.max(s)));
-        } else {
-            hi = Some(hi.map_or(s, |h: f64| h.min(s)));
-        }
-        let next = match (lo, hi) {
-            (Some(l), Some(h)) => {
-                if h / l < 1.0 + 1e-4 {
-                    break;
-                }
-                (l * h).sqrt()
-            }
-            _ => {
-                let f = ((c.max(1) as f64) / t).sqrt().clamp(0.25, 4.0);
-                let f = if (f - 1.0).abs() < 0.02 {
-                    if c as f64 > t {
-                        1.02
-                    } else {
-                        0.98
-                    }
-                } else {
-                    f
-                };
-                s * f
-            }
-        };
-        if next < min_scale {
-            if s <= min_scale {
-                break;
-            }
-            s = min_scale;
-        } else {
-            s = next;
-        }
-    }
-    (best.0, best.1, evals)
 }
 
 /// The quadric representative of a cluster whose vertices have summed quadric `q`, centroid

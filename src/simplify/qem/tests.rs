@@ -1,0 +1,316 @@
+use super::engine::{error, optimal};
+use super::*;
+use crate::mesh::adjacency::EdgeFaces;
+use crate::simplify::quadric::Quadric;
+use glam::{DVec3, Vec3};
+
+/// A bumpy open grid (n × n quads).
+fn grid(n: usize) -> TriMesh {
+    let mut m = TriMesh::default();
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, y) = (i as f32 / n as f32, j as f32 / n as f32);
+            m.positions
+                .push(Vec3::new(x, y, 0.1 * (6.0 * x).sin() * (4.0 * y).cos()));
+        }
+    }
+    let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+    for j in 0..n {
+        for i in 0..n {
+            m.indices.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+            m.indices.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+        }
+    }
+    m
+}
+
+/// A closed, bumpy UV sphere.
+fn sphere(n: usize) -> TriMesh {
+    let mut m = TriMesh::default();
+    m.positions.push(Vec3::new(0.0, 0.0, 1.0));
+    for j in 1..n {
+        let th = std::f32::consts::PI * j as f32 / n as f32;
+        for i in 0..2 * n {
+            let ph = std::f32::consts::PI * i as f32 / n as f32;
+            let r = 1.0 + 0.15 * (3.0 * ph).sin() * (2.0 * th).cos();
+            m.positions.push(Vec3::new(
+                r * th.sin() * ph.cos(),
+                r * th.sin() * ph.sin(),
+                r * th.cos(),
+            ));
+        }
+    }
+    m.positions.push(Vec3::new(0.0, 0.0, -1.0));
+    let ring = |j: usize, i: usize| (1 + (j - 1) * 2 * n + i % (2 * n)) as u32;
+    let south = m.positions.len() as u32 - 1;
+    for i in 0..2 * n {
+        m.indices.push([0, ring(1, i), ring(1, i + 1)]);
+        for j in 1..n - 1 {
+            m.indices
+                .push([ring(j, i), ring(j + 1, i), ring(j + 1, i + 1)]);
+            m.indices
+                .push([ring(j, i), ring(j + 1, i + 1), ring(j, i + 1)]);
+        }
+        m.indices.push([ring(n - 1, i), south, ring(n - 1, i + 1)]);
+    }
+    m
+}
+
+fn params(triangles: u64, placement: Placement) -> QemParams {
+    QemParams {
+        triangles,
+        max_error: None,
+        placement,
+        merge: QuadricMerge::Sum,
+        lock_border: false,
+        cost: Cost::Quadric,
+    }
+}
+
+#[test]
+fn a_plane_quadric_is_zero_on_its_plane() {
+    let n = DVec3::new(1.0, 2.0, -2.0).normalize();
+    let q = Quadric::plane(n, -0.7, 3.0);
+    // Points on n·x = 0.7.
+    let u = n.any_orthonormal_vector();
+    let v = n.cross(u);
+    for (s, t) in [(0.0, 0.0), (3.0, -1.0), (-20.0, 5.5)] {
+        let p = n * 0.7 + u * s + v * t;
+        assert!(q.eval(p) < 1e-12, "{}", q.eval(p));
+    }
+    // Off the plane: weight × distance².
+    let p = n * 1.7;
+    assert!((q.eval(p) - 3.0).abs() < 1e-12);
+}
+
+#[test]
+fn two_crossing_planes_have_their_optimum_on_their_line() {
+    // Planes z = 0 and x = 1 (line x = 1, z = 0): the placement must land on it, and
+    // between the endpoints' projections is as good as anywhere on it (A is singular along
+    // y: the fallback picks the best of endpoints and midpoint, all on the line here).
+    let q = Quadric::plane(DVec3::Z, 0.0, 1.0) + Quadric::plane(DVec3::X, -1.0, 2.0);
+    let (a, b) = (DVec3::new(1.0, -1.0, 0.0), DVec3::new(1.0, 3.0, 0.0));
+    let p = optimal(&q, a, b);
+    assert!((p.x - 1.0).abs() < 1e-12 && p.z.abs() < 1e-12, "{p}");
+    assert!(q.eval(p) < 1e-12);
+    // Endpoints off the line: the best of them and the midpoint, never a far point.
+    let (a, b) = (DVec3::new(1.2, 0.0, 0.1), DVec3::new(0.9, 1.0, -0.05));
+    let p = optimal(&q, a, b);
+    let mid = 0.5 * (a + b);
+    assert!(q.eval(p) <= q.eval(a).min(q.eval(b)).min(q.eval(mid)) + 1e-15);
+}
+
+#[test]
+fn cube_corners_are_recovered_exactly() {
+    // The three faces of a unit cube at each corner meet there: the quadric of the corner's
+    // three planes (any weights) has the corner as its exact minimiser.
+    for corner in 0..8 {
+        let c = DVec3::new(
+            (corner & 1) as f64,
+            ((corner >> 1) & 1) as f64,
+            ((corner >> 2) & 1) as f64,
+        );
+        let q = Quadric::plane(DVec3::X, -c.x, 1.5)
+            + Quadric::plane(DVec3::Y, -c.y, 0.25)
+            + Quadric::plane(DVec3::Z, -c.z, 4.0);
+        let p = optimal(&q, DVec3::splat(0.5), DVec3::splat(0.3));
+        assert!((p - c).length() < 1e-12, "{corner}: {p} vs {c}");
+        assert!(error(&q, p) < 1e-9);
+    }
+}
+
+/// A cube with each face split into a k × k grid: collapsing it far keeps the corners.
+fn cube(k: usize) -> TriMesh {
+    let mut m = TriMesh::default();
+    let mut add_face = |o: Vec3, u: Vec3, v: Vec3| {
+        let base = m.positions.len() as u32;
+        for j in 0..=k {
+            for i in 0..=k {
+                m.positions
+                    .push(o + u * (i as f32 / k as f32) + v * (j as f32 / k as f32));
+            }
+        }
+        let id = |i: usize, j: usize| base + (j * (k + 1) + i) as u32;
+        for j in 0..k {
+            for i in 0..k {
+                m.indices.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                m.indices.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+    };
+    let (x, y, z) = (Vec3::X, Vec3::Y, Vec3::Z);
+    add_face(Vec3::ZERO, y, x); // bottom, outward -z
+    add_face(z, x, y); // top
+    add_face(Vec3::ZERO, x, z); // y = 0
+    add_face(y, z, x); // y = 1
+    add_face(Vec3::ZERO, z, y); // x = 0
+    add_face(x, y, z); // x = 1
+    m
+}
+
+#[test]
+fn a_cube_collapses_to_its_corners() {
+    let m = cube(4);
+    let r = simplify(&m, &params(12, Placement::Optimal)).unwrap();
+    assert_eq!(r.mesh.triangle_count(), 12, "{:?}", r.report);
+    let mut corners: Vec<[i32; 3]> = r
+        .mesh
+        .positions
+        .iter()
+        .map(|p| [0, 1, 2].map(|k| (p[k] * 1e4).round() as i32))
+        .collect();
+    corners.sort_unstable();
+    corners.dedup();
+    assert_eq!(corners.len(), 8);
+    for c in &corners {
+        assert!(c.iter().all(|&x| x == 0 || x == 10000), "{c:?}");
+    }
+    assert!(r.report.max_error < 1e-6, "{}", r.report.max_error);
+}
+
+fn assert_closed_manifold(m: &TriMesh) {
+    let ef = EdgeFaces::new(&m.indices);
+    for e in 0..ef.len() as u32 {
+        assert_eq!(ef.faces(e).len(), 2, "edge {:?}", ef.edge(e));
+    }
+}
+
+#[test]
+fn the_heap_equals_the_slow_twin() {
+    for (m, target) in [
+        (grid(6), 10u64),
+        (grid(9), 40),
+        (sphere(6), 20),
+        (sphere(8), 8),
+        (cube(3), 12),
+    ] {
+        for placement in [Placement::Optimal, Placement::Endpoint] {
+            for (merge, cost) in [
+                (QuadricMerge::Sum, Cost::Quadric),
+                (QuadricMerge::Mean, Cost::Quadric),
+                (QuadricMerge::Sum, Cost::Distance),
+            ] {
+                for lock_border in [false, true] {
+                    let p = QemParams {
+                        merge,
+                        lock_border,
+                        cost,
+                        ..params(target, placement)
+                    };
+                    let prep = Prepared::new(&m);
+                    let mut fast = Collapse::new(&prep, &p);
+                    fast.run_fast(target as usize);
+                    let mut slow = Collapse::new(&prep, &p);
+                    slow.run_slow(target as usize);
+                    assert_eq!(fast.log, slow.log, "{placement} {merge} {lock_border}");
+                    let (a, b) = (fast.finish(), slow.finish());
+                    assert_eq!(a.mesh.positions, b.mesh.positions);
+                    assert_eq!(a.mesh.indices, b.mesh.indices);
+                    // The twin counts no rejections (it never pops a candidate).
+                    assert_eq!(a.report.max_error, b.report.max_error);
+                    assert_eq!(a.report.collapses, b.report.collapses);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn a_closed_surface_stays_a_closed_manifold() {
+    let m = sphere(16);
+    for target in [400, 100, 20, 4] {
+        let r = simplify(&m, &params(target, Placement::Optimal)).unwrap();
+        assert_closed_manifold(&r.mesh);
+        assert!(r.mesh.triangle_count() as u64 <= target.max(4) + 1);
+    }
+}
+
+#[test]
+fn lock_border_keeps_the_border_exactly() {
+    let m = grid(12);
+    let on_border = |p: &Vec3| p.x == 0.0 || p.x == 1.0 || p.y == 0.0 || p.y == 1.0;
+    let border_in: Vec<Vec3> = m.positions.iter().copied().filter(on_border).collect();
+    let p = QemParams {
+        lock_border: true,
+        ..params(60, Placement::Optimal)
+    };
+    let r = simplify(&m, &p).unwrap();
+    // Every border vertex of the input is still there, unmoved.
+    for b in &border_in {
+        assert!(r.mesh.positions.contains(b), "{b}");
+    }
+}
+
+#[test]
+fn max_error_stops_the_collapse() {
+    let m = sphere(12);
+    let p = QemParams {
+        max_error: Some(0.01),
+        ..params(1, Placement::Optimal)
+    };
+    let r = simplify(&m, &p).unwrap();
+    assert!(!r.report.target_reached, "{:?}", r.report);
+    assert!(r.report.max_error <= 0.01);
+    assert!(r.mesh.triangle_count() < m.triangle_count());
+    let loose = simplify(
+        &m,
+        &QemParams {
+            max_error: Some(0.1),
+            ..p
+        },
+    )
+    .unwrap();
+    assert!(loose.mesh.triangle_count() < r.mesh.triangle_count());
+}
+
+#[test]
+fn non_manifold_parts_are_left_alone() {
+    // Three sheets on one edge: the edge's vertices are never moved.
+    let mut m = grid(6);
+    let n = m.positions.len() as u32;
+    m.positions.push(Vec3::new(0.5, 0.5, 1.0));
+    m.positions.push(Vec3::new(0.5, 0.5, -1.0));
+    // Grid vertex (3,3) and (4,3).
+    let (a, b) = (3 * 7 + 3, 3 * 7 + 4);
+    m.indices.push([a, b, n]);
+    m.indices.push([b, a, n + 1]);
+    let r = simplify(&m, &params(10, Placement::Optimal)).unwrap();
+    assert!(r.report.non_manifold_vertices >= 2);
+    for v in [a, b] {
+        assert!(r.mesh.positions.contains(&m.positions[v as usize]));
+    }
+}
+
+#[test]
+fn bad_parameters_are_refused() {
+    let m = grid(3);
+    let e = simplify(&m, &params(0, Placement::Optimal)).unwrap_err();
+    assert!(e.to_string().contains("triangles"), "{e}");
+    let e = simplify(
+        &m,
+        &QemParams {
+            max_error: Some(-1.0),
+            ..params(5, Placement::Optimal)
+        },
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("max_error"), "{e}");
+    let empty = TriMesh::default();
+    assert!(simplify(&empty, &params(5, Placement::Optimal)).is_err());
+}
+
+#[test]
+fn colours_are_interpolated() {
+    let mut m = grid(8);
+    m.colors = Some(m.positions.iter().map(|p| [p.x, p.y, 0.5, 1.0]).collect());
+    let r = simplify(&m, &params(20, Placement::Optimal)).unwrap();
+    let c = r.mesh.colors.as_ref().unwrap();
+    assert_eq!(c.len(), r.mesh.vertex_count());
+    // The colour field is x, y: interpolation keeps it close to the position.
+    for (p, c) in r.mesh.positions.iter().zip(c) {
+        assert!(
+            (p.x - c[0]).abs() < 0.2 && (p.y - c[1]).abs() < 0.2,
+            "{p} {c:?}"
+        );
+    }
+}
