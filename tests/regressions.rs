@@ -4,11 +4,11 @@
 #[allow(unused)]
 mod common;
 
+#[path = "regressions/mesh_input.rs"]
+mod mesh_input;
+#[path = "regressions/messages_outputs.rs"]
+mod messages_outputs;
 #[path = "regressions/output_dir.rs"]
 mod output_dir;
 #[path = "regressions/point_input.rs"]
 mod point_input;
-#[path = "regressions/messages_outputs.rs"]
-mod messages_outputs;
-#[path = "regressions/mesh_input.rs"]
-mod mesh_input;
