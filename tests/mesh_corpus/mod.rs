@@ -216,6 +216,19 @@ pub fn cases() -> Vec<Case> {
         quad("4", r#""nodes":[{"mesh":0}],"#),
         Expect::Clean,
     );
+    // glb: POSITION names an accessor that does not exist (panicked inside gltf-json's
+    // validation; found by the mutation fuzzer).
+    let mut missing = quad("4", r#""nodes":[{"mesh":0}],"#);
+    let at = missing
+        .windows(12)
+        .position(|w| w == b"\"POSITION\":0")
+        .unwrap();
+    missing[at + 11] = b'7';
+    add(
+        "position_accessor_missing.glb",
+        missing,
+        Expect::Refused("= 7 but there are 2 accessors"),
+    );
     // glb: a node that is its own child (a cycle).
     add(
         "node_cycle.glb",

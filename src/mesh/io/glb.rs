@@ -170,13 +170,40 @@ struct Part {
 /// Parses a glb file's bytes (`path` is for messages) as `opts` say.
 pub fn parse_glb(path: &Path, bytes: &[u8], opts: &ReadOptions) -> Result<(TriMesh, ReadInfo)> {
     let mut notes = Notes::new(opts);
-    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| {
+    let invalid = |e: gltf::Error| {
         Error::format(
             path,
             0,
             format!("not a valid glb file: {}", one_line(&e.to_string())),
         )
-    })?;
+    };
+    // Parsed without validation first: gltf-json 1.4's validation indexes the accessors
+    // with a primitive's POSITION before it checks that index (a panic on a bad file), so
+    // that one reference is checked here, then the crate validates the rest.
+    let gltf::Gltf { document, blob } =
+        gltf::Gltf::from_slice_without_validation(bytes).map_err(invalid)?;
+    let root = document.into_json();
+    for (i, m) in root.meshes.iter().enumerate() {
+        for (j, p) in m.primitives.iter().enumerate() {
+            for (semantic, a) in &p.attributes {
+                if a.value() >= root.accessors.len() {
+                    return Err(Error::format(
+                        path,
+                        0,
+                        format!(
+                            "not a valid glb file: meshes[{i}].primitives[{j}].attributes[{semantic:?}] = {} but there are {} accessors",
+                            a.value(),
+                            root.accessors.len()
+                        ),
+                    ));
+                }
+            }
+        }
+    }
+    let gltf = gltf::Gltf {
+        document: gltf::Document::from_json(root).map_err(invalid)?,
+        blob,
+    };
     let json_len = bytes
         .get(12..16)
         .map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as u64);
