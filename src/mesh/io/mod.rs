@@ -148,6 +148,41 @@ impl Notes {
     }
 }
 
+/// Polygons with more corners than this are split as a fan from their first corner instead
+/// of by ear clipping, whose time grows with the square of the corners or worse (a
+/// 20,000-corner face took seconds; a few MB of one face would take hours). A fan is exact
+/// for convex polygons, which such faces (caps of CAD models) usually are; a warning says so
+/// and `strict` refuses the file.
+pub const MAX_EAR_CORNERS: usize = 1024;
+
+/// Triangulates `poly` into `out` (by ear clipping, or as a fan above [`MAX_EAR_CORNERS`]
+/// with a note; `err` is where the face is, for the note).
+pub(crate) fn triangulate(
+    tri: &mut crate::mesh::polygon::Triangulator,
+    positions: &[glam::Vec3],
+    poly: &[u32],
+    out: &mut Vec<[u32; 3]>,
+    notes: &mut Notes,
+    err: impl FnOnce(String) -> Error,
+) -> Result<()> {
+    if poly.len() <= MAX_EAR_CORNERS {
+        tri.triangulate(positions, poly, out);
+        return Ok(());
+    }
+    notes.lenient(
+        "fan",
+        err(format!(
+            "a face with {} corners (more than {MAX_EAR_CORNERS})",
+            poly.len()
+        )),
+        "triangulated as a fan",
+    )?;
+    for k in 1..poly.len() - 1 {
+        out.push([poly[0], poly[k], poly[k + 1]]);
+    }
+    Ok(())
+}
+
 /// Reads an OBJ, PLY or glb file.
 pub fn read(path: &Path) -> Result<TriMesh> {
     read_with_info(path).map(|(m, _)| m)

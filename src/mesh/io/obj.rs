@@ -518,12 +518,15 @@ pub fn parse_obj_with(path: &Path, text: &[u8], opts: &ReadOptions) -> Result<(T
         return Err(Error::format(path, 0, "more than 2^32 - 1 vertices"));
     }
     let mut tri = Triangulator::default();
-    for p in 0..lines.len() {
-        tri.triangulate(
+    for (p, &line) in lines.iter().enumerate() {
+        super::triangulate(
+            &mut tri,
             &mesh.positions,
             &ids[starts[p]..starts[p + 1]],
             &mut mesh.indices,
-        );
+            &mut notes,
+            |m| Error::text(path, line, m),
+        )?;
     }
     let info = ReadInfo {
         format: MeshFormat::Obj,
@@ -780,6 +783,31 @@ mod tests {
                 .to_string();
             assert!(want.starts_with(&e), "{text:?}: strict gave {e}");
         }
+    }
+
+    #[test]
+    fn huge_polygons_are_fans_with_a_warning() {
+        let n = crate::mesh::io::MAX_EAR_CORNERS + 1;
+        let mut text = String::new();
+        for i in 0..n {
+            let a = std::f64::consts::TAU * i as f64 / n as f64;
+            text.push_str(&format!("v {} {} 0\n", a.cos(), a.sin()));
+        }
+        text.push('f');
+        for i in 1..=n {
+            text.push_str(&format!(" {i}"));
+        }
+        let (m, info) = parse(&text).unwrap();
+        assert_eq!(m.indices.len(), n - 2);
+        assert_eq!(
+            info.warnings,
+            vec![format!(
+                "t.obj:{}: a face with {n} corners (more than 1024): triangulated as a fan",
+                n + 1
+            )]
+        );
+        let strict = ReadOptions { strict: true };
+        assert!(parse_obj_with(Path::new("t.obj"), text.as_bytes(), &strict).is_err());
     }
 
     #[test]

@@ -662,8 +662,15 @@ pub fn parse_ply_with(
         uvs: c.uvs,
     };
     let mut tri = Triangulator::default();
-    for w in c.starts.windows(2) {
-        tri.triangulate(&mesh.positions, &c.polys[w[0]..w[1]], &mut mesh.indices);
+    for (f, w) in c.starts.windows(2).enumerate() {
+        super::triangulate(
+            &mut tri,
+            &mesh.positions,
+            &c.polys[w[0]..w[1]],
+            &mut mesh.indices,
+            &mut notes,
+            |m| Error::format(path, 0, format!("polygon {f}: {m}")),
+        )?;
     }
     mesh.indices.extend_from_slice(&c.strips);
     let format = match header.encoding {
