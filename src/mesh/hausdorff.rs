@@ -49,7 +49,7 @@ impl HausdorffParams {
     pub fn validate(&self) -> Result<()> {
         if self.samples > MAX_SAMPLES {
             return Err(Error::Usage(format!(
-                "--samples {}: at most {MAX_SAMPLES} area samples per direction (the measurement takes about a second per few million)",
+                "--samples {}: at most {MAX_SAMPLES} area samples per direction (queries run at a few million per second: 100000000 took 39 s on a 69,000-triangle mesh on 2 cores)",
                 self.samples
             )));
         }
