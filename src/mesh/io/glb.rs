@@ -187,11 +187,15 @@ pub fn parse_glb(path: &Path, bytes: &[u8], opts: &ReadOptions) -> Result<(TriMe
         for (j, p) in m.primitives.iter().enumerate() {
             for (semantic, a) in &p.attributes {
                 if a.value() >= root.accessors.len() {
+                    let semantic = match semantic {
+                        gltf::json::validation::Checked::Valid(s) => s.to_string(),
+                        gltf::json::validation::Checked::Invalid => "?".into(),
+                    };
                     return Err(Error::format(
                         path,
                         0,
                         format!(
-                            "not a valid glb file: meshes[{i}].primitives[{j}].attributes[{semantic:?}] = {} but there are {} accessors",
+                            "not a valid glb file: meshes[{i}].primitives[{j}].attributes.{semantic} = {} but there are {} accessors",
                             a.value(),
                             root.accessors.len()
                         ),
