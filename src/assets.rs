@@ -40,6 +40,10 @@ pub struct AssetConfig {
     pub simplify: Option<SimplifyParams>,
     /// Where it goes on the terrain.
     pub place: Placement,
+    /// Refuse a model that is read with a warning by default (unusable texture coordinates,
+    /// normals or colours; faces with fewer than 3 vertices), like `--strict`.
+    #[serde(default)]
+    pub strict: bool,
 }
 
 /// Which model axis points up.
@@ -102,6 +106,8 @@ pub struct AssetReport {
     pub on_terrain: bool,
     /// Seconds for the whole asset (read, simplify, measure, write).
     pub seconds: f64,
+    /// What the reader noticed in the model (dropped attributes, skipped faces).
+    pub warnings: Vec<String>,
 }
 
 impl Placement {
@@ -178,7 +184,8 @@ pub fn run_asset(
 ) -> Result<AssetReport> {
     let t = Instant::now();
     let input = base_dir.join(&cfg.input);
-    let (model, _) = mesh::io::read_surface(&input)?;
+    let read = mesh::io::ReadOptions { strict: cfg.strict };
+    let (model, warnings) = mesh::io::read_surface_with(&input, &read)?;
     let (result, method, error) = match &cfg.simplify {
         Some(params) => {
             let s = simplify::simplify(&model, params)?;
@@ -216,6 +223,7 @@ pub fn run_asset(
         position: [p.x, p.y, ground],
         on_terrain: heightfield.is_some(),
         seconds: t.elapsed().as_secs_f64(),
+        warnings,
     })
 }
 
@@ -357,6 +365,7 @@ mod tests {
                 up: UpAxis::Z,
                 z_offset: 0.0,
             },
+            strict: false,
         };
         let r = run_asset(&cfg, dir.path(), dir.path(), Some(&hf), [0.0; 3]).unwrap();
         // Bilinear between centres (1.5, 0.5)…(2.5, 1.5): 1.5 + 10·1.0 = 11.5.

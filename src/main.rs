@@ -83,9 +83,14 @@ enum Command {
         original: PathBuf,
         /// The simplified mesh.
         simplified: PathBuf,
-        /// Area samples per direction (default: 10 per triangle, at least 200,000).
+        /// Area samples per direction (default: 10 per triangle, at least 200,000; at most
+        /// 100,000,000).
         #[arg(long, value_name = "N")]
         samples: Option<u64>,
+        /// Refuse files that are read with a warning by default (unusable texture
+        /// coordinates, normals or colours; faces with fewer than 3 vertices).
+        #[arg(long)]
+        strict: bool,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -136,9 +141,14 @@ struct SimplifyArgs {
     /// cutting them in two.
     #[arg(long)]
     no_split_stranded: bool,
-    /// Area samples per direction for the error (default: 10 per triangle, at least 200,000).
+    /// Area samples per direction for the error (default: 10 per triangle, at least 200,000;
+    /// at most 100,000,000).
     #[arg(long, value_name = "N")]
     samples: Option<u64>,
+    /// Refuse an input that is read with a warning by default (unusable texture coordinates,
+    /// normals or colours; faces with fewer than 3 vertices).
+    #[arg(long)]
+    strict: bool,
     /// Do not measure the error.
     #[arg(long)]
     no_error: bool,
@@ -564,12 +574,18 @@ fn run(cli: Cli) -> Result<()> {
             original,
             simplified,
             samples,
+            strict,
             json,
         } => {
             let params = terratile::mesh::HausdorffParams {
                 samples: samples.unwrap_or(0),
             };
-            let r = terratile::mesh::hausdorff::compare_files(&original, &simplified, &params)?;
+            let read = terratile::mesh::io::ReadOptions { strict };
+            let r =
+                terratile::mesh::hausdorff::compare_files(&original, &simplified, &params, &read)?;
+            for w in &r.warnings {
+                eprintln!("terratile: warning: {}", one_line(w));
+            }
             if json {
                 print_json(&r)?;
             } else {
@@ -635,7 +651,14 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
         samples: a.samples.unwrap_or(0),
     });
     terratile::fsutil::remove_stale_temps(&a.output);
-    let r = terratile::simplify::simplify_file(&a.input, &a.output, &params, error.as_ref())?;
+    let read = terratile::mesh::io::ReadOptions { strict: a.strict };
+    let r = terratile::simplify::simplify_file_with(
+        &a.input,
+        &a.output,
+        &params,
+        error.as_ref(),
+        &read,
+    )?;
     for w in &r.warnings {
         eprintln!("terratile: warning: {}", one_line(w));
     }

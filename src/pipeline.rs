@@ -137,6 +137,9 @@ impl std::fmt::Display for RunSummary {
                     " (no terrain: base at z = 0)"
                 }
             )?;
+            for w in &a.warnings {
+                writeln!(f, "    warning: {w}")?;
+            }
         }
         writeln!(
             f,

@@ -76,6 +76,8 @@ fn face_index_out_of_range() {
     );
 }
 
+/// A face with fewer than 3 vertices is skipped with a warning (so this file has no
+/// triangles left); `--strict` refuses it.
 #[test]
 fn face_with_fewer_than_three_vertices() {
     let d = tempfile::tempdir().unwrap();
@@ -83,8 +85,14 @@ fn face_with_fewer_than_three_vertices() {
     bad_simplify(
         d.path(),
         "m.obj",
-        &["--ratio", "0.5"],
+        &["--ratio", "0.5", "--strict"],
         &["m.obj:4", "at least 3 vertices"],
+    );
+    bad_simplify(
+        d.path(),
+        "m.obj",
+        &["--ratio", "0.5"],
+        &["m.obj", "the mesh has no triangles"],
     );
 }
 

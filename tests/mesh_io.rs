@@ -2,6 +2,8 @@
 //! PLY round trips with everything it carries.
 
 mod common;
+#[path = "mesh_corpus/mod.rs"]
+mod mesh_corpus;
 
 use proptest::prelude::*;
 use std::path::Path;
@@ -247,7 +249,46 @@ fn seed_files() -> Vec<(&'static str, Vec<u8>)> {
         ply::write_ply(&m, &mut b, enc).unwrap();
         files.push((name, b));
     }
+    // glb as the tile writer makes it (positions, normals, indices).
+    files.push(("m.glb", terratile::output::glb::glb_bytes(&m, "m").unwrap()));
+    // And the lenient paths: each corpus file (dropped attributes, short faces, line
+    // continuations, header counts, glb ranges).
+    for c in mesh_corpus::cases() {
+        files.push((c.name, c.bytes));
+    }
     files
+}
+
+/// Parses `bytes` with the reader `name`'s extension picks (glb and PLY also by content,
+/// as `io::read` does).
+fn parse(name: &str, bytes: &[u8], strict: bool) -> terratile::Result<(TriMesh, io::ReadInfo)> {
+    use terratile::mesh::io::{glb, obj, ply, ReadOptions};
+    let opts = ReadOptions { strict };
+    let path = Path::new(name);
+    if bytes.starts_with(b"ply") {
+        ply::parse_ply_with(path, bytes, &opts)
+    } else if bytes.starts_with(b"glTF") {
+        glb::parse_glb(path, bytes, &opts)
+    } else if name.ends_with(".obj") {
+        obj::parse_obj_with(path, bytes, &opts)
+    } else {
+        // A damaged magic: the file reader would refuse it by name; the parser of its
+        // extension must still cope.
+        match name.rsplit('.').next() {
+            Some("ply") => ply::parse_ply_with(path, bytes, &opts),
+            _ => glb::parse_glb(path, bytes, &opts),
+        }
+    }
+}
+
+/// A read mesh is usable: indices in range, finite positions, attributes one per vertex.
+fn usable(m: &TriMesh) -> bool {
+    let n = m.positions.len();
+    m.indices.iter().flatten().all(|&v| (v as usize) < n)
+        && m.positions.iter().all(|p| p.is_finite())
+        && m.normals.as_ref().is_none_or(|a| a.len() == n)
+        && m.uvs.as_ref().is_none_or(|a| a.len() == n)
+        && m.colors.as_ref().is_none_or(|a| a.len() == n)
 }
 
 /// One damage to a file: overwrite a byte, cut the file short, or insert bytes.
@@ -302,27 +343,199 @@ proptest! {
     /// mesh whose indices are all in range) or fails with an error that names the file.
     #[test]
     fn damaged_files_are_errors_not_panics(
-        which in 0usize..4,
+        which in 0usize..64,
         damages in prop::collection::vec(damage(), 1..6),
+        strict in any::<bool>(),
     ) {
-        use terratile::mesh::io::{obj, ply};
-        let (name, mut bytes) = seed_files().swap_remove(which);
+        let mut seeds = seed_files();
+        let (name, mut bytes) = seeds.swap_remove(which % seeds.len());
         for d in &damages {
             apply(&mut bytes, d);
         }
-        let path = Path::new(name);
-        let got = if name.ends_with(".obj") {
-            obj::parse_obj(path, &bytes)
-        } else {
-            ply::parse_ply(path, &bytes)
-        };
-        match got {
-            Ok((m, _)) => {
-                let n = m.positions.len() as u32;
-                prop_assert!(m.indices.iter().flatten().all(|&v| v < n));
-                prop_assert!(m.positions.iter().all(|p| p.is_finite()));
+        match parse(name, &bytes, strict) {
+            Ok((m, info)) => {
+                prop_assert!(usable(&m));
+                prop_assert!(info.warnings.iter().all(|w| !w.contains('\n')));
             }
-            Err(e) => prop_assert!(e.to_string().contains(name), "{}", e),
+            Err(e) => {
+                let msg = e.to_string();
+                prop_assert!(msg.contains(name), "{}", msg);
+                prop_assert!(!msg.contains('\n'), "{}", msg);
+            }
         }
     }
+}
+
+/// Mutations for the long run: byte damage plus numbers that make counts and indices
+/// huge, negative or not numbers at all.
+fn mutate(bytes: &mut Vec<u8>, rng: &mut terratile::rng::SplitMix64) {
+    const WORDS: &[&[u8]] = &[
+        b"4294967295",
+        b"1000000000000000000",
+        b"-1",
+        b"0",
+        b"nan",
+        b"inf",
+        b"1e308",
+        b"18446744073709551615",
+        b"\\\n",
+        b"\n",
+        b" ",
+        b"/",
+        b"-",
+        b"9",
+        b"}",
+        b"[",
+        b",",
+    ];
+    for _ in 0..1 + rng.next_u64() % 4 {
+        let n = bytes.len().max(1);
+        let at = (rng.next_u64() as usize) % n;
+        match rng.next_u64() % 6 {
+            0 | 1 => {
+                if !bytes.is_empty() {
+                    bytes[at] = rng.next_u64() as u8;
+                }
+            }
+            2 => bytes.truncate(at),
+            3 => {
+                let w = WORDS[(rng.next_u64() as usize) % WORDS.len()];
+                bytes.splice(at..at, w.iter().copied());
+            }
+            4 => {
+                // Replace a run of digits with a word (counts, indices, lengths).
+                let w = WORDS[(rng.next_u64() as usize) % 8];
+                let start = (at..bytes.len()).find(|&i| bytes[i].is_ascii_digit());
+                if let Some(s) = start {
+                    let e = (s..bytes.len())
+                        .find(|&i| !bytes[i].is_ascii_digit())
+                        .unwrap_or(bytes.len());
+                    bytes.splice(s..e, w.iter().copied());
+                }
+            }
+            _ => {
+                // A little-endian u32 of an extreme value (binary counts and lengths).
+                let v = [u32::MAX, 0x8000_0000, 0x7fff_ffff, 0][(rng.next_u64() % 4) as usize];
+                for (k, b) in v.to_le_bytes().iter().enumerate() {
+                    if at + k < bytes.len() {
+                        bytes[at + k] = *b;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The long run: at least 1,000,000 mutated cases per mesh parser (PLY ASCII, PLY binary,
+/// OBJ, glb), each seed's mutants in parallel; counts panics and cases slower than a second
+/// (hangs), and prints the figures. Run it under a memory cap:
+/// `prlimit --as=8589934592 cargo test --release --test mesh_io -- --ignored --nocapture million`.
+#[test]
+#[ignore = "long: about a minute per parser"]
+fn a_million_mutants_per_parser() {
+    use rayon::prelude::*;
+    use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+    let cases: u64 = std::env::var("MESH_FUZZ_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1_000_000);
+    let seeds = seed_files();
+    /// Which seeds (name, bytes) a parser's run takes.
+    type Pick = fn(&str, &[u8]) -> bool;
+    let kinds: [(&str, Pick); 4] = [
+        ("PLY ascii", |n, b| {
+            n.ends_with(".ply") && b.starts_with(b"ply\nformat ascii")
+        }),
+        ("PLY binary", |n, b| {
+            n.ends_with(".ply") && b.starts_with(b"ply\nformat binary")
+        }),
+        ("OBJ", |n, _| n.ends_with(".obj")),
+        ("glb", |n, _| n.ends_with(".glb")),
+    ];
+    let prev = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let mut failures = Vec::new();
+    for (kind, pick) in kinds {
+        let mine: Vec<&(&str, Vec<u8>)> = seeds.iter().filter(|(n, b)| pick(n, b)).collect();
+        assert!(!mine.is_empty(), "{kind}: no seeds");
+        let (ok, errors, panics, slow) = (
+            AtomicU64::new(0),
+            AtomicU64::new(0),
+            AtomicU64::new(0),
+            AtomicU64::new(0),
+        );
+        let worst = std::sync::Mutex::new(0f64);
+        let first = std::sync::Mutex::new(Vec::<String>::new());
+        let t = std::time::Instant::now();
+        (0..cases).into_par_iter().for_each(|i| {
+            let mut rng = terratile::rng::SplitMix64::new(i ^ 0x5eed_0000_0000);
+            // Half the cases damage the parser's well-formed seed (the first: a whole mesh,
+            // so damage reaches the data paths), half the corpus files.
+            let pick = if i % 2 == 0 {
+                0
+            } else {
+                (i as usize / 2) % mine.len()
+            };
+            let (name, seed) = mine[pick];
+            let mut bytes = seed.clone();
+            mutate(&mut bytes, &mut rng);
+            let strict = i % 4 >= 2;
+            let c = std::time::Instant::now();
+            let r =
+                std::panic::catch_unwind(|| parse(name, &bytes, strict).map(|(m, _)| usable(&m)));
+            let secs = c.elapsed().as_secs_f64();
+            if secs > 1.0 {
+                slow.fetch_add(1, Relaxed);
+            }
+            {
+                let mut w = worst.lock().unwrap();
+                *w = w.max(secs);
+            }
+            match r {
+                Ok(Ok(true)) => ok.fetch_add(1, Relaxed),
+                Ok(Err(e)) if e.to_string().contains(name) => errors.fetch_add(1, Relaxed),
+                other => {
+                    let what = match other {
+                        Ok(Ok(_)) => "an unusable mesh".to_string(),
+                        Ok(Err(e)) => format!("an error without the file name: {e}"),
+                        Err(p) => format!(
+                            "a panic: {}",
+                            p.downcast_ref::<String>()
+                                .cloned()
+                                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                                .unwrap_or_default()
+                        ),
+                    };
+                    let mut f = first.lock().unwrap();
+                    if let Some(dir) = std::env::var_os("MESH_FUZZ_KEEP") {
+                        let _ = std::fs::write(Path::new(&dir).join(format!("{i}-{name}")), &bytes);
+                    }
+                    if f.len() < 3 {
+                        f.push(format!("{kind} case {i} ({name}): {what}"));
+                    }
+                    panics.fetch_add(1, Relaxed)
+                }
+            };
+        });
+        let (ok, errors, panics, slow) = (
+            ok.into_inner(),
+            errors.into_inner(),
+            panics.into_inner(),
+            slow.into_inner(),
+        );
+        println!(
+            "{kind}: {cases} cases from {} seeds in {:.1} s: {ok} read, {errors} refused, {panics} panics or bad results, {slow} over 1 s (slowest {:.3} s)",
+            mine.len(),
+            t.elapsed().as_secs_f64(),
+            *worst.lock().unwrap()
+        );
+        for f in first.into_inner().unwrap() {
+            println!("  {f}");
+        }
+        if panics > 0 || slow > 0 {
+            failures.push(kind);
+        }
+    }
+    std::panic::set_hook(prev);
+    assert!(failures.is_empty(), "failures in {failures:?}");
 }

@@ -88,10 +88,29 @@ pub fn simplify_file(
     params: &SimplifyParams,
     error: Option<&HausdorffParams>,
 ) -> Result<FileReport> {
-    // Check what can be checked before the work: the target, the output format.
+    simplify_file_with(
+        input,
+        output,
+        params,
+        error,
+        &mesh::io::ReadOptions::default(),
+    )
+}
+
+/// [`simplify_file`], reading `input` as `read` says (e.g. strictly).
+pub fn simplify_file_with(
+    input: &Path,
+    output: &Path,
+    params: &SimplifyParams,
+    error: Option<&HausdorffParams>,
+    read: &mesh::io::ReadOptions,
+) -> Result<FileReport> {
+    // Check what can be checked before the work: the target, the output format, the
+    // measurement's samples.
     params.target(1)?;
     mesh::io::MeshFormat::for_output(output)?;
-    let (m, warnings) = mesh::io::read_surface(input)?;
+    error.map(HausdorffParams::validate).transpose()?;
+    let (m, warnings) = mesh::io::read_surface_with(input, read)?;
     let t = Instant::now();
     let s = simplify(&m, params)?;
     let seconds = t.elapsed().as_secs_f64();

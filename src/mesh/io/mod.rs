@@ -1,10 +1,23 @@
-//! Mesh files in and out: Wavefront OBJ ([`obj`]) and Stanford PLY ([`ply`]). The format is
-//! recognised from the content (`ply` magic) and otherwise from the extension; writes are
-//! atomic (temporary sibling, then rename), so a failed write never leaves a partial file.
+//! Mesh files in and out: Wavefront OBJ ([`obj`]) and Stanford PLY ([`ply`]), and glTF
+//! binary ([`glb`], read only: terratile's tile meshes and other glb files). The format is
+//! recognised from the content (`ply` or `glTF` magic) and otherwise from the extension;
+//! writes are atomic (temporary sibling, then rename), so a failed write never leaves a
+//! partial file.
+//!
+//! Reading is lenient by default, like the tools users compare us with (trimesh, MeshLab):
+//! an unusable attribute (texture coordinates, normals or colours with an index out of range
+//! or a value that is not a finite number) is dropped and a face with fewer than 3 vertices
+//! is skipped, each with a warning; what would corrupt the geometry (a vertex index out of
+//! range, a NaN position) is always an error. [`ReadOptions::strict`] makes every one of
+//! those an error.
+//!
+//! Every count a header declares is checked against the bytes that follow before anything
+//! is allocated from it.
 //!
 //! Colours are stored in files as display (sRGB-encoded) values, as every tool writes them;
 //! [`TriMesh::colors`] holds linear values, converted on the way in and out.
 
+pub mod glb;
 pub mod obj;
 pub mod ply;
 
@@ -27,6 +40,8 @@ pub enum MeshFormat {
     PlyBinaryLe,
     /// PLY, binary big endian.
     PlyBinaryBe,
+    /// glTF 2.0 binary (read only).
+    Glb,
 }
 
 impl std::fmt::Display for MeshFormat {
@@ -36,6 +51,7 @@ impl std::fmt::Display for MeshFormat {
             MeshFormat::PlyAscii => "PLY ascii",
             MeshFormat::PlyBinaryLe => "PLY binary little endian",
             MeshFormat::PlyBinaryBe => "PLY binary big endian",
+            MeshFormat::Glb => "glTF binary",
         })
     }
 }
@@ -68,27 +84,135 @@ pub struct ReadInfo {
     pub format: MeshFormat,
     /// Faces as written in the file (polygons before triangulation; strips count once).
     pub faces_in_file: usize,
-    /// Things a user should know (e.g. a non-standard file read by a documented rule).
+    /// Things a user should know (e.g. a non-standard file read by a documented rule, an
+    /// attribute dropped): one line each, repeats of one kind counted into the first.
     pub warnings: Vec<String>,
+    /// Faces skipped (fewer than 3 vertices), not in `faces_in_file`.
+    pub skipped_faces: usize,
 }
 
-/// Reads an OBJ or PLY file.
+/// How to read a mesh file.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ReadOptions {
+    /// Refuse what the default reading drops or skips with a warning (an unusable texture
+    /// coordinate, normal or colour, a face with fewer than 3 vertices).
+    pub strict: bool,
+}
+
+/// Warnings of one read: one line each; further warnings of a kind already noted are
+/// counted into the first one (`… (and N more)`), so a file with a million bad faces gives
+/// one line, not a million.
+#[derive(Debug, Default)]
+pub(crate) struct Notes {
+    strict: bool,
+    items: Vec<(&'static str, String, usize)>,
+}
+
+impl Notes {
+    pub(crate) fn new(opts: &ReadOptions) -> Notes {
+        Notes {
+            strict: opts.strict,
+            items: Vec::new(),
+        }
+    }
+
+    /// A problem the lenient reading gets past by `action` (e.g. "face skipped"): an error
+    /// when strict, otherwise a warning (`error: action`) of kind `kind`.
+    pub(crate) fn lenient(&mut self, kind: &'static str, error: Error, action: &str) -> Result<()> {
+        if self.strict {
+            return Err(error);
+        }
+        self.note(kind, || format!("{error}: {action}"));
+        Ok(())
+    }
+
+    /// A warning of kind `kind` (the text is made only for the first of its kind).
+    pub(crate) fn note(&mut self, kind: &'static str, text: impl FnOnce() -> String) {
+        match self.items.iter_mut().find(|(k, _, _)| *k == kind) {
+            Some(item) => item.2 += 1,
+            None => self.items.push((kind, text(), 0)),
+        }
+    }
+
+    pub(crate) fn into_lines(self) -> Vec<String> {
+        self.items
+            .into_iter()
+            .map(|(_, text, more)| {
+                if more == 0 {
+                    text
+                } else {
+                    format!("{text} (and {more} more)")
+                }
+            })
+            .collect()
+    }
+}
+
+/// Polygons with more corners than this are split as a fan from their first corner instead
+/// of by ear clipping, whose time grows with the square of the corners or worse (a
+/// 20,000-corner face took seconds; a few MB of one face would take hours). A fan is exact
+/// for convex polygons, which such faces (caps of CAD models) usually are; a warning says so
+/// and `strict` refuses the file.
+pub const MAX_EAR_CORNERS: usize = 1024;
+
+/// Triangulates `poly` into `out` (by ear clipping, or as a fan above [`MAX_EAR_CORNERS`]
+/// with a note; `err` is where the face is, for the note).
+pub(crate) fn triangulate(
+    tri: &mut crate::mesh::polygon::Triangulator,
+    positions: &[glam::Vec3],
+    poly: &[u32],
+    out: &mut Vec<[u32; 3]>,
+    notes: &mut Notes,
+    err: impl FnOnce(String) -> Error,
+) -> Result<()> {
+    if poly.len() <= MAX_EAR_CORNERS {
+        tri.triangulate(positions, poly, out);
+        return Ok(());
+    }
+    notes.lenient(
+        "fan",
+        err(format!(
+            "a face with {} corners (more than {MAX_EAR_CORNERS})",
+            poly.len()
+        )),
+        "triangulated as a fan",
+    )?;
+    for k in 1..poly.len() - 1 {
+        out.push([poly[0], poly[k], poly[k + 1]]);
+    }
+    Ok(())
+}
+
+/// Reads an OBJ, PLY or glb file.
 pub fn read(path: &Path) -> Result<TriMesh> {
     read_with_info(path).map(|(m, _)| m)
 }
 
-/// Reads an OBJ or PLY file and reports what was in it.
+/// Reads an OBJ, PLY or glb file and reports what was in it.
 pub fn read_with_info(path: &Path) -> Result<(TriMesh, ReadInfo)> {
+    read_with(path, &ReadOptions::default())
+}
+
+/// Reads an OBJ, PLY or glb file as `opts` say and reports what was in it.
+pub fn read_with(path: &Path, opts: &ReadOptions) -> Result<(TriMesh, ReadInfo)> {
     let map = crate::points::map_file(path)?;
     if map.starts_with(b"ply") && matches!(map.get(3), Some(b'\n' | b'\r')) {
-        return ply::parse_ply(path, &map);
+        return ply::parse_ply_with(path, &map, opts);
+    }
+    if map.starts_with(b"glTF") {
+        return glb::parse_glb(path, &map, opts);
     }
     match extension(path).as_deref() {
-        Some("obj") => obj::parse_obj(path, &map),
+        Some("obj") => obj::parse_obj_with(path, &map, opts),
         Some("ply") => Err(Error::format(
             path,
             0,
             "not a PLY file: it does not start with `ply`",
+        )),
+        Some("glb") => Err(Error::format(
+            path,
+            0,
+            "not a glb file: it does not start with `glTF`",
         )),
         _ => {
             // Not PLY by content; OBJ is the other text format we know. Guess only when the
@@ -99,12 +223,12 @@ pub fn read_with_info(path: &Path) -> Result<(TriMesh, ReadInfo)> {
                 .map(|l| l.trim_ascii_start())
                 .any(|l| l.starts_with(b"v ") || l.starts_with(b"f "));
             if looks_obj {
-                obj::parse_obj(path, &map)
+                obj::parse_obj_with(path, &map, opts)
             } else {
                 Err(Error::format(
                     path,
                     0,
-                    "unknown mesh format: expected an OBJ (.obj) or PLY (.ply) file",
+                    "unknown mesh format: expected an OBJ (.obj), PLY (.ply) or glTF binary (.glb) file",
                 ))
             }
         }
@@ -114,7 +238,12 @@ pub fn read_with_info(path: &Path) -> Result<(TriMesh, ReadInfo)> {
 /// Reads a mesh that a stage will work on: it must have triangles. Returns the mesh and the
 /// reader's warnings.
 pub fn read_surface(path: &Path) -> Result<(TriMesh, Vec<String>)> {
-    let (m, info) = read_with_info(path)?;
+    read_surface_with(path, &ReadOptions::default())
+}
+
+/// [`read_surface`] as `opts` say.
+pub fn read_surface_with(path: &Path, opts: &ReadOptions) -> Result<(TriMesh, Vec<String>)> {
+    let (m, info) = read_with(path, opts)?;
     if m.triangle_count() == 0 {
         return Err(Error::Data {
             stage: "mesh",
@@ -138,6 +267,16 @@ pub fn write_as(mesh: &TriMesh, path: &Path, format: MeshFormat) -> Result<()> {
             MeshFormat::PlyAscii => ply::write_ply(mesh, w, ply::Encoding::Ascii),
             MeshFormat::PlyBinaryLe => ply::write_ply(mesh, w, ply::Encoding::BinaryLittleEndian),
             MeshFormat::PlyBinaryBe => ply::write_ply(mesh, w, ply::Encoding::BinaryBigEndian),
+            MeshFormat::Glb => {
+                let name = path
+                    .file_stem()
+                    .map_or("mesh".into(), |s| s.to_string_lossy());
+                // Model units as they are: a mesh asset has no CRS to convert from.
+                match crate::output::glb::glb_bytes(mesh, &name, 1.0) {
+                    Ok(bytes) => w.write_all(&bytes),
+                    Err(e) => Err(std::io::Error::other(e.to_string())),
+                }
+            }
         }
         .and_then(|()| w.flush())
         .map_err(|e| Error::io(path, e))

@@ -11,13 +11,20 @@
 //!
 //! Index 0 is invalid in OBJ, but some exporters write 0-based files. A file in which index
 //! 0 occurs is read as 0-based (the only reading that uses every face) and a warning says
-//! so; an index past the end under that reading is an error, never a dropped face.
+//! so; a vertex index past the end under that reading is an error, never a dropped face.
+//!
+//! A line ending in `\` continues on the next one (messages name the first line). Read
+//! leniently (the default, see [`ReadOptions`]), texture coordinates, normals or vertex
+//! colours that cannot be used (an index out of range, a value that is not a finite number)
+//! are dropped for the whole mesh and a face with fewer than 3 vertices is skipped, each
+//! with a warning naming the first line.
 
-use super::{MeshFormat, ReadInfo};
+use super::{MeshFormat, Notes, ReadInfo, ReadOptions};
 use crate::error::{Error, Result};
 use crate::mesh::polygon::Triangulator;
 use crate::mesh::{linear_to_srgb, srgb_to_linear, TriMesh};
 use glam::{Vec2, Vec3};
+use std::borrow::Cow;
 use std::collections::HashMap;
 use std::io::Write;
 use std::path::Path;
@@ -60,6 +67,76 @@ fn raw_index(tok: &[u8], count: usize, line: u64, path: &Path, what: &str) -> Re
     Ok(-(k + 1))
 }
 
+/// `v` emptied, its allocation kept for slices of another lifetime (the in-place collect of
+/// the standard library reuses the buffer): the token list of one line borrows that line,
+/// which may be a joined continuation that lives only for its iteration.
+fn recycle<'b>(mut v: Vec<&[u8]>) -> Vec<&'b [u8]> {
+    v.clear();
+    v.into_iter().map(|_| &b""[..]).collect()
+}
+
+/// The logical lines of OBJ text: `(number of the first line, text)`, a line ending in `\`
+/// (before an optional CR) joined with the next one by a space.
+fn logical_lines(text: &[u8]) -> impl Iterator<Item = (u64, Cow<'_, [u8]>)> {
+    let mut physical = text.split(|&b| b == b'\n').zip(1u64..);
+    std::iter::from_fn(move || {
+        let (raw, no) = physical.next()?;
+        let body = raw.strip_suffix(b"\r").unwrap_or(raw);
+        let Some(head) = body.strip_suffix(b"\\") else {
+            return Some((no, Cow::Borrowed(raw)));
+        };
+        let mut joined = head.to_vec();
+        for (raw, _) in physical.by_ref() {
+            joined.push(b' ');
+            let body = raw.strip_suffix(b"\r").unwrap_or(raw);
+            match body.strip_suffix(b"\\") {
+                Some(more) => joined.extend_from_slice(more),
+                None => {
+                    joined.extend_from_slice(body);
+                    break;
+                }
+            }
+        }
+        Some((no, Cow::Owned(joined)))
+    })
+}
+
+/// Parses attribute values (`vt`, `vn`, colours) of line `line`; `None` with the error when
+/// one is missing, not a number or not finite.
+fn parse_attr<const N: usize>(
+    toks: &[&[u8]],
+    line: u64,
+    path: &Path,
+    what: &str,
+) -> std::result::Result<[f32; N], Error> {
+    if toks.len() < N {
+        return Err(Error::text(
+            path,
+            line,
+            format!("a {what} needs {N} values, this one has {}", toks.len()),
+        ));
+    }
+    let mut out = [0f32; N];
+    for (o, t) in out.iter_mut().zip(toks) {
+        let shown = || String::from_utf8_lossy(t);
+        *o = fast_float2::parse(t).map_err(|_| {
+            Error::text(
+                path,
+                line,
+                format!("{what} value `{}` is not a number", shown()),
+            )
+        })?;
+        if !o.is_finite() {
+            return Err(Error::text(
+                path,
+                line,
+                format!("{what} value `{}` is not a finite number", shown()),
+            ));
+        }
+    }
+    Ok(out)
+}
+
 fn parse_f32(tok: &[u8], line: u64, path: &Path) -> Result<f32> {
     let v: f32 = fast_float2::parse(tok).map_err(|_| {
         Error::text(
@@ -81,8 +158,16 @@ fn parse_f32(tok: &[u8], line: u64, path: &Path) -> Result<f32> {
     Ok(v)
 }
 
-/// Parses OBJ text (`path` is for messages).
+/// Parses OBJ text (`path` is for messages), leniently.
 pub fn parse_obj(path: &Path, text: &[u8]) -> Result<(TriMesh, ReadInfo)> {
+    parse_obj_with(path, text, &ReadOptions::default())
+}
+
+/// Parses OBJ text (`path` is for messages) as `opts` say.
+pub fn parse_obj_with(path: &Path, text: &[u8], opts: &ReadOptions) -> Result<(TriMesh, ReadInfo)> {
+    let mut notes = Notes::new(opts);
+    let (mut drop_uvs, mut drop_normals, mut drop_colours) = (false, false, false);
+    let mut skipped_faces = 0usize;
     let mut positions: Vec<Vec3> = Vec::new();
     let mut colors: Vec<[f32; 3]> = Vec::new();
     let mut any_color = false;
@@ -94,13 +179,13 @@ pub fn parse_obj(path: &Path, text: &[u8]) -> Result<(TriMesh, ReadInfo)> {
     let mut lines: Vec<u64> = Vec::new();
     let mut zero_line: Option<u64> = None;
     let mut skipped_elements = 0usize;
-    let mut toks: Vec<&[u8]> = Vec::with_capacity(16);
+    let mut spare: Vec<&[u8]> = Vec::with_capacity(16);
 
-    for (i, raw) in text.split(|&b| b == b'\n').enumerate() {
-        let line_no = i as u64 + 1;
+    for (line_no, raw) in logical_lines(text) {
+        let mut toks = recycle(std::mem::take(&mut spare));
         let line = match raw.iter().position(|&b| b == b'#') {
             Some(p) => &raw[..p],
-            None => raw,
+            None => &raw[..],
         };
         toks.clear();
         toks.extend(
@@ -108,6 +193,7 @@ pub fn parse_obj(path: &Path, text: &[u8]) -> Result<(TriMesh, ReadInfo)> {
                 .filter(|t| !t.is_empty()),
         );
         let Some((&key, args)) = toks.split_first() else {
+            spare = recycle(toks);
             continue;
         };
         match key {
@@ -123,11 +209,16 @@ pub fn parse_obj(path: &Path, text: &[u8]) -> Result<(TriMesh, ReadInfo)> {
                 positions.push(p);
                 // `v x y z w` has a weight, `v x y z r g b` a colour.
                 if args.len() >= 6 {
-                    let c = [
-                        parse_f32(args[3], line_no, path)?,
-                        parse_f32(args[4], line_no, path)?,
-                        parse_f32(args[5], line_no, path)?,
-                    ];
+                    let c = match parse_attr::<3>(&args[3..], line_no, path, "colour") {
+                        Ok(c) => c,
+                        Err(e) => {
+                            if !drop_colours {
+                                notes.lenient("colour", e, "vertex colours dropped")?;
+                                drop_colours = true;
+                            }
+                            [1.0; 3]
+                        }
+                    };
                     if colors.len() < positions.len() - 1 {
                         colors.resize(positions.len() - 1, [1.0; 3]);
                     }
@@ -136,36 +227,54 @@ pub fn parse_obj(path: &Path, text: &[u8]) -> Result<(TriMesh, ReadInfo)> {
                 }
             }
             b"vt" => {
-                if args.is_empty() {
-                    return Err(Error::text(path, line_no, "a texture coordinate needs u"));
-                }
-                let u = parse_f32(args[0], line_no, path)?;
-                let v = match args.get(1) {
-                    Some(t) => parse_f32(t, line_no, path)?,
-                    None => 0.0,
+                // `vt u` alone means v = 0.
+                let uv = if args.len() == 1 {
+                    parse_attr::<1>(args, line_no, path, "texture coordinate").map(|[u]| [u, 0.0])
+                } else {
+                    parse_attr::<2>(args, line_no, path, "texture coordinate")
                 };
-                texcoords.push(Vec2::new(u, v));
-            }
-            b"vn" => {
-                if args.len() < 3 {
-                    return Err(Error::text(path, line_no, "a normal needs x, y and z"));
+                match uv {
+                    Ok(uv) => texcoords.push(Vec2::from(uv)),
+                    Err(e) => {
+                        if !drop_uvs {
+                            notes.lenient(
+                                "texture coordinate",
+                                e,
+                                "texture coordinates dropped",
+                            )?;
+                            drop_uvs = true;
+                        }
+                        texcoords.push(Vec2::ZERO);
+                    }
                 }
-                normals.push(Vec3::new(
-                    parse_f32(args[0], line_no, path)?,
-                    parse_f32(args[1], line_no, path)?,
-                    parse_f32(args[2], line_no, path)?,
-                ));
             }
+            b"vn" => match parse_attr::<3>(args, line_no, path, "normal") {
+                Ok(n) => normals.push(Vec3::from(n)),
+                Err(e) => {
+                    if !drop_normals {
+                        notes.lenient("normal", e, "normals dropped")?;
+                        drop_normals = true;
+                    }
+                    normals.push(Vec3::ZERO);
+                }
+            },
             b"f" | b"fo" => {
                 if args.len() < 3 {
-                    return Err(Error::text(
-                        path,
-                        line_no,
-                        format!(
-                            "a face needs at least 3 vertices, this one has {}",
-                            args.len()
+                    notes.lenient(
+                        "short face",
+                        Error::text(
+                            path,
+                            line_no,
+                            format!(
+                                "a face needs at least 3 vertices, this one has {}",
+                                args.len()
+                            ),
                         ),
-                    ));
+                        "skipped",
+                    )?;
+                    skipped_faces += 1;
+                    spare = recycle(toks);
+                    continue;
                 }
                 for tok in args {
                     let mut parts = tok.splitn(3, |&b| b == b'/');
@@ -186,20 +295,42 @@ pub fn parse_obj(path: &Path, text: &[u8]) -> Result<(TriMesh, ReadInfo)> {
                             ),
                         ));
                     }
-                    let t = raw_index(
+                    let t = match raw_index(
                         parts.next().unwrap_or(b""),
                         texcoords.len(),
                         line_no,
                         path,
                         "texture coordinate",
-                    )?;
-                    let n = raw_index(
+                    ) {
+                        Ok(t) => t,
+                        Err(e) => {
+                            if !drop_uvs {
+                                notes.lenient(
+                                    "texture coordinate",
+                                    e,
+                                    "texture coordinates dropped",
+                                )?;
+                                drop_uvs = true;
+                            }
+                            NONE
+                        }
+                    };
+                    let n = match raw_index(
                         parts.next().unwrap_or(b""),
                         normals.len(),
                         line_no,
                         path,
                         "normal",
-                    )?;
+                    ) {
+                        Ok(n) => n,
+                        Err(e) => {
+                            if !drop_normals {
+                                notes.lenient("normal", e, "normals dropped")?;
+                                drop_normals = true;
+                            }
+                            NONE
+                        }
+                    };
                     if (v == 0 || t == 0 || n == 0) && zero_line.is_none() {
                         zero_line = Some(line_no);
                     }
@@ -211,24 +342,26 @@ pub fn parse_obj(path: &Path, text: &[u8]) -> Result<(TriMesh, ReadInfo)> {
             b"l" | b"p" | b"curv" | b"curv2" | b"surf" => skipped_elements += 1,
             _ => {}
         }
+        spare = recycle(toks);
     }
     if any_color && colors.len() < positions.len() {
         colors.resize(positions.len(), [1.0; 3]);
     }
 
-    let mut warnings = Vec::new();
     let zero_based = zero_line.is_some();
     if let Some(l) = zero_line {
-        warnings.push(format!(
+        notes.note("0-based", || format!(
             "{}:{l}: face index 0 is invalid in OBJ (indices start at 1); the file is read as 0-based",
             path.display()
         ));
     }
     if skipped_elements > 0 {
-        warnings.push(format!(
-            "{}: {skipped_elements} line/point/curve elements skipped (not triangles)",
-            path.display()
-        ));
+        notes.note("elements", || {
+            format!(
+                "{}: {skipped_elements} line/point/curve elements skipped (not triangles)",
+                path.display()
+            )
+        });
     }
     // Resolve raw indices; every corner is checked against its array's final length.
     let resolve = |raw: i64, len: usize, line: u64, what: &str| -> Result<u32> {
@@ -250,13 +383,47 @@ pub fn parse_obj(path: &Path, text: &[u8]) -> Result<(TriMesh, ReadInfo)> {
                 path,
                 line,
                 format!(
-                    "face {what} index {shown} is out of range: the file has {len} {what}s{base}"
+                    "face {what} index {shown} is out of range: the file has {len} {}{base}",
+                    if what == "vertex" {
+                        "vertices".to_string()
+                    } else {
+                        format!("{what}s")
+                    }
                 ),
             ));
         }
         Ok(idx as u32)
     };
 
+    // Texture coordinates and normals out of range: the attribute is dropped (lenient) or
+    // the file refused (strict), decided before any vertex is built.
+    for (p, &line) in lines.iter().enumerate() {
+        for c in &corners[starts[p]..starts[p + 1]] {
+            if !drop_uvs {
+                if let Err(e) = resolve(c[1], texcoords.len(), line, "texture coordinate") {
+                    notes.lenient("texture coordinate", e, "texture coordinates dropped")?;
+                    drop_uvs = true;
+                }
+            }
+            if !drop_normals {
+                if let Err(e) = resolve(c[2], normals.len(), line, "normal") {
+                    notes.lenient("normal", e, "normals dropped")?;
+                    drop_normals = true;
+                }
+            }
+        }
+    }
+    if drop_uvs {
+        texcoords.clear();
+        corners.iter_mut().for_each(|c| c[1] = NONE);
+    }
+    if drop_normals {
+        normals.clear();
+        corners.iter_mut().for_each(|c| c[2] = NONE);
+    }
+    if drop_colours {
+        any_color = false;
+    }
     let has_vt = corners.iter().any(|c| c[1] != NONE);
     let has_vn = corners.iter().any(|c| c[2] != NONE);
     let npos = positions.len();
@@ -264,10 +431,12 @@ pub fn parse_obj(path: &Path, text: &[u8]) -> Result<(TriMesh, ReadInfo)> {
         positions,
         colors: any_color.then(|| {
             let scale = if colors.iter().flatten().any(|&c| c > 1.0) {
-                warnings.push(format!(
-                    "{}: vertex colours above 1 read as 0–255 values",
-                    path.display()
-                ));
+                notes.note("0-255", || {
+                    format!(
+                        "{}: vertex colours above 1 read as 0–255 values",
+                        path.display()
+                    )
+                });
                 1.0 / 255.0
             } else {
                 1.0
@@ -349,17 +518,21 @@ pub fn parse_obj(path: &Path, text: &[u8]) -> Result<(TriMesh, ReadInfo)> {
         return Err(Error::format(path, 0, "more than 2^32 - 1 vertices"));
     }
     let mut tri = Triangulator::default();
-    for p in 0..lines.len() {
-        tri.triangulate(
+    for (p, &line) in lines.iter().enumerate() {
+        super::triangulate(
+            &mut tri,
             &mesh.positions,
             &ids[starts[p]..starts[p + 1]],
             &mut mesh.indices,
-        );
+            &mut notes,
+            |m| Error::text(path, line, m),
+        )?;
     }
     let info = ReadInfo {
         format: MeshFormat::Obj,
         faces_in_file: lines.len(),
-        warnings,
+        warnings: notes.into_lines(),
+        skipped_faces,
     };
     Ok((mesh, info))
 }
@@ -557,10 +730,6 @@ mod tests {
     fn bad_files_name_the_line() {
         let cases = [
             (
-                "v 0 0 0\nv 1 0 0\nf 1 2\n",
-                "t.obj:3: a face needs at least 3 vertices",
-            ),
-            (
                 "v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 4\n",
                 "t.obj:4: face vertex index 4 is out of range",
             ),
@@ -577,6 +746,82 @@ mod tests {
             let e = parse(text).unwrap_err().to_string();
             assert!(e.starts_with(want), "{text:?}: got {e}");
         }
+    }
+
+    #[test]
+    fn lenient_reading_drops_attributes_and_skips_faces_strict_refuses() {
+        let strict = ReadOptions { strict: true };
+        let cases = [
+            (
+                "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\nf 1 2 3\nf 2 3\n",
+                "t.obj:4: a face needs at least 3 vertices, this one has 2: skipped (and 1 more)",
+            ),
+            (
+                "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/2 3/1\n",
+                "t.obj:5: face texture coordinate index 2 is out of range: the file has 1 texture coordinates: texture coordinates dropped",
+            ),
+            (
+                "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//-2\n",
+                "t.obj:5: relative normal index -2 reaches before the first of the 1 normals defined so far: normals dropped",
+            ),
+            (
+                "v 0 0 0 1 0 0\nv 1 0 0 nan nan nan\nv 0 1 0 0 1 0\nf 1 2 3\n",
+                "t.obj:2: colour value `nan` is not a finite number: vertex colours dropped",
+            ),
+            (
+                "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 inf\nf 1//1 2//1 3//1\n",
+                "t.obj:4: normal value `inf` is not a finite number: normals dropped",
+            ),
+        ];
+        for (text, want) in cases {
+            let (m, info) = parse(text).unwrap();
+            assert_eq!(m.indices.len(), 1, "{text:?}");
+            assert_eq!(info.warnings, vec![want.to_string()], "{text:?}");
+            assert!(m.uvs.is_none() && m.normals.is_none() && m.colors.is_none());
+            let e = parse_obj_with(Path::new("t.obj"), text.as_bytes(), &strict)
+                .unwrap_err()
+                .to_string();
+            assert!(want.starts_with(&e), "{text:?}: strict gave {e}");
+        }
+    }
+
+    #[test]
+    fn huge_polygons_are_fans_with_a_warning() {
+        let n = crate::mesh::io::MAX_EAR_CORNERS + 1;
+        let mut text = String::new();
+        for i in 0..n {
+            let a = std::f64::consts::TAU * i as f64 / n as f64;
+            text.push_str(&format!("v {} {} 0\n", a.cos(), a.sin()));
+        }
+        text.push('f');
+        for i in 1..=n {
+            text.push_str(&format!(" {i}"));
+        }
+        let (m, info) = parse(&text).unwrap();
+        assert_eq!(m.indices.len(), n - 2);
+        assert_eq!(
+            info.warnings,
+            vec![format!(
+                "t.obj:{}: a face with {n} corners (more than 1024): triangulated as a fan",
+                n + 1
+            )]
+        );
+        let strict = ReadOptions { strict: true };
+        assert!(parse_obj_with(Path::new("t.obj"), text.as_bytes(), &strict).is_err());
+    }
+
+    #[test]
+    fn line_continuations_join_lines() {
+        let (m, info) =
+            parse("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 \\\r\n1 0\nf 1 2 \\\n 3 \\\n4\n").unwrap();
+        assert_eq!(m.positions[3], Vec3::new(0.0, 1.0, 0.0));
+        assert_eq!(info.faces_in_file, 1);
+        assert_eq!(m.indices.len(), 2);
+        // Messages name the first line of a continued one.
+        let e = parse("v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 \\\n 3 \\\n9\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("t.obj:4: face vertex index 9"), "{e}");
     }
 
     #[test]

@@ -8,8 +8,14 @@
 //! normals and texture coordinates, uchar RGBA colours, and uint triangle indices.
 //!
 //! Errors name the byte offset (binary data) or the line (header and ASCII data).
+//!
+//! Element counts come from the header: before anything is reserved for an element, its
+//! count times its smallest possible record (binary: the bytes of its scalars and list
+//! counts; ASCII: one digit and one separator per property) must fit in the bytes that
+//! follow, and an element without properties (zero-size records) is skipped whatever its
+//! count, so no header can make the reader allocate or loop beyond what the file holds.
 
-use super::{MeshFormat, ReadInfo};
+use super::{MeshFormat, Notes, ReadInfo, ReadOptions};
 use crate::error::{Error, Result};
 use crate::mesh::polygon::Triangulator;
 use crate::mesh::{linear_to_srgb, srgb_to_linear, TriMesh};
@@ -104,6 +110,8 @@ struct Property {
 #[derive(Debug, Clone)]
 struct Element {
     name: String,
+    /// Header line of the `element` declaration.
+    line: u64,
     count: usize,
     props: Vec<Property>,
 }
@@ -128,6 +136,10 @@ trait Source {
     fn value(&mut self, ty: Scalar) -> std::result::Result<f64, String>;
     /// Location of the next value.
     fn loc(&mut self) -> Loc;
+    /// Bytes not read yet.
+    fn remaining(&self) -> usize;
+    /// The fewest bytes a value of `kind` takes (a list: its count alone).
+    fn min_size(&self, kind: Kind) -> usize;
 }
 
 struct Binary<'a> {
@@ -169,6 +181,16 @@ impl Source for Binary<'_> {
 
     fn loc(&mut self) -> Loc {
         Loc::Byte((self.base + self.pos) as u64)
+    }
+
+    fn remaining(&self) -> usize {
+        self.data.len().saturating_sub(self.pos)
+    }
+
+    fn min_size(&self, kind: Kind) -> usize {
+        match kind {
+            Kind::Scalar(t) | Kind::List { count: t, .. } => t.size(),
+        }
     }
 }
 
@@ -221,6 +243,16 @@ impl Source for Text<'_> {
     fn loc(&mut self) -> Loc {
         self.skip_space();
         Loc::Line(self.line)
+    }
+
+    fn remaining(&self) -> usize {
+        self.data.len().saturating_sub(self.pos)
+    }
+
+    /// One character and one separator (the file's last value may lack the separator,
+    /// which the caller allows for).
+    fn min_size(&self, _kind: Kind) -> usize {
+        2
     }
 }
 
@@ -298,6 +330,7 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header> {
                     .map_err(|_| bad(format!("element count `{count}` is not a number")))?;
                 elements.push(Element {
                     name: name.to_string(),
+                    line,
                     count,
                     props: Vec::new(),
                 });
@@ -356,9 +389,15 @@ struct Collected {
     starts: Vec<usize>,
     strips: Vec<[u32; 3]>,
     faces_in_file: usize,
+    skipped_faces: usize,
 }
 
-fn read_data<S: Source>(path: &Path, header: &Header, src: &mut S) -> Result<Collected> {
+fn read_data<S: Source>(
+    path: &Path,
+    header: &Header,
+    src: &mut S,
+    notes: &mut Notes,
+) -> Result<Collected> {
     let nverts = header
         .elements
         .iter()
@@ -369,9 +408,29 @@ fn read_data<S: Source>(path: &Path, header: &Header, src: &mut S) -> Result<Col
         ..Default::default()
     };
     let mut strip: Vec<i64> = Vec::new();
+    let (mut drop_normals, mut drop_colours, mut drop_uvs) = (false, false, false);
     for el in &header.elements {
         let has = |pred: fn(Role) -> bool| el.props.iter().any(|p| pred(p.role));
         let is_vertex = el.name == "vertex";
+        let record: usize = el.props.iter().map(|p| src.min_size(p.kind)).sum();
+        if record == 0 {
+            // No properties: zero-size records, nothing to read whatever the count (a
+            // vertex element without x y z is refused below).
+            if !is_vertex {
+                continue;
+            }
+        } else if el.count.saturating_mul(record) > src.remaining().saturating_add(1) {
+            return Err(Error::text(
+                path,
+                el.line,
+                format!(
+                    "element `{}` declares {} records of at least {record} bytes each, but only {} bytes of data follow",
+                    el.name,
+                    el.count,
+                    src.remaining()
+                ),
+            ));
+        }
         let (mut colour_scale, mut has_alpha) = ([1.0f64; 4], false);
         if is_vertex {
             for k in 0..3 {
@@ -446,9 +505,18 @@ fn read_data<S: Source>(path: &Path, header: &Header, src: &mut S) -> Result<Col
                             continue;
                         }
                         if len < 3 {
-                            return Err(ends(format!(
-                                "a face needs at least 3 vertices, this one has {len}"
-                            )));
+                            notes.lenient(
+                                "short face",
+                                ends(format!(
+                                    "a face needs at least 3 vertices, this one has {len}"
+                                )),
+                                "skipped",
+                            )?;
+                            for _ in 0..len {
+                                src.value(item).map_err(&ends)?;
+                            }
+                            c.skipped_faces += 1;
+                            continue;
                         }
                         for _ in 0..len {
                             let v = src.value(item).map_err(&ends)?;
@@ -473,6 +541,23 @@ fn read_data<S: Source>(path: &Path, header: &Header, src: &mut S) -> Result<Col
                     )));
                 }
                 c.positions.push(pos);
+                let bad = |what: &str, v: &[f64]| ends(format!("{what} {v:?} is not finite"));
+                if c.normals.is_some() && !drop_normals && !n.iter().all(|x| x.is_finite()) {
+                    notes.lenient("normal", bad("normal", &n), "normals dropped")?;
+                    drop_normals = true;
+                }
+                if c.colors.is_some() && !drop_colours && !col.iter().all(|x| x.is_finite()) {
+                    notes.lenient("colour", bad("colour", &col), "colours dropped")?;
+                    drop_colours = true;
+                }
+                if c.uvs.is_some() && !drop_uvs && !t.iter().all(|x| x.is_finite()) {
+                    notes.lenient(
+                        "texture coordinate",
+                        bad("texture coordinate", &t),
+                        "texture coordinates dropped",
+                    )?;
+                    drop_uvs = true;
+                }
                 if let Some(nn) = c.normals.as_mut() {
                     nn.push(Vec3::new(n[0] as f32, n[1] as f32, n[2] as f32));
                 }
@@ -490,6 +575,15 @@ fn read_data<S: Source>(path: &Path, header: &Header, src: &mut S) -> Result<Col
                 }
             }
         }
+    }
+    if drop_normals {
+        c.normals = None;
+    }
+    if drop_colours {
+        c.colors = None;
+    }
+    if drop_uvs {
+        c.uvs = None;
     }
     Ok(c)
 }
@@ -520,8 +614,18 @@ fn strip_triangles(
     Ok(())
 }
 
-/// Parses a PLY file's bytes (`path` is for messages).
+/// Parses a PLY file's bytes (`path` is for messages), leniently.
 pub fn parse_ply(path: &Path, bytes: &[u8]) -> Result<(TriMesh, ReadInfo)> {
+    parse_ply_with(path, bytes, &ReadOptions::default())
+}
+
+/// Parses a PLY file's bytes (`path` is for messages) as `opts` say.
+pub fn parse_ply_with(
+    path: &Path,
+    bytes: &[u8],
+    opts: &ReadOptions,
+) -> Result<(TriMesh, ReadInfo)> {
+    let mut notes = Notes::new(opts);
     let header = parse_header(path, bytes)?;
     let data = &bytes[header.data_start..];
     let c = match header.encoding {
@@ -533,6 +637,7 @@ pub fn parse_ply(path: &Path, bytes: &[u8]) -> Result<(TriMesh, ReadInfo)> {
                 pos: 0,
                 line: header.data_line,
             },
+            &mut notes,
         )?,
         enc => read_data(
             path,
@@ -543,6 +648,7 @@ pub fn parse_ply(path: &Path, bytes: &[u8]) -> Result<(TriMesh, ReadInfo)> {
                 base: header.data_start,
                 big: enc == Encoding::BinaryBigEndian,
             },
+            &mut notes,
         )?,
     };
     if c.positions.len() > u32::MAX as usize {
@@ -556,8 +662,15 @@ pub fn parse_ply(path: &Path, bytes: &[u8]) -> Result<(TriMesh, ReadInfo)> {
         uvs: c.uvs,
     };
     let mut tri = Triangulator::default();
-    for w in c.starts.windows(2) {
-        tri.triangulate(&mesh.positions, &c.polys[w[0]..w[1]], &mut mesh.indices);
+    for (f, w) in c.starts.windows(2).enumerate() {
+        super::triangulate(
+            &mut tri,
+            &mesh.positions,
+            &c.polys[w[0]..w[1]],
+            &mut mesh.indices,
+            &mut notes,
+            |m| Error::format(path, 0, format!("polygon {f}: {m}")),
+        )?;
     }
     mesh.indices.extend_from_slice(&c.strips);
     let format = match header.encoding {
@@ -570,7 +683,8 @@ pub fn parse_ply(path: &Path, bytes: &[u8]) -> Result<(TriMesh, ReadInfo)> {
         ReadInfo {
             format,
             faces_in_file: c.faces_in_file,
-            warnings: Vec::new(),
+            warnings: notes.into_lines(),
+            skipped_faces: c.skipped_faces,
         },
     ))
 }
@@ -782,18 +896,43 @@ mod tests {
             s.starts_with("b.ply:17: face 0 of 1: face uses vertex 9 but there are 4"),
             "{s}"
         );
-        let s = e(ascii("0 0 0 1 1 1\n1 0 0 1 1 1\n1 1 0 1 1 1\n0 1 0 1 1 1\n2 0 1\n").as_bytes());
+        // A face with 2 vertices: skipped with a warning, an error when strict.
+        let two = ascii("0 0 0 1 1 1\n1 0 0 1 1 1\n1 1 0 1 1 1\n0 1 0 1 1 1\n2 0 1\n");
+        let (m, info) = parse_ply(p, two.as_bytes()).unwrap();
+        assert_eq!((m.indices.len(), info.skipped_faces), (0, 1));
+        assert!(
+            info.warnings[0].starts_with(
+                "b.ply:17: face 0 of 1: a face needs at least 3 vertices, this one has 2: skipped"
+            ),
+            "{:?}",
+            info.warnings
+        );
+        let strict = ReadOptions { strict: true };
+        let s = parse_ply_with(p, two.as_bytes(), &strict)
+            .unwrap_err()
+            .to_string();
         assert!(
             s.contains("a face needs at least 3 vertices, this one has 2"),
             "{s}"
         );
-        let s = e(ascii("0 0 0 1 1 1\nnan 0 0 1 1 1\n").as_bytes());
+        let s =
+            e(ascii("0 0 0 1 1 1\nnan 0 0 1 1 1\n0 0 0 1 1 1\n0 0 0 1 1 1\n3 0 1 2\n").as_bytes());
         assert!(
             s.starts_with("b.ply:14: vertex 1 of 4: non-finite coordinate"),
             "{s}"
         );
+        // Too few bytes for the declared records: refused at the element's header line.
         let s = e(ascii("0 0 0 1 1 1\n").as_bytes());
-        assert!(s.contains("vertex 1 of 4: the file ends early"), "{s}");
+        assert_eq!(
+            s,
+            "b.ply:3: element `vertex` declares 4 records of at least 12 bytes each, but only 12 bytes of data follow"
+        );
+        // Enough bytes for the smallest records but not for these: where it ends.
+        let s = e(ascii("0.25 0.25 0.25 1 1 1\n1 0 0 1 1 1\n1 1 0 1 1 1\n3 0 1\n").as_bytes());
+        assert!(
+            s.starts_with("b.ply:16: vertex 3 of 4: the file ends early"),
+            "{s}"
+        );
         let s = e(b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty quad x\nend_header\n");
         assert!(
             s.starts_with("b.ply:4: unknown property type `quad`"),
@@ -801,18 +940,23 @@ mod tests {
         );
         let s = e(b"ply\nformat ascii 1.0\nelement vertex 1\n");
         assert!(s.contains("no `end_header`"), "{s}");
-        // Binary: truncated inside the second vertex, reported at its byte offset.
+        // Binary: truncated inside the first face, reported at its byte offset.
         let mut buf = Vec::new();
         write_ply(&sample(), &mut buf, Encoding::BinaryLittleEndian).unwrap();
         let head = buf.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
         let rec = 3 * 4 + 3 * 4 + 4 + 2 * 4;
-        let s = e(&buf[..head + rec + 5]);
+        let s = e(&buf[..head + 4 * rec + 3]);
         assert_eq!(
             s,
             format!(
-                "b.ply: byte {}: vertex 1 of 4: the file ends early",
-                head + rec
+                "b.ply: byte {}: face 0 of 2: the file ends early",
+                head + 4 * rec
             )
+        );
+        let s = e(&buf[..head + rec + 5]);
+        assert_eq!(
+            s,
+            format!("b.ply:4: element `vertex` declares 4 records of at least {rec} bytes each, but only {} bytes of data follow", rec + 5)
         );
     }
 }
