@@ -10,6 +10,39 @@ use terratile::error::{one_line, Error, Result};
 use terratile::points::{self, ClassFilter, Format, ReadOptions};
 use terratile::progress::Progress;
 
+/// `print!` that survives a reader going away: `terratile … | head -1` closes the pipe, and
+/// `print!` would panic on the broken pipe. Here the process ends quietly with success, as a
+/// Unix filter does; any other failure to write standard output is one error line, exit 1.
+macro_rules! out {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        if let Err(e) = write!(std::io::stdout().lock(), $($arg)*) {
+            stdout_failed(e);
+        }
+    }};
+}
+
+/// `println!` with [`out!`]'s handling of a closed pipe.
+macro_rules! outln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        if let Err(e) = writeln!(std::io::stdout().lock(), $($arg)*) {
+            stdout_failed(e);
+        }
+    }};
+}
+
+fn stdout_failed(e: std::io::Error) -> ! {
+    if e.kind() == std::io::ErrorKind::BrokenPipe {
+        std::process::exit(0);
+    }
+    eprintln!(
+        "terratile: writing to standard output: {}",
+        one_line(&e.to_string())
+    );
+    std::process::exit(1);
+}
+
 /// terratile: airborne LIDAR point clouds to crack-free tiled terrain for game engines.
 #[derive(Parser, Debug)]
 #[command(name = "terratile", version, about, long_about = None)]
@@ -415,7 +448,7 @@ impl Progress for Bars {
 
 fn print_json<T: serde::Serialize>(v: &T) -> Result<()> {
     let s = serde_json::to_string_pretty(v).map_err(|e| Error::Internal(e.to_string()))?;
-    println!("{s}");
+    outln!("{s}");
     Ok(())
 }
 
@@ -449,7 +482,7 @@ fn run(cli: Cli) -> Result<()> {
             if json {
                 print_json(&summary)?;
             } else {
-                print!("{summary}");
+                out!("{summary}");
             }
         }
         Command::Info { files, json, read } => {
@@ -462,7 +495,7 @@ fn run(cli: Cli) -> Result<()> {
                 print_json(&infos)?;
             } else {
                 for i in &infos {
-                    print!("{i}");
+                    out!("{i}");
                 }
             }
         }
@@ -490,7 +523,7 @@ fn run(cli: Cli) -> Result<()> {
             let n = points::convert(&input, &output, sel);
             progress.finish();
             let n = n?;
-            println!("{}: {n} points", output.display());
+            outln!("{}: {n} points", output.display());
         }
         Command::Bench(BenchCommand::Read {
             file,
@@ -502,7 +535,7 @@ fn run(cli: Cli) -> Result<()> {
             if json {
                 print_json(&r)?;
             } else {
-                println!("{r}");
+                outln!("{r}");
             }
         }
         Command::Bench(BenchCommand::Terrain { file, repeat, json }) => {
@@ -510,7 +543,7 @@ fn run(cli: Cli) -> Result<()> {
             if json {
                 print_json(&r)?;
             } else {
-                println!("{r}");
+                outln!("{r}");
             }
         }
         Command::Bench(BenchCommand::Table1 {
@@ -557,7 +590,7 @@ fn run(cli: Cli) -> Result<()> {
             if json {
                 print_json(&t.rows)?;
             } else {
-                print!("{t}");
+                out!("{t}");
             }
         }
         Command::Bench(BenchCommand::Table1Memory {
@@ -567,7 +600,7 @@ fn run(cli: Cli) -> Result<()> {
             method,
         }) => {
             let mb = terratile::bench::table1_memory(&file, count, seed, &method)?;
-            println!("{}", mb.map_or("none".into(), |m| m.to_string()));
+            outln!("{}", mb.map_or("none".into(), |m| m.to_string()));
         }
         Command::Simplify(a) => simplify(a)?,
         Command::Compare {
@@ -589,7 +622,7 @@ fn run(cli: Cli) -> Result<()> {
             if json {
                 print_json(&r)?;
             } else {
-                print!("{r}");
+                out!("{r}");
             }
         }
     }
@@ -665,7 +698,7 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
     if a.json {
         print_json(&r)?;
     } else {
-        print!("{r}");
+        out!("{r}");
     }
     Ok(())
 }
@@ -697,7 +730,7 @@ fn generate(g: &GenerateArgs) -> Result<()> {
     }
     let written = gen::write_scene(&scene, &g.output, &formats, g.tiles)?;
     for (p, c) in &written {
-        println!("{}: {} points", p.display(), c.len());
+        outln!("{}: {} points", p.display(), c.len());
     }
     Ok(())
 }

@@ -453,3 +453,32 @@ fn readme_defaults_match_the_code() {
         }
     }
 }
+
+/// `terratile compare A B | head -1` panicked ("failed printing to stdout: Broken pipe") and
+/// printed an internal error once `head` had closed the pipe. A closed pipe now ends the
+/// process quietly with success, as a Unix filter does.
+#[test]
+fn closed_stdout_pipe_panicked() {
+    use std::process::{Command, Stdio};
+    let d = tempfile::tempdir().unwrap();
+    let obj = d.path().join("t.obj");
+    std::fs::write(
+        &obj,
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 1\nf 1 2 3\nf 2 4 3\n",
+    )
+    .unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_terratile"))
+        .args(["compare", "--json"])
+        .arg(&obj)
+        .arg(&obj)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The reader goes away before the report is written.
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+}
