@@ -68,6 +68,17 @@ pub struct Run {
 }
 
 impl Run {
+    /// The run of `terratile ARGS` in `dir` that gave `out`.
+    pub fn from_output(dir: &Path, args: &[&str], out: std::process::Output) -> Run {
+        Run {
+            cmd: format!("terratile {}", args.join(" ")),
+            dir: dir.to_path_buf(),
+            code: out.status.code().unwrap_or(-1),
+            stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
+            stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
+        }
+    }
+
     /// Everything a reader of a failed test needs: command, directory listing, output.
     pub fn context(&self) -> String {
         let mut listing = String::new();
@@ -175,13 +186,7 @@ pub fn terratile(dir: &Path, args: &[&str]) -> Run {
         .env_remove("RUST_BACKTRACE")
         .output()
         .expect("the terratile binary runs");
-    Run {
-        cmd: format!("terratile {}", args.join(" ")),
-        dir: dir.to_path_buf(),
-        code: out.status.code().unwrap_or(-1),
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
+    Run::from_output(dir, args, out)
 }
 
 /// The repository root.

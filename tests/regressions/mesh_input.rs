@@ -32,13 +32,7 @@ fn capped(dir: &Path, args: &[&str]) -> Run {
         .env_remove("RUST_BACKTRACE")
         .output()
         .expect("the terratile binary runs");
-    Run {
-        cmd: format!("terratile {}", args.join(" ")),
-        dir: dir.to_path_buf(),
-        code: out.status.code().unwrap_or(-1),
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
+    Run::from_output(dir, args, out)
 }
 
 fn write_case(dir: &Path, name: &str) {

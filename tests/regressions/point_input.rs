@@ -161,13 +161,7 @@ fn bounded(dir: &Path, args: &[&str]) -> Run {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
     let out = child.wait_with_output().unwrap();
-    Run {
-        cmd: format!("terratile {}", args.join(" ")),
-        dir: dir.to_path_buf(),
-        code: out.status.code().unwrap_or(-1),
-        stdout: String::from_utf8_lossy(&out.stdout).into_owned(),
-        stderr: String::from_utf8_lossy(&out.stderr).into_owned(),
-    }
+    Run::from_output(dir, args, out)
 }
 
 // A FIFO given as input blocked forever; in `paths` it was said not to exist.
