@@ -1,7 +1,7 @@
 //! Triangle meshes for model assets (and terrain tile meshes): the indexed [`TriMesh`], its
 //! bounds, validation and cleaning; adjacency on demand ([`adjacency`]), OBJ/PLY I/O
 //! ([`io`]), a BVH for closest-point queries ([`bvh`]) and the Metro-style error
-//! ([`mod@hausdorff`], SPEC §8).
+//! ([`mod@hausdorff`], after Cignoni et al.'s Metro).
 
 pub mod adjacency;
 pub mod bvh;

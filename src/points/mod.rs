@@ -1,5 +1,5 @@
 //! Point clouds in: the struct-of-arrays [`PointCloud`], its bounds, and the readers for
-//! LAS/LAZ (memory-mapped, records decoded in parallel) and XYZ/CSV text (SPEC §1).
+//! LAS/LAZ (memory-mapped, records decoded in parallel) and XYZ/CSV text.
 //!
 //! Formats are recognised from the content: a `LASF` signature is LAS, or LAZ when the point
 //! format carries the compression bit or a LASzip VLR is present; anything else that looks

@@ -59,7 +59,7 @@ pub struct CloudStats {
     pub classes: Histogram,
     /// Points per return number (empty if the source has none).
     pub returns: Histogram,
-    /// Mean point spacing s = sqrt(bbox area / N), in the data's horizontal units (SPEC §2).
+    /// Mean point spacing s = sqrt(bbox area / N), in the data's horizontal units.
     pub mean_spacing: Option<f64>,
 }
 

@@ -1,4 +1,4 @@
-//! XYZ/CSV text (SPEC §1): x y z are the first three numeric columns, separated by spaces,
+//! XYZ/CSV text: x y z are the first three numeric columns, separated by spaces,
 //! tabs or commas; `#` starts a comment line; one optional header line before the data.
 //!
 //! The mapped file is cut into chunks at line ends and the chunks are parsed in parallel with

@@ -1,4 +1,4 @@
-//! Mesh simplification for model assets: vertex clustering (SPEC §7, [`cluster`]) on top of
+//! Mesh simplification for model assets: vertex clustering ([`cluster`]) on top of
 //! reusable error quadrics ([`quadric`]). Later stages (QEM with saliency, fold-free
 //! placement, progressive strips) live beside them.
 

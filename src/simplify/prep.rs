@@ -306,7 +306,7 @@ impl<'a> Prepared<'a> {
     }
 }
 
-/// A vertex's normal statistics for the octree's split rule (seed 000 eq. 1–4), in f32: a
+/// A vertex's normal statistics for the octree's split rule (Kim et al. 1999, eq. 1–4), in f32: a
 /// split heuristic needs no more, and the octree streams them through every split.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NormalStats {

@@ -1,6 +1,6 @@
 //! Error quadrics (Garland & Heckbert 1997): the sum of squared distances to a set of planes
 //! as a symmetric 4 × 4 form, in f64. Used for the quadric-optimal representative of vertex
-//! clustering (Lindstrom 2000) and, in later stages, for QEM edge collapse (SPEC §9).
+//! clustering (Lindstrom 2000) and, in later stages, for QEM edge collapse (Garland & Heckbert 1997).
 //!
 //! The minimiser is found as Lindstrom does: starting from a fallback point x₀ (the cluster
 //! centroid), move by the pseudo-inverse of A restricted to its well-conditioned

@@ -818,7 +818,7 @@ mod tests {
             raster.state.iter().all(|s| *s == CellState::Measured),
             "the hull holds every centre"
         );
-        // Inside the border every filled cell has both pairs (SPEC §4's formula, exact on a
+        // Inside the border every filled cell has both pairs (Kim & Shin's fill formula, exact on a
         // plane); border cells miss one neighbour and use inverse-distance weights instead.
         for j in 1..32 {
             for i in 1..40 {

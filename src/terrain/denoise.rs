@@ -1,5 +1,5 @@
-//! Noise removal with the voxel-count pseudo-grid of seed 003 §2.1 (Kim & Shin, after Cho et
-//! al. 2004; SPEC §2), plus one per-column rule for detached low layers.
+//! Noise removal with the voxel-count pseudo-grid of Kim & Shin §2.1 (after Cho et
+//! al. 2004), plus one per-column rule for detached low layers.
 //!
 //! **Pseudo-grid.** The bounding box is cut into voxels `voxel_size` wide (x and y) and
 //! `voxel_height` tall. A point is noise when its voxel holds fewer than `min_points` points,

@@ -276,7 +276,7 @@ fn fill_band(
     }
     // Bottom-up: the nearest measured row below from a running record (`last`), the nearest
     // measured cell to the right from a backward scan of the row, to the left from a running
-    // record along the row; then SPEC §4.
+    // record along the row; then Kim & Shin's combination.
     let mut last = vec![u32::MAX; cols];
     for j in lo..j0 {
         for (l, st) in last.iter_mut().zip(&below.2[state_row(j)]) {

@@ -1,4 +1,4 @@
-//! Floating-cell clustering (Low & Tan 1997; SPEC §7; seed 000 §II.2). Vertices are weighted
+//! Floating-cell clustering (Low & Tan 1997; Kim et al. 1999 §II.2). Vertices are weighted
 //! by their visual importance w = (longest incident edge) · cos(θ/2), θ the largest angle
 //! between two incident edges (the chance to lie on a silhouette). In order of decreasing
 //! weight, a vertex no cell holds yet becomes the centre of a new cell — a cube of edge

@@ -1,4 +1,4 @@
-//! Adaptive octree clustering, the paper's method (Kim et al., seed 000 §III; SPEC §7).
+//! Adaptive octree clustering, the paper's method (Kim et al. 1999 §III).
 //!
 //! The bounding cube is subdivided as an octree: a node splits into its eight octants
 //! (empty octants are not created) while its vertices spread (Dv, eq. 5–6) and its

@@ -1,4 +1,4 @@
-//! Uniform grid clustering (Rossignac & Borrel 1993; SPEC §7): a cubic grid anchored at the
+//! Uniform grid clustering (Rossignac & Borrel 1993): a cubic grid anchored at the
 //! bounding box's minimum corner; all vertices of one cell form one cluster.
 //!
 //! The target search needs no hash table: a pass computes one packed cell key per vertex
