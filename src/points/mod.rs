@@ -229,6 +229,21 @@ impl PointCloud {
         self.x.is_empty()
     }
 
+    /// Reserves room for exactly `additional` more points in the coordinate columns and, with
+    /// `attributes`, in the class, return and intensity columns too (an XYZ file has none:
+    /// those columns stay empty). The one place that sizes the columns ahead of a reader.
+    pub(crate) fn reserve_exact(&mut self, additional: usize, attributes: bool) {
+        self.x.reserve_exact(additional);
+        self.y.reserve_exact(additional);
+        self.z.reserve_exact(additional);
+        if attributes {
+            self.classification.reserve_exact(additional);
+            self.return_number.reserve_exact(additional);
+            self.number_of_returns.reserve_exact(additional);
+            self.intensity.reserve_exact(additional);
+        }
+    }
+
     /// The tight bounding box of the points (computed in parallel).
     pub fn bounds(&self) -> Bounds {
         self.x
