@@ -28,6 +28,10 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
+/// ASPRS class 7, "low point (noise)": the class terratile gives the points noise removal
+/// drops when it writes them out (LAS 1.4 R15, Table 17).
+pub const LOW_NOISE_CLASS: u8 = 7;
+
 /// Point coordinates in world units (f64) plus the per-point attributes later stages need,
 /// stored column by column.
 ///
