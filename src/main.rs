@@ -419,11 +419,14 @@ fn print_json<T: serde::Serialize>(v: &T) -> Result<()> {
     Ok(())
 }
 
-fn run(cli: Cli) -> Result<()> {
-    if let Some(m) = cli.max_memory {
+/// The process-wide effects of the global options: the memory budget and the worker threads
+/// (refused outside 1 to `memory::max_threads`), and the clean-up of this process's files on
+/// SIGINT/SIGTERM.
+fn configure(max_memory: Option<u64>, threads: Option<usize>) -> Result<()> {
+    if let Some(m) = max_memory {
         terratile::memory::set_budget(m);
     }
-    if let Some(n) = cli.threads {
+    if let Some(n) = threads {
         if n == 0 {
             return Err(Error::Usage("--threads must be at least 1".into()));
         }
@@ -439,7 +442,63 @@ fn run(cli: Cli) -> Result<()> {
             .map_err(|e| Error::Internal(e.to_string()))?;
     }
     // SIGINT/SIGTERM remove this process's staging and temporary files, then exit 130/143.
-    terratile::fsutil::clean_up_on_signals()?;
+    terratile::fsutil::clean_up_on_signals()
+}
+
+/// `bench table1`: the table, with each memory figure from a fresh process running
+/// `bench table1-memory`; counts the file cannot supply are named on stderr; then the plot
+/// and the table (markdown or JSON).
+fn bench_table1(
+    file: PathBuf,
+    counts: Option<Vec<u64>>,
+    repeat: usize,
+    seed: u64,
+    json: bool,
+    plot: Option<PathBuf>,
+) -> Result<()> {
+    let counts = counts.unwrap_or_else(terratile::bench::paper_counts);
+    // Each memory figure comes from a fresh process running one method once.
+    let probe = |count: u64, method: &str| -> Result<Option<f64>> {
+        let exe = std::env::current_exe().map_err(|e| Error::Internal(e.to_string()))?;
+        let out = std::process::Command::new(exe)
+            .args(["bench", "table1-memory", "--count", &count.to_string()])
+            .args(["--seed", &seed.to_string(), "--method", method])
+            .arg(&file)
+            .output()
+            .map_err(|e| Error::Internal(format!("memory probe: {e}")))?;
+        if !out.status.success() {
+            return Err(Error::Internal(format!(
+                "memory probe: {}",
+                String::from_utf8_lossy(&out.stderr).trim()
+            )));
+        }
+        Ok(String::from_utf8_lossy(&out.stdout)
+            .trim()
+            .parse::<f64>()
+            .ok())
+    };
+    let t = terratile::bench::table1(&file, &counts, repeat, seed, Some(&probe))?;
+    for s in &t.skipped {
+        let line = format!(
+            "bench table1: skipping {s} points: {} holds {}",
+            file.display(),
+            t.file_points
+        );
+        eprintln!("terratile: {}", one_line(&line));
+    }
+    if let Some(p) = &plot {
+        terratile::bench::plot_table1(&t, p)?;
+    }
+    if json {
+        print_json(&t.rows)?;
+    } else {
+        print!("{t}");
+    }
+    Ok(())
+}
+
+fn run(cli: Cli) -> Result<()> {
+    configure(cli.max_memory, cli.threads)?;
     let bars = Bars::new(cli.quiet);
     let progress: &dyn Progress = &bars;
     match cli.command {
@@ -520,46 +579,7 @@ fn run(cli: Cli) -> Result<()> {
             seed,
             json,
             plot,
-        }) => {
-            let counts = counts.unwrap_or_else(terratile::bench::paper_counts);
-            // Each memory figure comes from a fresh process running one method once.
-            let probe = |count: u64, method: &str| -> Result<Option<f64>> {
-                let exe = std::env::current_exe().map_err(|e| Error::Internal(e.to_string()))?;
-                let out = std::process::Command::new(exe)
-                    .args(["bench", "table1-memory", "--count", &count.to_string()])
-                    .args(["--seed", &seed.to_string(), "--method", method])
-                    .arg(&file)
-                    .output()
-                    .map_err(|e| Error::Internal(format!("memory probe: {e}")))?;
-                if !out.status.success() {
-                    return Err(Error::Internal(format!(
-                        "memory probe: {}",
-                        String::from_utf8_lossy(&out.stderr).trim()
-                    )));
-                }
-                Ok(String::from_utf8_lossy(&out.stdout)
-                    .trim()
-                    .parse::<f64>()
-                    .ok())
-            };
-            let t = terratile::bench::table1(&file, &counts, repeat, seed, Some(&probe))?;
-            for s in &t.skipped {
-                let line = format!(
-                    "bench table1: skipping {s} points: {} holds {}",
-                    file.display(),
-                    t.file_points
-                );
-                eprintln!("terratile: {}", one_line(&line));
-            }
-            if let Some(p) = &plot {
-                terratile::bench::plot_table1(&t, p)?;
-            }
-            if json {
-                print_json(&t.rows)?;
-            } else {
-                print!("{t}");
-            }
-        }
+        }) => bench_table1(file, counts, repeat, seed, json, plot)?,
         Command::Bench(BenchCommand::Table1Memory {
             file,
             count,
