@@ -445,56 +445,31 @@ fn configure(max_memory: Option<u64>, threads: Option<usize>) -> Result<()> {
     terratile::fsutil::clean_up_on_signals()
 }
 
-/// `bench table1`: the table, with each memory figure from a fresh process running
-/// `bench table1-memory`; counts the file cannot supply are named on stderr; then the plot
-/// and the table (markdown or JSON).
-fn bench_table1(
-    file: PathBuf,
-    counts: Option<Vec<u64>>,
-    repeat: usize,
+/// One memory figure of `bench table1`: a fresh process runs `bench table1-memory` for one
+/// method at `count` points of `file`, so that its peak is that method's alone.
+fn table1_memory_probe(
+    file: &std::path::Path,
     seed: u64,
-    json: bool,
-    plot: Option<PathBuf>,
-) -> Result<()> {
-    let counts = counts.unwrap_or_else(terratile::bench::paper_counts);
-    // Each memory figure comes from a fresh process running one method once.
-    let probe = |count: u64, method: &str| -> Result<Option<f64>> {
-        let exe = std::env::current_exe().map_err(|e| Error::Internal(e.to_string()))?;
-        let out = std::process::Command::new(exe)
-            .args(["bench", "table1-memory", "--count", &count.to_string()])
-            .args(["--seed", &seed.to_string(), "--method", method])
-            .arg(&file)
-            .output()
-            .map_err(|e| Error::Internal(format!("memory probe: {e}")))?;
-        if !out.status.success() {
-            return Err(Error::Internal(format!(
-                "memory probe: {}",
-                String::from_utf8_lossy(&out.stderr).trim()
-            )));
-        }
-        Ok(String::from_utf8_lossy(&out.stdout)
-            .trim()
-            .parse::<f64>()
-            .ok())
-    };
-    let t = terratile::bench::table1(&file, &counts, repeat, seed, Some(&probe))?;
-    for s in &t.skipped {
-        let line = format!(
-            "bench table1: skipping {s} points: {} holds {}",
-            file.display(),
-            t.file_points
-        );
-        eprintln!("terratile: {}", one_line(&line));
+    count: u64,
+    method: &str,
+) -> Result<Option<f64>> {
+    let exe = std::env::current_exe().map_err(|e| Error::Internal(e.to_string()))?;
+    let out = std::process::Command::new(exe)
+        .args(["bench", "table1-memory", "--count", &count.to_string()])
+        .args(["--seed", &seed.to_string(), "--method", method])
+        .arg(file)
+        .output()
+        .map_err(|e| Error::Internal(format!("memory probe: {e}")))?;
+    if !out.status.success() {
+        return Err(Error::Internal(format!(
+            "memory probe: {}",
+            String::from_utf8_lossy(&out.stderr).trim()
+        )));
     }
-    if let Some(p) = &plot {
-        terratile::bench::plot_table1(&t, p)?;
-    }
-    if json {
-        print_json(&t.rows)?;
-    } else {
-        print!("{t}");
-    }
-    Ok(())
+    Ok(String::from_utf8_lossy(&out.stdout)
+        .trim()
+        .parse::<f64>()
+        .ok())
 }
 
 fn run(cli: Cli) -> Result<()> {
@@ -579,7 +554,28 @@ fn run(cli: Cli) -> Result<()> {
             seed,
             json,
             plot,
-        }) => bench_table1(file, counts, repeat, seed, json, plot)?,
+        }) => {
+            let counts = counts.unwrap_or_else(terratile::bench::paper_counts);
+            // Each memory figure comes from a fresh process running one method once.
+            let probe = |count: u64, method: &str| table1_memory_probe(&file, seed, count, method);
+            let t = terratile::bench::table1(&file, &counts, repeat, seed, Some(&probe))?;
+            for s in &t.skipped {
+                let line = format!(
+                    "bench table1: skipping {s} points: {} holds {}",
+                    file.display(),
+                    t.file_points
+                );
+                eprintln!("terratile: {}", one_line(&line));
+            }
+            if let Some(p) = &plot {
+                terratile::bench::plot_table1(&t, p)?;
+            }
+            if json {
+                print_json(&t.rows)?;
+            } else {
+                print!("{t}");
+            }
+        }
         Command::Bench(BenchCommand::Table1Memory {
             file,
             count,
