@@ -452,11 +452,14 @@ fn print_json<T: serde::Serialize>(v: &T) -> Result<()> {
     Ok(())
 }
 
-fn run(cli: Cli) -> Result<()> {
-    if let Some(m) = cli.max_memory {
+/// The process-wide effects of the global options: the memory budget and the worker threads
+/// (refused outside 1 to `memory::max_threads`), and the clean-up of this process's files on
+/// SIGINT/SIGTERM.
+fn configure(max_memory: Option<u64>, threads: Option<usize>) -> Result<()> {
+    if let Some(m) = max_memory {
         terratile::memory::set_budget(m);
     }
-    if let Some(n) = cli.threads {
+    if let Some(n) = threads {
         if n == 0 {
             return Err(Error::Usage("--threads must be at least 1".into()));
         }
@@ -472,7 +475,38 @@ fn run(cli: Cli) -> Result<()> {
             .map_err(|e| Error::Internal(e.to_string()))?;
     }
     // SIGINT/SIGTERM remove this process's staging and temporary files, then exit 130/143.
-    terratile::fsutil::clean_up_on_signals()?;
+    terratile::fsutil::clean_up_on_signals()
+}
+
+/// One memory figure of `bench table1`: a fresh process runs `bench table1-memory` for one
+/// method at `count` points of `file`, so that its peak is that method's alone.
+fn table1_memory_probe(
+    file: &std::path::Path,
+    seed: u64,
+    count: u64,
+    method: &str,
+) -> Result<Option<f64>> {
+    let exe = std::env::current_exe().map_err(|e| Error::Internal(e.to_string()))?;
+    let out = std::process::Command::new(exe)
+        .args(["bench", "table1-memory", "--count", &count.to_string()])
+        .args(["--seed", &seed.to_string(), "--method", method])
+        .arg(file)
+        .output()
+        .map_err(|e| Error::Internal(format!("memory probe: {e}")))?;
+    if !out.status.success() {
+        return Err(Error::Internal(format!(
+            "memory probe: {}",
+            String::from_utf8_lossy(&out.stderr).trim()
+        )));
+    }
+    Ok(String::from_utf8_lossy(&out.stdout)
+        .trim()
+        .parse::<f64>()
+        .ok())
+}
+
+fn run(cli: Cli) -> Result<()> {
+    configure(cli.max_memory, cli.threads)?;
     let bars = Bars::new(cli.quiet);
     let progress: &dyn Progress = &bars;
     match cli.command {
@@ -556,25 +590,7 @@ fn run(cli: Cli) -> Result<()> {
         }) => {
             let counts = counts.unwrap_or_else(terratile::bench::paper_counts);
             // Each memory figure comes from a fresh process running one method once.
-            let probe = |count: u64, method: &str| -> Result<Option<f64>> {
-                let exe = std::env::current_exe().map_err(|e| Error::Internal(e.to_string()))?;
-                let out = std::process::Command::new(exe)
-                    .args(["bench", "table1-memory", "--count", &count.to_string()])
-                    .args(["--seed", &seed.to_string(), "--method", method])
-                    .arg(&file)
-                    .output()
-                    .map_err(|e| Error::Internal(format!("memory probe: {e}")))?;
-                if !out.status.success() {
-                    return Err(Error::Internal(format!(
-                        "memory probe: {}",
-                        String::from_utf8_lossy(&out.stderr).trim()
-                    )));
-                }
-                Ok(String::from_utf8_lossy(&out.stdout)
-                    .trim()
-                    .parse::<f64>()
-                    .ok())
-            };
+            let probe = |count: u64, method: &str| table1_memory_probe(&file, seed, count, method);
             let t = terratile::bench::table1(&file, &counts, repeat, seed, Some(&probe))?;
             for s in &t.skipped {
                 let line = format!(

@@ -195,6 +195,85 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
     let files = pipeline.input_files()?;
     let cfg = &pipeline.config;
     let opts = cfg.input.read_options();
+    let staged = stage_output_dir(pipeline, &files)?;
+
+    let t = Instant::now();
+    let cloud = points::read_all(&files, &opts, progress)?;
+    let read_s = t.elapsed().as_secs_f64();
+    if cloud.is_empty() {
+        return Err(crate::memory::empty_input(pipeline, &cloud));
+    }
+    // The memory the stages will need, before they allocate it.
+    crate::memory::estimate_pipeline(pipeline, &cloud)?
+        .check(crate::memory::budget())
+        .map_err(|(key, message)| pipeline.key_error(&key, message))?;
+    let mut summary = read_summary(pipeline, &files, &cloud, read_s);
+
+    // Noise removal, resampling and hole filling.
+    let g = terrain::grid_stages(
+        &cloud,
+        cfg.denoise.enabled.then_some(&cfg.denoise),
+        &cfg.resample,
+        cfg.fill.enabled.then_some(&cfg.fill),
+        progress,
+    )
+    .map_err(|e| pipeline.param_error(e))?;
+    let keep = match g.denoised {
+        Some(d) => Some(report_denoise(
+            pipeline,
+            &cloud,
+            &opts,
+            d,
+            g.seconds[0],
+            &staged,
+            &mut summary,
+        )?),
+        None => None,
+    };
+    summary
+        .stages
+        .push(resample_report(&g.resampled, g.seconds[1]));
+    let grid = g.resampled.grid;
+    // Hole filling.
+    if let Some(f) = g.filled {
+        summary.stages.push(fill_report(pipeline, &f, g.seconds[2]));
+    }
+
+    // Tiles, quadtree metrics, meshes and the tile outputs (issue 4).
+    let (reports, files) = tile_stages(pipeline, &grid, staged.path(), progress)?;
+    summary.stages.extend(reports);
+    summary.files.extend(files);
+
+    // The Delaunay baseline and its comparison report ([baseline], issue 5).
+    if cfg.baseline.enabled {
+        run_baseline(
+            pipeline,
+            &cloud,
+            keep.as_deref(),
+            &grid,
+            &staged,
+            &mut summary,
+            progress,
+        )?;
+    }
+
+    // Assets stand on the filled grid ([[assets]], issue 6).
+    if !cfg.assets.is_empty() {
+        run_assets(pipeline, &grid, &staged, &mut summary)?;
+    }
+
+    staged.commit()?;
+    Ok(RunOutput {
+        summary,
+        context: RunContext { cloud, keep, grid },
+    })
+}
+
+/// The checks of the asset entries and output names, then the output directory checked,
+/// locked and staged, all before any point is read. The pipeline file, the inputs `files` and
+/// the asset inputs are kept out of harm's way.
+fn stage_output_dir(pipeline: &LoadedPipeline, files: &[PathBuf]) -> Result<StagedDir> {
+    let cfg = &pipeline.config;
     let out_dir = pipeline.output_dir();
     // Cheap checks of the asset entries before any work.
     crate::assets::validate(&cfg.assets, &pipeline.base_dir())
@@ -215,24 +294,27 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
         what: "asset input",
         path,
     }));
-    let staged = StagedDir::new(&out_dir, &base, &keep)?;
+    StagedDir::new(&out_dir, &base, &keep)
+}
 
-    let t = Instant::now();
-    let cloud = points::read_all(&files, &opts, progress)?;
-    let read_s = t.elapsed().as_secs_f64();
-    if cloud.is_empty() {
-        return Err(crate::memory::empty_input(pipeline, &cloud));
-    }
-    // The memory the stages will need, before they allocate it.
-    crate::memory::estimate_pipeline(pipeline, &cloud)?
-        .check(crate::memory::budget())
-        .map_err(|(key, message)| pipeline.key_error(&key, message))?;
+/// A figure of a stage report: (name, value).
+fn fig(k: &str, v: String) -> (String, String) {
+    (k.to_string(), v)
+}
+
+/// The run summary as the read leaves it: the inputs, the points, and the read's report.
+fn read_summary(
+    pipeline: &LoadedPipeline,
+    files: &[PathBuf],
+    cloud: &PointCloud,
+    read_s: f64,
+) -> RunSummary {
     let bounds = cloud.bounds();
     let mut inputs = cloud.sources.clone();
     for s in &mut inputs {
         s.path = normalize_lexically(&s.path);
     }
-    let mut summary = RunSummary {
+    RunSummary {
         inputs,
         points: cloud.len() as u64,
         bounds: Some(bounds),
@@ -245,69 +327,75 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
                 ("points".into(), cloud.len().to_string()),
             ],
         }],
-        output_dir: normalize_lexically(&out_dir),
+        output_dir: normalize_lexically(&pipeline.output_dir()),
         baseline: None,
         files: Vec::new(),
         assets: Vec::new(),
-    };
-    let fig = |k: &str, v: String| (k.to_string(), v);
+    }
+}
 
-    // Noise removal, resampling and hole filling.
-    let g = terrain::grid_stages(
-        &cloud,
-        cfg.denoise.enabled.then_some(&cfg.denoise),
-        &cfg.resample,
-        cfg.fill.enabled.then_some(&cfg.fill),
-        progress,
-    )
-    .map_err(|e| pipeline.param_error(e))?;
-    let keep = if let Some(d) = g.denoised {
-        let st = &d.settings;
-        let mut figures = vec![
-            fig("points in", cloud.len().to_string()),
-            fig("points out", d.kept.to_string()),
-            fig("removed", d.removed().to_string()),
-            fig("sparse", d.removed_sparse.to_string()),
-            fig("low layers", d.removed_low.to_string()),
-            fig(
-                "voxel",
-                format!("{:.3} × {:.3}", st.voxel_size, st.voxel_height),
-            ),
-            fig("min_points", st.min_points.to_string()),
-        ];
-        if cfg.denoise.write_removed {
-            let removed: Vec<bool> = d.keep.iter().map(|k| !k).collect();
-            let path = staged.path().join(NOISE_FILE);
-            // LAS/LAZ inputs of one point format: the removed records, byte for byte.
-            if !points::write_selected_records(&path, &cloud.sources, &opts, &removed, 7)? {
-                let noise = cloud.select(&removed);
-                let opts = LasWriteOptions {
-                    crs: cloud.crs().cloned(),
-                    classification: Some(7),
-                    ..Default::default()
-                };
-                points::write_las(&path, &noise, &opts)?;
-            }
-            summary.files.push(NOISE_FILE.into());
-            figures.push(fig("written", NOISE_FILE.into()));
+/// Noise removal's report, after writing the removed points to `noise.las` when
+/// `denoise.write_removed` asks for it. Returns the keep mask.
+fn report_denoise(
+    pipeline: &LoadedPipeline,
+    cloud: &PointCloud,
+    opts: &points::ReadOptions,
+    d: terrain::Denoised,
+    seconds: f64,
+    staged: &StagedDir,
+    summary: &mut RunSummary,
+) -> Result<Vec<bool>> {
+    let st = &d.settings;
+    let mut figures = vec![
+        fig("points in", cloud.len().to_string()),
+        fig("points out", d.kept.to_string()),
+        fig("removed", d.removed().to_string()),
+        fig("sparse", d.removed_sparse.to_string()),
+        fig("low layers", d.removed_low.to_string()),
+        fig(
+            "voxel",
+            format!("{:.3} × {:.3}", st.voxel_size, st.voxel_height),
+        ),
+        fig("min_points", st.min_points.to_string()),
+    ];
+    if pipeline.config.denoise.write_removed {
+        let removed: Vec<bool> = d.keep.iter().map(|k| !k).collect();
+        let path = staged.path().join(NOISE_FILE);
+        // LAS/LAZ inputs of one point format: the removed records, byte for byte.
+        if !points::write_selected_records(
+            &path,
+            &cloud.sources,
+            opts,
+            &removed,
+            points::LOW_NOISE_CLASS,
+        )? {
+            let noise = cloud.select(&removed);
+            let opts = LasWriteOptions {
+                crs: cloud.crs().cloned(),
+                classification: Some(points::LOW_NOISE_CLASS),
+                ..Default::default()
+            };
+            points::write_las(&path, &noise, &opts)?;
         }
-        summary.stages.push(StageReport {
-            stage: "denoise".into(),
-            seconds: g.seconds[0],
-            figures,
-        });
-        Some(d.keep)
-    } else {
-        None
-    };
+        summary.files.push(NOISE_FILE.into());
+        figures.push(fig("written", NOISE_FILE.into()));
+    }
+    summary.stages.push(StageReport {
+        stage: "denoise".into(),
+        seconds,
+        figures,
+    });
+    Ok(d.keep)
+}
 
-    let r = g.resampled;
-    let grid = r.grid;
+/// Resampling's report.
+fn resample_report(r: &terrain::Resampled, seconds: f64) -> StageReport {
+    let grid = &r.grid;
     let [_, measured, _, _] = grid.census();
     let cells = grid.cols() * grid.rows();
-    summary.stages.push(StageReport {
+    StageReport {
         stage: "resample".into(),
-        seconds: g.seconds[1],
+        seconds,
         figures: vec![
             fig("points", r.points.to_string()),
             fig("grid", format!("{} × {}", r.spec.cols, r.spec.rows)),
@@ -325,174 +413,176 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
                 ),
             ),
         ],
-    });
-
-    // Hole filling.
-    if let Some(f) = g.filled {
-        summary.stages.push(StageReport {
-            stage: "fill".into(),
-            seconds: g.seconds[2],
-            figures: vec![
-                fig("measured", f.measured.to_string()),
-                fig("interpolated", f.interpolated.to_string()),
-                fig(
-                    "fallback",
-                    format!("{} ({:?})", f.fallback, cfg.fill.fallback).to_lowercase(),
-                ),
-                fig("left empty", f.empty.to_string()),
-            ],
-        });
     }
+}
 
-    // Tiles, quadtree metrics, meshes and the tile outputs (issue 4).
-    let (reports, files) = tile_stages(pipeline, &grid, staged.path(), progress)?;
-    summary.stages.extend(reports);
-    summary.files.extend(files);
+/// Hole filling's report.
+fn fill_report(pipeline: &LoadedPipeline, f: &terrain::FillReport, seconds: f64) -> StageReport {
+    StageReport {
+        stage: "fill".into(),
+        seconds,
+        figures: vec![
+            fig("measured", f.measured.to_string()),
+            fig("interpolated", f.interpolated.to_string()),
+            fig(
+                "fallback",
+                format!("{} ({:?})", f.fallback, pipeline.config.fill.fallback).to_lowercase(),
+            ),
+            fig("left empty", f.empty.to_string()),
+        ],
+    }
+}
 
-    // The Delaunay baseline and its comparison report ([baseline], issue 5).
-    if cfg.baseline.enabled {
-        let grid_s: f64 = summary
-            .stages
-            .iter()
-            .filter(|s| {
-                matches!(
-                    s.stage.as_str(),
-                    "denoise" | "resample" | "fill" | "tiles" | "quadtree" | "extract" | "write"
-                )
-            })
-            .map(|s| s.seconds)
-            .sum();
-        progress.start("baseline (Delaunay)", 0);
-        let grid_peak = crate::bench::peak_rss();
-        crate::bench::reset_peak_rss();
-        let t = Instant::now();
-        let fill = cfg.fill.enabled.then_some(&cfg.fill);
-        let b = terrain::delaunay::baseline(
-            &cloud,
-            keep.as_deref(),
-            &grid,
-            grid_s,
-            &cfg.baseline,
-            &cfg.resample,
-            fill,
-        );
-        let seconds = t.elapsed().as_secs_f64();
-        progress.finish();
-        let (mut report, tin) = b?;
-        report.grid_peak_mb = grid_peak.map(|p| p as f64 / 1e6);
-        report.tin_peak_mb = crate::bench::peak_rss().map(|p| p as f64 / 1e6);
-        let b = &cfg.baseline;
-        let in_staged = |key: &str, name: &str| -> Result<std::path::PathBuf> {
-            let p = staged.path().join(name);
-            // Checked up front (outnames); this catches what that check cannot foresee.
-            if p.exists() {
-                return Err(pipeline.key_error(
-                    key,
-                    format!("`{name}` collides with another output of the run"),
-                ));
-            }
-            if let Some(parent) = p.parent() {
-                std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
-            }
-            Ok(p)
-        };
-        if !b.mesh.is_empty() {
-            let origin = [grid.corner[0], grid.corner[1], grid.z_offset];
-            let mesh = tin.to_mesh(origin);
-            let path = in_staged("baseline.mesh", &b.mesh)?;
-            let glb = path
-                .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("glb"));
-            if glb {
-                let mpu = grid.crs.as_ref().map_or(1.0, |c| c.metres_per_unit());
-                let bytes = crate::output::glb::glb_bytes(&mesh, "tin", mpu)?;
-                crate::fsutil::write_bytes_atomic(&path, &bytes)?;
-            } else {
-                crate::mesh::io::write(&mesh, &path)?;
-            }
-            summary.files.push(b.mesh.clone());
+/// The Delaunay baseline ([baseline], issue 5): the TIN of the denoised points, its mesh and
+/// comparison report written into the staged directory, its measurements and report added to
+/// `summary`.
+fn run_baseline(
+    pipeline: &LoadedPipeline,
+    cloud: &PointCloud,
+    keep: Option<&[bool]>,
+    grid: &Heightfield,
+    staged: &StagedDir,
+    summary: &mut RunSummary,
+    progress: &dyn Progress,
+) -> Result<()> {
+    let cfg = &pipeline.config;
+    let grid_s: f64 = summary
+        .stages
+        .iter()
+        .filter(|s| {
+            matches!(
+                s.stage.as_str(),
+                "denoise" | "resample" | "fill" | "tiles" | "quadtree" | "extract" | "write"
+            )
+        })
+        .map(|s| s.seconds)
+        .sum();
+    progress.start("baseline (Delaunay)", 0);
+    let grid_peak = crate::bench::peak_rss();
+    crate::bench::reset_peak_rss();
+    let t = Instant::now();
+    let fill = cfg.fill.enabled.then_some(&cfg.fill);
+    let b = terrain::delaunay::baseline(
+        cloud,
+        keep,
+        grid,
+        grid_s,
+        &cfg.baseline,
+        &cfg.resample,
+        fill,
+    );
+    let seconds = t.elapsed().as_secs_f64();
+    progress.finish();
+    let (mut report, tin) = b?;
+    report.grid_peak_mb = grid_peak.map(|p| p as f64 / 1e6);
+    report.tin_peak_mb = crate::bench::peak_rss().map(|p| p as f64 / 1e6);
+    let b = &cfg.baseline;
+    let in_staged = |key: &str, name: &str| -> Result<std::path::PathBuf> {
+        let p = staged.path().join(name);
+        // Checked up front (outnames); this catches what that check cannot foresee.
+        if p.exists() {
+            return Err(pipeline.key_error(
+                key,
+                format!("`{name}` collides with another output of the run"),
+            ));
         }
-        drop(tin);
-        let json =
-            serde_json::to_vec_pretty(&report).map_err(|e| Error::Internal(e.to_string()))?;
-        crate::fsutil::write_bytes_atomic(&in_staged("baseline.report", &b.report)?, &json)?;
-        summary.files.push(b.report.clone());
-        let acc = |s: &Option<terrain::accuracy::ErrorStats>| {
-            s.map_or("—".into(), |s| format!("{:.3} m", s.rmse))
-        };
-        let mb = |m: Option<f64>| m.map_or("—".into(), |m| format!("{m:.0} MB"));
-        summary.baseline = Some(BaselineMeasurements {
-            prepare_s: report.prepare_s,
-            build_s: report.build_s,
-            grid_s: report.grid_s,
-            ratio: report.ratio,
-            rasterise_s: report.rasterise_s,
-            grid_peak_mb: report.grid_peak_mb,
-            tin_peak_mb: report.tin_peak_mb,
-        });
-        summary.stages.push(StageReport {
-            stage: "baseline".into(),
-            seconds,
-            figures: vec![
-                fig("method", format!("{:?}", report.method).to_lowercase()),
-                fig("vertices", report.vertices.to_string()),
-                fig("triangles", report.triangles.to_string()),
-                fig("merged", report.merged.to_string()),
-                fig("build", format!("{:.3} s", report.build_s)),
-                fig("Delaunay / grid", format!("{:.1}", report.ratio)),
-                fig("grid − TIN rmse", format!("{:.3} m", report.raster.rmse_m)),
-                fig("held-out rmse grid", acc(&report.grid_accuracy)),
-                fig("held-out rmse TIN", acc(&report.tin_accuracy)),
-                fig("peak memory grid", mb(report.grid_peak_mb)),
-                fig("peak memory TIN", mb(report.tin_peak_mb)),
-            ],
-        });
-    }
-
-    // Assets stand on the filled grid ([[assets]], issue 6).
-    if !cfg.assets.is_empty() {
+        if let Some(parent) = p.parent() {
+            std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+        }
+        Ok(p)
+    };
+    if !b.mesh.is_empty() {
         let origin = [grid.corner[0], grid.corner[1], grid.z_offset];
-        let t = Instant::now();
-        for (i, a) in cfg.assets.iter().enumerate() {
-            if staged.path().join(&a.output).exists() {
-                return Err(pipeline.key_error(
-                    &format!("assets[{i}].output"),
-                    format!(
-                        "`{}` collides with another output of the run",
-                        a.output.display()
-                    ),
-                ));
-            }
-            let r = crate::assets::run_asset(
-                a,
-                &pipeline.base_dir(),
-                staged.path(),
-                Some(&grid),
-                origin,
-            )?;
-            summary.files.push(r.output.display().to_string());
-            summary.assets.push(r);
+        let mesh = tin.to_mesh(origin);
+        let path = in_staged("baseline.mesh", &b.mesh)?;
+        let glb = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("glb"));
+        if glb {
+            let mpu = grid.crs.as_ref().map_or(1.0, |c| c.metres_per_unit());
+            let bytes = crate::output::glb::glb_bytes(&mesh, "tin", mpu)?;
+            crate::fsutil::write_bytes_atomic(&path, &bytes)?;
+        } else {
+            crate::mesh::io::write(&mesh, &path)?;
         }
-        let tris: usize = summary.assets.iter().map(|a| a.triangles_out).sum();
-        summary.stages.push(StageReport {
-            stage: "assets".into(),
-            seconds: t.elapsed().as_secs_f64(),
-            figures: vec![
-                ("assets".into(), summary.assets.len().to_string()),
-                ("triangles".into(), tris.to_string()),
-                (
-                    "origin".into(),
-                    format!("({}, {}, {})", origin[0], origin[1], origin[2]),
-                ),
-            ],
-        });
+        summary.files.push(b.mesh.clone());
     }
+    drop(tin);
+    let json = serde_json::to_vec_pretty(&report).map_err(|e| Error::Internal(e.to_string()))?;
+    crate::fsutil::write_bytes_atomic(&in_staged("baseline.report", &b.report)?, &json)?;
+    summary.files.push(b.report.clone());
+    let acc = |s: &Option<terrain::accuracy::ErrorStats>| {
+        s.map_or("—".into(), |s| format!("{:.3} m", s.rmse))
+    };
+    let mb = |m: Option<f64>| m.map_or("—".into(), |m| format!("{m:.0} MB"));
+    summary.baseline = Some(BaselineMeasurements {
+        prepare_s: report.prepare_s,
+        build_s: report.build_s,
+        grid_s: report.grid_s,
+        ratio: report.ratio,
+        rasterise_s: report.rasterise_s,
+        grid_peak_mb: report.grid_peak_mb,
+        tin_peak_mb: report.tin_peak_mb,
+    });
+    summary.stages.push(StageReport {
+        stage: "baseline".into(),
+        seconds,
+        figures: vec![
+            fig("method", format!("{:?}", report.method).to_lowercase()),
+            fig("vertices", report.vertices.to_string()),
+            fig("triangles", report.triangles.to_string()),
+            fig("merged", report.merged.to_string()),
+            fig("build", format!("{:.3} s", report.build_s)),
+            fig("Delaunay / grid", format!("{:.1}", report.ratio)),
+            fig("grid − TIN rmse", format!("{:.3} m", report.raster.rmse_m)),
+            fig("held-out rmse grid", acc(&report.grid_accuracy)),
+            fig("held-out rmse TIN", acc(&report.tin_accuracy)),
+            fig("peak memory grid", mb(report.grid_peak_mb)),
+            fig("peak memory TIN", mb(report.tin_peak_mb)),
+        ],
+    });
+    Ok(())
+}
 
-    staged.commit()?;
-    Ok(RunOutput {
-        summary,
-        context: RunContext { cloud, keep, grid },
-    })
+/// The `[[assets]]` entries (issue 6), each set down on the filled grid and written into the
+/// staged directory; their results and report added to `summary`.
+fn run_assets(
+    pipeline: &LoadedPipeline,
+    grid: &Heightfield,
+    staged: &StagedDir,
+    summary: &mut RunSummary,
+) -> Result<()> {
+    let origin = [grid.corner[0], grid.corner[1], grid.z_offset];
+    let t = Instant::now();
+    for (i, a) in pipeline.config.assets.iter().enumerate() {
+        if staged.path().join(&a.output).exists() {
+            return Err(pipeline.key_error(
+                &format!("assets[{i}].output"),
+                format!(
+                    "`{}` collides with another output of the run",
+                    a.output.display()
+                ),
+            ));
+        }
+        let r =
+            crate::assets::run_asset(a, &pipeline.base_dir(), staged.path(), Some(grid), origin)?;
+        summary.files.push(r.output.display().to_string());
+        summary.assets.push(r);
+    }
+    let tris: usize = summary.assets.iter().map(|a| a.triangles_out).sum();
+    summary.stages.push(StageReport {
+        stage: "assets".into(),
+        seconds: t.elapsed().as_secs_f64(),
+        figures: vec![
+            ("assets".into(), summary.assets.len().to_string()),
+            ("triangles".into(), tris.to_string()),
+            (
+                "origin".into(),
+                format!("({}, {}, {})", origin[0], origin[1], origin[2]),
+            ),
+        ],
+    });
+    Ok(())
 }
 
 /// The stages after hole filling: tiles → quadtree → outputs (meshes, EXR, heightmaps,

@@ -90,6 +90,45 @@ pub fn plot_table1(t: &Table1, path: &Path) -> Result<()> {
         .iter()
         .map(|r| (r.points as f64, r.grid_s, r.delaunay_s))
         .collect();
+    let (xa, ya) = axes(&ours);
+    let title = format!(
+        "Table 1 on {} (log-log)",
+        Path::new(&t.file)
+            .file_name()
+            .map_or("?".into(), |f| f.to_string_lossy())
+    );
+    draw_frame(&mut c, &xa, &ya, &title);
+
+    let grid: Vec<(f64, f64)> = ours.iter().map(|o| (o.0, o.1)).collect();
+    let tin: Vec<(f64, f64)> = ours.iter().map(|o| (o.0, o.2)).collect();
+    let paper: Vec<(f64, f64)> = PAPER.iter().map(|p| (p.0 as f64, p.1)).collect();
+    draw_series(&mut c, &xa, &ya, &paper, GREEN, 2);
+    draw_series(&mut c, &xa, &ya, &grid, BLUE, 0);
+    draw_series(&mut c, &xa, &ya, &tin, RED, 1);
+    // The paper's Delaunay: "more than 12 hours", dashed.
+    let y = ya.px(PAPER_DELAUNAY_S);
+    let mut x = LEFT;
+    while x < W - RIGHT {
+        let _ = Line::new(Point::new(x, y), Point::new((x + 8).min(W - RIGHT), y))
+            .into_styled(PrimitiveStyle::with_stroke(GREEN, 2))
+            .draw(&mut c);
+        x += 14;
+    }
+    draw_legend(&mut c);
+    let mut png = Vec::new();
+    c.0.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .map_err(|e| Error::Internal(format!("png: {e}")))?;
+    crate::fsutil::write_bytes_atomic(path, &png)
+}
+
+const BLUE: Rgb888 = Rgb888::new(30, 90, 200);
+const RED: Rgb888 = Rgb888::new(200, 40, 40);
+const GREEN: Rgb888 = Rgb888::new(40, 140, 60);
+const GREY: Rgb888 = Rgb888::new(210, 210, 210);
+
+/// The axes spanning whole decades around our rows `ours` (points, grid s, Delaunay s), the
+/// paper's rows and its Delaunay line (with room above it).
+fn axes(ours: &[(f64, f64, f64)]) -> (Axis, Axis) {
     let xs = ours
         .iter()
         .map(|o| o.0)
@@ -113,136 +152,106 @@ pub fn plot_table1(t: &Table1, path: &Path) -> Result<()> {
         a: H - BOTTOM,
         b: TOP,
     };
+    (xa, ya)
+}
+
+/// The grid lines and labels at each decade, the plot's frame, the axis names and `title`.
+fn draw_frame(c: &mut Canvas, xa: &Axis, ya: &Axis, title: &str) {
     let black = Rgb888::BLACK;
-    let grey = Rgb888::new(210, 210, 210);
     let text = MonoTextStyle::new(&FONT_6X10, black);
     let thin = |col| PrimitiveStyle::with_stroke(col, 1);
-    // Grid lines and labels at each decade.
     for d in (xa.lo as i32)..=(xa.hi as i32) {
         let x = xa.px(10f64.powi(d));
         let _ = Line::new(Point::new(x, TOP), Point::new(x, H - BOTTOM))
-            .into_styled(thin(grey))
-            .draw(&mut c);
+            .into_styled(thin(GREY))
+            .draw(c);
         let _ = Text::with_alignment(
             &label_points(10f64.powi(d)),
             Point::new(x, H - BOTTOM + 16),
             text,
             Alignment::Center,
         )
-        .draw(&mut c);
+        .draw(c);
     }
     for d in (ya.lo as i32)..=(ya.hi as i32) {
         let y = ya.px(10f64.powi(d));
         let _ = Line::new(Point::new(LEFT, y), Point::new(W - RIGHT, y))
-            .into_styled(thin(grey))
-            .draw(&mut c);
+            .into_styled(thin(GREY))
+            .draw(c);
         let _ = Text::with_alignment(
             &label_seconds(10f64.powi(d)),
             Point::new(LEFT - 6, y + 3),
             text,
             Alignment::Right,
         )
-        .draw(&mut c);
+        .draw(c);
     }
     let _ = Rectangle::with_corners(Point::new(LEFT, TOP), Point::new(W - RIGHT, H - BOTTOM))
         .into_styled(thin(black))
-        .draw(&mut c);
+        .draw(c);
     let _ = Text::with_alignment(
         "points",
         Point::new((LEFT + W - RIGHT) / 2, H - 24),
         text,
         Alignment::Center,
     )
-    .draw(&mut c);
-    let _ = Text::new("seconds", Point::new(8, TOP - 10), text).draw(&mut c);
-    let title = format!(
-        "Table 1 on {} (log-log)",
-        Path::new(&t.file)
-            .file_name()
-            .map_or("?".into(), |f| f.to_string_lossy())
-    );
-    let _ =
-        Text::with_alignment(&title, Point::new(W / 2, 22), text, Alignment::Center).draw(&mut c);
+    .draw(c);
+    let _ = Text::new("seconds", Point::new(8, TOP - 10), text).draw(c);
+    let _ = Text::with_alignment(title, Point::new(W / 2, 22), text, Alignment::Center).draw(c);
+}
 
-    let blue = Rgb888::new(30, 90, 200);
-    let red = Rgb888::new(200, 40, 40);
-    let green = Rgb888::new(40, 140, 60);
-    let series = |c: &mut Canvas, pts: &[(f64, f64)], col: Rgb888, marker: u8| {
-        let p: Vec<Point> = pts
-            .iter()
-            .map(|&(x, y)| Point::new(xa.px(x), ya.px(y)))
-            .collect();
-        for w in p.windows(2) {
-            let _ = Line::new(w[0], w[1])
-                .into_styled(PrimitiveStyle::with_stroke(col, 2))
-                .draw(c);
-        }
-        for q in &p {
-            let fill = PrimitiveStyle::with_fill(col);
-            let _ = match marker {
-                0 => Circle::with_center(*q, 9).into_styled(fill).draw(c),
-                1 => Rectangle::with_center(*q, Size::new(8, 8))
-                    .into_styled(fill)
-                    .draw(c),
-                _ => Triangle::new(
-                    *q + Point::new(0, -5),
-                    *q + Point::new(-5, 4),
-                    *q + Point::new(5, 4),
-                )
-                .into_styled(fill)
-                .draw(c),
-            };
-        }
+/// A marker at `q`: 0 a disc, 1 a square, anything else a triangle.
+fn draw_marker(c: &mut Canvas, q: Point, col: Rgb888, marker: u8) {
+    let fill = PrimitiveStyle::with_fill(col);
+    let _ = match marker {
+        0 => Circle::with_center(q, 9).into_styled(fill).draw(c),
+        1 => Rectangle::with_center(q, Size::new(8, 8))
+            .into_styled(fill)
+            .draw(c),
+        _ => Triangle::new(
+            q + Point::new(0, -5),
+            q + Point::new(-5, 4),
+            q + Point::new(5, 4),
+        )
+        .into_styled(fill)
+        .draw(c),
     };
-    let grid: Vec<(f64, f64)> = ours.iter().map(|o| (o.0, o.1)).collect();
-    let tin: Vec<(f64, f64)> = ours.iter().map(|o| (o.0, o.2)).collect();
-    let paper: Vec<(f64, f64)> = PAPER.iter().map(|p| (p.0 as f64, p.1)).collect();
-    series(&mut c, &paper, green, 2);
-    series(&mut c, &grid, blue, 0);
-    series(&mut c, &tin, red, 1);
-    // The paper's Delaunay: "more than 12 hours", dashed.
-    let y = ya.px(PAPER_DELAUNAY_S);
-    let mut x = LEFT;
-    while x < W - RIGHT {
-        let _ = Line::new(Point::new(x, y), Point::new((x + 8).min(W - RIGHT), y))
-            .into_styled(PrimitiveStyle::with_stroke(green, 2))
-            .draw(&mut c);
-        x += 14;
+}
+
+/// A series of (points, seconds): a polyline with a marker at each point.
+fn draw_series(c: &mut Canvas, xa: &Axis, ya: &Axis, pts: &[(f64, f64)], col: Rgb888, marker: u8) {
+    let p: Vec<Point> = pts
+        .iter()
+        .map(|&(x, y)| Point::new(xa.px(x), ya.px(y)))
+        .collect();
+    for w in p.windows(2) {
+        let _ = Line::new(w[0], w[1])
+            .into_styled(PrimitiveStyle::with_stroke(col, 2))
+            .draw(c);
     }
-    // Legend.
+    for q in &p {
+        draw_marker(c, *q, col, marker);
+    }
+}
+
+/// The legend, in the lower right corner.
+fn draw_legend(c: &mut Canvas) {
+    let text = MonoTextStyle::new(&FONT_6X10, Rgb888::BLACK);
     let entries = [
-        (blue, 0u8, "terratile grid pipeline (this machine)"),
-        (red, 1, "spade Delaunay build (this machine)"),
-        (green, 2, "paper's grid pipeline (Pentium IV)"),
-        (green, 3, "paper's Delaunay: more than 12 h"),
+        (BLUE, 0u8, "terratile grid pipeline (this machine)"),
+        (RED, 1, "spade Delaunay build (this machine)"),
+        (GREEN, 2, "paper's grid pipeline (Pentium IV)"),
+        (GREEN, 3, "paper's Delaunay: more than 12 h"),
     ];
     for (k, (col, marker, name)) in entries.iter().enumerate() {
         let p = Point::new(W - RIGHT - 280, H - BOTTOM - 70 + 16 * k as i32);
         if *marker == 3 {
             let _ = Line::new(p + Point::new(-8, 0), p + Point::new(8, 0))
                 .into_styled(PrimitiveStyle::with_stroke(*col, 2))
-                .draw(&mut c);
+                .draw(c);
         } else {
-            series(&mut c, &[], *col, *marker);
-            let fill = PrimitiveStyle::with_fill(*col);
-            let _ = match marker {
-                0 => Circle::with_center(p, 9).into_styled(fill).draw(&mut c),
-                1 => Rectangle::with_center(p, Size::new(8, 8))
-                    .into_styled(fill)
-                    .draw(&mut c),
-                _ => Triangle::new(
-                    p + Point::new(0, -5),
-                    p + Point::new(-5, 4),
-                    p + Point::new(5, 4),
-                )
-                .into_styled(fill)
-                .draw(&mut c),
-            };
+            draw_marker(c, p, *col, *marker);
         }
-        let _ = Text::new(name, p + Point::new(14, 3), text).draw(&mut c);
+        let _ = Text::new(name, p + Point::new(14, 3), text).draw(c);
     }
-    let mut png = Vec::new();
-    c.0.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-        .map_err(|e| Error::Internal(format!("png: {e}")))?;
-    crate::fsutil::write_bytes_atomic(path, &png)
 }

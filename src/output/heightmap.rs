@@ -26,6 +26,9 @@ pub struct HeightEncoding {
     pub nodata: Option<u16>,
 }
 
+/// The largest 16-bit height value, as the encodings compute with it.
+pub const MAX_VALUE: f64 = u16::MAX as f64;
+
 impl HeightEncoding {
     /// The encoding spanning the set's z range with all 16 bits.
     pub fn for_set(set: &TileSet) -> HeightEncoding {
@@ -34,7 +37,7 @@ impl HeightEncoding {
         let holes = set.tiles.iter().any(|t| t.holes > 0);
         let (lo, hi) = set.z_range().unwrap_or((set.z_offset, set.z_offset));
         let first = if holes { 1.0 } else { 0.0 };
-        let steps = 65535.0 - first;
+        let steps = MAX_VALUE - first;
         let z_scale = if hi > lo { (hi - lo) / steps } else { 1.0 };
         HeightEncoding {
             z_scale,
@@ -52,7 +55,7 @@ impl HeightEncoding {
         let lowest = if self.nodata.is_some() { 1.0 } else { 0.0 };
         ((z - self.z_offset) / self.z_scale)
             .round()
-            .clamp(lowest, 65535.0) as u16
+            .clamp(lowest, MAX_VALUE) as u16
     }
 
     /// World height of a value (None for the hole value).
@@ -86,7 +89,7 @@ fn encode_heights(
             if h.is_nan() {
                 hole
             } else {
-                ((base + h as f64) * inv + 0.5).clamp(lowest, 65535.0) as u16
+                ((base + h as f64) * inv + 0.5).clamp(lowest, MAX_VALUE) as u16
             }
         })
         .collect()

@@ -36,6 +36,16 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::time::Instant;
 
+/// Centimetres per metre: Unreal's landscape figures are in centimetres.
+const CM_PER_M: f64 = 100.0;
+
+/// Unreal's landscape height: height(cm) = location_z + (value − UNREAL_MID_VALUE) · scale_z
+/// / UNREAL_Z_DIVISOR, for a 16-bit value.
+const UNREAL_MID_VALUE: f64 = 32768.0;
+
+/// See [`UNREAL_MID_VALUE`].
+const UNREAL_Z_DIVISOR: f64 = 128.0;
+
 /// Mesh file formats for tile meshes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Deserialize, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -421,18 +431,18 @@ fn build_manifest(
             heightmap_resolution: set.tile_size,
             terrain_size: [
                 (set.tile_size - 1) as f64 * set.cell_size[0] * unit_m,
-                65535.0 * enc.z_scale * unit_m,
+                heightmap::MAX_VALUE * enc.z_scale * unit_m,
                 (set.tile_size - 1) as f64 * set.cell_size[1] * unit_m,
             ],
             position_y: enc.z_offset * unit_m,
         }),
         unreal: (set.preset == Preset::Unreal).then(|| {
             // Unreal: height(cm) = location_z + (value − 32768) · scale_z / 128.
-            let scale_z = 12800.0 * enc.z_scale * unit_m;
+            let scale_z = CM_PER_M * UNREAL_Z_DIVISOR * enc.z_scale * unit_m;
             UnrealInfo {
                 resolution: set.samples,
-                scale_cm: [set.cell_size[0] * unit_m * 100.0, set.cell_size[1] * unit_m * 100.0, scale_z],
-                location_z_cm: enc.z_offset * unit_m * 100.0 + 256.0 * scale_z,
+                scale_cm: [set.cell_size[0] * unit_m * CM_PER_M, set.cell_size[1] * unit_m * CM_PER_M, scale_z],
+                location_z_cm: enc.z_offset * unit_m * CM_PER_M + UNREAL_MID_VALUE / UNREAL_Z_DIVISOR * scale_z,
             }
         }),
         tiles,

@@ -56,14 +56,7 @@ pub(crate) fn read_las(
         let mut dec = LazDecoder::new(path, bytes, &h)?;
         fits()?;
         progress.start(&format!("reading {}", path.display()), h.point_count);
-        let expected = wanted as usize;
-        cloud.x.reserve_exact(expected);
-        cloud.y.reserve_exact(expected);
-        cloud.z.reserve_exact(expected);
-        cloud.classification.reserve_exact(expected);
-        cloud.return_number.reserve_exact(expected);
-        cloud.number_of_returns.reserve_exact(expected);
-        cloud.intensity.reserve_exact(expected);
+        cloud.reserve_exact(wanted as usize, true);
         let mut buf = Vec::new();
         let mut done = 0u64;
         while done < h.point_count {

@@ -169,7 +169,10 @@ pub fn write_raw_las(
         .collect();
     raw.number_of_variable_length_records = vlrs.len() as u32;
     raw.evlr = None;
-    let vlr_bytes: u64 = vlrs.iter().map(|v| 54 + v.data.len() as u64).sum();
+    let vlr_bytes: u64 = vlrs
+        .iter()
+        .map(|v| super::las_header::VLR_HEADER_SIZE + v.data.len() as u64)
+        .sum();
     raw.offset_to_point_data = (raw.header_size as u64 + vlr_bytes) as u32;
     raw.number_of_point_records = if n <= u32::MAX as u64 && h.point_format < 6 {
         n as u32

@@ -28,6 +28,10 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
+/// ASPRS class 7, "low point (noise)": the class terratile gives the points noise removal
+/// drops when it writes them out (LAS 1.4 R15, Table 17).
+pub const LOW_NOISE_CLASS: u8 = 7;
+
 /// Point coordinates in world units (f64) plus the per-point attributes later stages need,
 /// stored column by column.
 ///
@@ -227,6 +231,21 @@ impl PointCloud {
     /// True if there are no points.
     pub fn is_empty(&self) -> bool {
         self.x.is_empty()
+    }
+
+    /// Reserves room for exactly `additional` more points in the coordinate columns and, with
+    /// `attributes`, in the class, return and intensity columns too (an XYZ file has none:
+    /// those columns stay empty). The one place that sizes the columns ahead of a reader.
+    pub(crate) fn reserve_exact(&mut self, additional: usize, attributes: bool) {
+        self.x.reserve_exact(additional);
+        self.y.reserve_exact(additional);
+        self.z.reserve_exact(additional);
+        if attributes {
+            self.classification.reserve_exact(additional);
+            self.return_number.reserve_exact(additional);
+            self.number_of_returns.reserve_exact(additional);
+            self.intensity.reserve_exact(additional);
+        }
     }
 
     /// The tight bounding box of the points (computed in parallel).

@@ -697,6 +697,33 @@ pub fn quadric_point(q: &Quadric, centroid: DVec3, lo: DVec3, hi: DVec3) -> DVec
 /// degenerate or duplicate ones, attributes averaged per output vertex.
 pub fn build_output(prep: &Prepared, cl: &Clustering, rep: Representative) -> TriMesh {
     let mesh = prep.mesh;
+    let reps = representatives(prep, cl, rep);
+    let (out_of, out_cluster) = output_vertices(prep, cl);
+    let indices = output_triangles(prep, cl, &reps, &out_of);
+    let mut out = TriMesh {
+        positions: out_cluster.iter().map(|&c| reps[c as usize]).collect(),
+        indices,
+        normals: None,
+        colors: None,
+        uvs: None,
+    };
+    average_attributes(mesh, &out_of, out_cluster.len(), &mut out);
+    out.remove_unreferenced();
+    out
+}
+
+/// The cluster of input vertex `v` (through its welded vertex), `u32::MAX` for a vertex no
+/// triangle uses.
+#[inline]
+fn cluster_of_vertex(prep: &Prepared, cl: &Clustering, v: usize) -> u32 {
+    match prep.dense_of[prep.weld[v] as usize] {
+        u32::MAX => u32::MAX,
+        d => cl.of[d as usize],
+    }
+}
+
+/// One representative point per cluster, by `rep` (in parallel over clusters).
+fn representatives(prep: &Prepared, cl: &Clustering, rep: Representative) -> Vec<Vec3> {
     let nc = cl.count;
     // Cluster → members (canonical active vertices, ascending).
     let members = Csr::from_pairs(
@@ -705,7 +732,7 @@ pub fn build_output(prep: &Prepared, cl: &Clustering, rep: Representative) -> Tr
     );
     let weights = (rep == Representative::Important).then(|| prep.weights());
     let quadrics = (rep == Representative::Quadric).then(|| prep.quadrics());
-    let reps: Vec<Vec3> = (0..nc)
+    (0..nc)
         .into_par_iter()
         .map(|c| {
             let m = members.row(c);
@@ -740,47 +767,77 @@ pub fn build_output(prep: &Prepared, cl: &Clustering, rep: Representative) -> Tr
             };
             p.as_vec3()
         })
-        .collect();
+        .collect()
+}
 
-    // Output vertices: one per cluster, or one per seam side when the input splits
-    // vertices for their attributes (connected pieces of the cluster in the unwelded mesh).
-    let split = prep.has_seams && (mesh.uvs.is_some() || mesh.normals.is_some());
-    let nv = mesh.vertex_count();
-    let cluster_of_vertex = |v: usize| match prep.dense_of[prep.weld[v] as usize] {
-        u32::MAX => u32::MAX,
-        d => cl.of[d as usize],
-    };
-    let mut root: Vec<u32> = (0..nv as u32).collect();
-    if split {
-        fn find(r: &mut [u32], mut x: u32) -> u32 {
-            while r[x as usize] != x {
-                r[x as usize] = r[r[x as usize] as usize];
-                x = r[x as usize];
-            }
-            x
-        }
-        for t in &mesh.indices {
-            for k in 0..3 {
-                let (a, b) = (t[k], t[(k + 1) % 3]);
-                if cluster_of_vertex(a as usize) == cluster_of_vertex(b as usize) {
-                    let (ra, rb) = (find(&mut root, a), find(&mut root, b));
-                    if ra != rb {
-                        let (lo, hi) = (ra.min(rb), ra.max(rb));
-                        root[hi as usize] = lo;
-                    }
-                }
-            }
-        }
-        for v in 0..nv as u32 {
-            root[v as usize] = find(&mut root, v);
+/// Disjoint sets over the ids 0..n, with path halving; a union keeps the smaller root.
+/// Hand-written: a dozen lines over a flat `Vec<u32>`, the hot loop of the seam split.
+struct UnionFind {
+    parent: Vec<u32>,
+}
+
+impl UnionFind {
+    /// `n` singletons.
+    fn new(n: usize) -> UnionFind {
+        UnionFind {
+            parent: (0..n as u32).collect(),
         }
     }
+
+    /// The root of `x`'s set.
+    fn find(&mut self, mut x: u32) -> u32 {
+        let r = &mut self.parent;
+        while r[x as usize] != x {
+            r[x as usize] = r[r[x as usize] as usize];
+            x = r[x as usize];
+        }
+        x
+    }
+
+    /// Joins the sets of `a` and `b`.
+    fn union(&mut self, a: u32, b: u32) {
+        let (ra, rb) = (self.find(a), self.find(b));
+        if ra != rb {
+            let (lo, hi) = (ra.min(rb), ra.max(rb));
+            self.parent[hi as usize] = lo;
+        }
+    }
+
+    /// The root of every id.
+    fn into_roots(mut self) -> Vec<u32> {
+        for v in 0..self.parent.len() as u32 {
+            self.parent[v as usize] = self.find(v);
+        }
+        self.parent
+    }
+}
+
+/// Output vertices: one per cluster, or one per seam side when the input splits vertices for
+/// their attributes (connected pieces of the cluster in the unwelded mesh). Returns the output
+/// vertex of each input vertex (`u32::MAX` for unused ones) and the cluster of each output
+/// vertex, numbered in input-vertex order.
+fn output_vertices(prep: &Prepared, cl: &Clustering) -> (Vec<u32>, Vec<u32>) {
+    let mesh = prep.mesh;
+    let split = prep.has_seams && (mesh.uvs.is_some() || mesh.normals.is_some());
+    let nv = mesh.vertex_count();
     let mut out_of = vec![u32::MAX; nv];
     let mut out_cluster: Vec<u32> = Vec::new();
     if split {
+        let mut sides = UnionFind::new(nv);
+        for t in &mesh.indices {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                if cluster_of_vertex(prep, cl, a as usize)
+                    == cluster_of_vertex(prep, cl, b as usize)
+                {
+                    sides.union(a, b);
+                }
+            }
+        }
+        let root = sides.into_roots();
         let mut key_to_out: FxHashMap<u64, u32> = FxHashMap::default();
         for v in 0..nv {
-            let c = cluster_of_vertex(v);
+            let c = cluster_of_vertex(prep, cl, v);
             if c == u32::MAX {
                 continue;
             }
@@ -793,9 +850,9 @@ pub fn build_output(prep: &Prepared, cl: &Clustering, rep: Representative) -> Tr
             out_of[v] = id;
         }
     } else {
-        let mut first = vec![u32::MAX; nc];
+        let mut first = vec![u32::MAX; cl.count];
         for (v, o) in out_of.iter_mut().enumerate() {
-            let c = cluster_of_vertex(v);
+            let c = cluster_of_vertex(prep, cl, v);
             if c == u32::MAX {
                 continue;
             }
@@ -806,14 +863,23 @@ pub fn build_output(prep: &Prepared, cl: &Clustering, rep: Representative) -> Tr
             *o = first[c as usize];
         }
     }
-    let no = out_cluster.len();
+    (out_of, out_cluster)
+}
 
-    // Triangles: drop those with two corners in one cluster and repeats of a cluster triple.
+/// Output triangles: the input's, remapped to output vertices, without those with two corners
+/// in one cluster, repeats of a cluster triple, or zero area at the representatives.
+fn output_triangles(
+    prep: &Prepared,
+    cl: &Clustering,
+    reps: &[Vec3],
+    out_of: &[u32],
+) -> Vec<[u32; 3]> {
+    let mesh = prep.mesh;
     let mut seen: FxHashSet<[u32; 3]> = FxHashSet::default();
     seen.reserve(mesh.triangle_count() / 2);
     let mut indices = Vec::new();
     for t in &mesh.indices {
-        let c = t.map(|v| cluster_of_vertex(v as usize));
+        let c = t.map(|v| cluster_of_vertex(prep, cl, v as usize));
         if c[0] == c[1] || c[1] == c[2] || c[0] == c[2] {
             continue;
         }
@@ -828,15 +894,13 @@ pub fn build_output(prep: &Prepared, cl: &Clustering, rep: Representative) -> Tr
         }
         indices.push(t.map(|v| out_of[v as usize]));
     }
+    indices
+}
 
-    // Attributes: averages over the input vertices each output vertex replaces.
-    let mut out = TriMesh {
-        positions: out_cluster.iter().map(|&c| reps[c as usize]).collect(),
-        indices,
-        normals: None,
-        colors: None,
-        uvs: None,
-    };
+/// Attributes of the `no` output vertices into `out`: averages over the input vertices each
+/// output vertex replaces (normals renormalised).
+fn average_attributes(mesh: &TriMesh, out_of: &[u32], no: usize, out: &mut TriMesh) {
+    let nv = mesh.vertex_count();
     let mut count = vec![0u32; no];
     for v in 0..nv {
         if out_of[v] != u32::MAX {
@@ -883,8 +947,6 @@ pub fn build_output(prep: &Prepared, cl: &Clustering, rep: Representative) -> Tr
                 .collect(),
         );
     }
-    out.remove_unreferenced();
-    out
 }
 
 #[cfg(test)]
