@@ -91,6 +91,11 @@ enum Command {
         /// coordinates, normals or colours; faces with fewer than 3 vertices).
         #[arg(long)]
         strict: bool,
+        /// Also count fold-overs (simplified faces more than 90° from the original's
+        /// normal at the nearest point) and self-intersecting faces (non-adjacent pairs
+        /// that meet, exact predicates), and the original's own self-intersections.
+        #[arg(long)]
+        check_folds: bool,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -575,14 +580,20 @@ fn run(cli: Cli) -> Result<()> {
             simplified,
             samples,
             strict,
+            check_folds,
             json,
         } => {
             let params = terratile::mesh::HausdorffParams {
                 samples: samples.unwrap_or(0),
             };
             let read = terratile::mesh::io::ReadOptions { strict };
-            let r =
-                terratile::mesh::hausdorff::compare_files(&original, &simplified, &params, &read)?;
+            let r = terratile::mesh::hausdorff::compare_files(
+                &original,
+                &simplified,
+                &params,
+                &read,
+                check_folds,
+            )?;
             for w in &r.warnings {
                 eprintln!("terratile: warning: {}", one_line(w));
             }

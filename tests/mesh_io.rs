@@ -250,7 +250,10 @@ fn seed_files() -> Vec<(&'static str, Vec<u8>)> {
         files.push((name, b));
     }
     // glb as the tile writer makes it (positions, normals, indices).
-    files.push(("m.glb", terratile::output::glb::glb_bytes(&m, "m").unwrap()));
+    files.push((
+        "m.glb",
+        terratile::output::glb::glb_bytes(&m, "m", 1.0).unwrap(),
+    ));
     // And the lenient paths: each corpus file (dropped attributes, short faces, line
     // continuations, header counts, glb ranges).
     for c in mesh_corpus::cases() {
