@@ -121,6 +121,10 @@ struct SimplifyArgs {
     /// QEM: never move a border vertex.
     #[arg(long)]
     lock_border: bool,
+    /// QEM: refuse every collapse after which a moved face would intersect a face it
+    /// shares no vertex with (exact predicates through a box hierarchy).
+    #[arg(long)]
+    check_intersections: bool,
     /// QEM: accept no collapse with a larger error: model units, or `P%` of the bbox diagonal.
     #[arg(long, value_name = "E", allow_hyphen_values = true)]
     max_error: Option<String>,
@@ -638,6 +642,7 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
             MergeArg::Mean => terratile::simplify::QuadricMerge::Mean,
         }),
         lock_border: a.lock_border.then_some(true),
+        check_intersections: a.check_intersections.then_some(true),
         max_error: None,
         max_error_pct: None,
     };
