@@ -124,6 +124,11 @@ enum Command {
         /// coordinates, normals or colours; faces with fewer than 3 vertices).
         #[arg(long)]
         strict: bool,
+        /// Also count fold-overs (simplified faces more than 90° from the original's
+        /// normal at the nearest point) and self-intersecting faces (non-adjacent pairs
+        /// that meet, exact predicates), and the original's own self-intersections.
+        #[arg(long)]
+        check_folds: bool,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -149,6 +154,10 @@ struct SimplifyArgs {
     /// QEM: never move a border vertex.
     #[arg(long)]
     lock_border: bool,
+    /// QEM: refuse every collapse after which a moved face would intersect a face it
+    /// shares no vertex with (exact predicates through a box hierarchy).
+    #[arg(long)]
+    check_intersections: bool,
     /// QEM: accept no collapse with a larger error: model units, or `P%` of the bbox diagonal.
     #[arg(long, value_name = "E", allow_hyphen_values = true)]
     max_error: Option<String>,
@@ -624,14 +633,20 @@ fn run(cli: Cli) -> Result<()> {
             simplified,
             samples,
             strict,
+            check_folds,
             json,
         } => {
             let params = terratile::mesh::HausdorffParams {
                 samples: samples.unwrap_or(0),
             };
             let read = terratile::mesh::io::ReadOptions { strict };
-            let r =
-                terratile::mesh::hausdorff::compare_files(&original, &simplified, &params, &read)?;
+            let r = terratile::mesh::hausdorff::compare_files(
+                &original,
+                &simplified,
+                &params,
+                &read,
+                check_folds,
+            )?;
             for w in &r.warnings {
                 eprintln!("terratile: warning: {}", one_line(w));
             }
@@ -676,6 +691,7 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
             MergeArg::Mean => terratile::simplify::QuadricMerge::Mean,
         }),
         lock_border: a.lock_border.then_some(true),
+        check_intersections: a.check_intersections.then_some(true),
         max_error: None,
         max_error_pct: None,
     };

@@ -17,7 +17,7 @@
 //! follows its parent, the right child's index is stored.
 
 use super::TriMesh;
-use glam::{DVec3, Vec3A};
+use glam::{DVec3, Vec3, Vec3A};
 
 const LEAF_MAX: usize = 4;
 const BINS: usize = 12;
@@ -225,6 +225,54 @@ impl Bvh {
                 if boxed(&self.nodes[node as usize]) <= fbound {
                     break;
                 }
+            }
+        }
+    }
+
+    /// Calls `f` with every triangle (mesh index) in a leaf whose box meets the closed box
+    /// [`min`, `max`]: a superset of the triangles whose own boxes meet it (callers test
+    /// those exactly). Boxes are padded by a few ulps of the largest coordinate, like
+    /// [`Bvh::closest`], so rounding never drops a candidate.
+    pub fn for_each_overlap(&self, min: Vec3, max: Vec3, mut f: impl FnMut(u32)) {
+        if self.tris.is_empty() {
+            return;
+        }
+        let (lo, hi) = (Vec3A::from(min), Vec3A::from(max));
+        let pad = 4.0 * f32::EPSILON * self.magnitude.max(lo.abs().max(hi.abs()).max_element())
+            + f32::MIN_POSITIVE;
+        let (lo, hi) = (lo - Vec3A::splat(pad), hi + Vec3A::splat(pad));
+        let meets = |n: &Node| !(n.min.cmpgt(hi).any() || lo.cmpgt(n.max).any());
+        let mut stack = [0u32; 64];
+        let mut spill: Vec<u32> = Vec::new();
+        let mut sp = 0usize;
+        let mut node = 0u32;
+        loop {
+            let n = &self.nodes[node as usize];
+            if meets(n) {
+                if n.count > 0 {
+                    for s in n.index..n.index + n.count {
+                        f(self.tris[s as usize].id);
+                    }
+                } else {
+                    // A deeper tree than the fixed stack spills (Vec::new does not
+                    // allocate until then): no subtree is ever dropped.
+                    if sp < stack.len() {
+                        stack[sp] = n.index;
+                        sp += 1;
+                    } else {
+                        spill.push(n.index);
+                    }
+                    node += 1;
+                    continue;
+                }
+            }
+            if let Some(s) = spill.pop() {
+                node = s;
+            } else if sp == 0 {
+                return;
+            } else {
+                sp -= 1;
+                node = stack[sp];
             }
         }
     }

@@ -333,7 +333,10 @@ pub struct CompareReport {
     pub warnings: Vec<String>,
     /// The error.
     pub error: HausdorffReport,
-    /// Seconds spent measuring (reading excluded).
+    /// Fold-overs and self-intersections, when asked for (`--check-folds`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub folds: Option<super::intersect::FoldReport>,
+    /// Seconds spent measuring the error (reading and the fold check excluded).
     pub seconds: f64,
     /// Point-to-surface queries per second.
     pub queries_per_second: f64,
@@ -350,6 +353,9 @@ impl std::fmt::Display for CompareReport {
             self.triangles[1]
         )?;
         write!(f, "{}", self.error)?;
+        if let Some(folds) = &self.folds {
+            write!(f, "{folds}")?;
+        }
         writeln!(
             f,
             "{:.3} s, {:.2} M point-to-surface queries/s",
@@ -359,12 +365,14 @@ impl std::fmt::Display for CompareReport {
     }
 }
 
-/// Reads two mesh files (as `read` says) and measures the error between them.
+/// Reads two mesh files (as `read` says) and measures the error between them; with
+/// `check_folds`, also the fold-overs and self-intersections ([`super::intersect`]).
 pub fn compare_files(
     original: &std::path::Path,
     simplified: &std::path::Path,
     params: &HausdorffParams,
     read: &super::io::ReadOptions,
+    check_folds: bool,
 ) -> Result<CompareReport> {
     params.validate()?;
     let (a, mut warnings) = super::io::read_surface_with(original, read)?;
@@ -378,6 +386,7 @@ pub fn compare_files(
     let t = std::time::Instant::now();
     let error = hausdorff(&a, &b, params)?;
     let seconds = t.elapsed().as_secs_f64();
+    let folds = check_folds.then(|| super::intersect::check_folds(&a, &b));
     let queries = (error.forward.queries + error.backward.queries) as f64;
     Ok(CompareReport {
         original: original.to_path_buf(),
@@ -385,6 +394,7 @@ pub fn compare_files(
         triangles: [a.triangle_count(), b.triangle_count()],
         warnings,
         error,
+        folds,
         seconds,
         queries_per_second: if seconds > 0.0 {
             queries / seconds

@@ -6,6 +6,7 @@
 pub mod adjacency;
 pub mod bvh;
 pub mod hausdorff;
+pub mod intersect;
 pub mod io;
 pub mod polygon;
 

@@ -40,6 +40,7 @@ pub fn simplify(mesh: &mesh::TriMesh, params: &SimplifyParams) -> Result<Simplif
         merge: params.quadric_merge.unwrap_or_default(),
         lock_border: params.lock_border.unwrap_or(false),
         cost: qem::Cost::default(),
+        check_intersections: params.check_intersections.unwrap_or(false),
     };
     let r = qem::simplify(mesh, &p)?;
     let report = SimplifyReport {

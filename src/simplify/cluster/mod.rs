@@ -149,6 +149,9 @@ pub struct SimplifyParams {
     /// QEM: never move a border vertex (default false).
     #[serde(default)]
     pub lock_border: Option<bool>,
+    /// QEM: refuse collapses that make faces intersect (exact; default false).
+    #[serde(default)]
+    pub check_intersections: Option<bool>,
     /// QEM: accept no collapse with a larger error (model units); may be the only target.
     #[serde(default)]
     pub max_error: Option<f64>,
@@ -191,6 +194,7 @@ impl SimplifyParams {
             placement: None,
             quadric_merge: None,
             lock_border: None,
+            check_intersections: None,
             max_error: None,
             max_error_pct: None,
         }
@@ -328,6 +332,7 @@ impl SimplifyParams {
             ("placement", self.placement.is_some()),
             ("quadric_merge", self.quadric_merge.is_some()),
             ("lock_border", self.lock_border.is_some()),
+            ("check_intersections", self.check_intersections.is_some()),
             ("max_error", self.max_error.is_some()),
             ("max_error_pct", self.max_error_pct.is_some()),
         ] {

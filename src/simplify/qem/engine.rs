@@ -112,6 +112,10 @@ pub struct Collapse<'m> {
     area_eps: f64,
     /// The sequence of collapses (survivor, removed), kept for the twin test.
     pub log: Vec<(u32, u32)>,
+    /// The exact intersection check's boxes, when `params.check_intersections`.
+    guard: Option<super::guard::Guard>,
+    /// The input's closest-point hierarchy, for the fold-over half of that check.
+    orig_bvh: Option<crate::mesh::Bvh>,
 }
 
 impl<'m> Collapse<'m> {
@@ -257,12 +261,117 @@ impl<'m> Collapse<'m> {
             non_manifold,
             area_eps: ZERO_AREA * diag * diag,
             log: Vec::new(),
+            guard: None,
+            orig_bvh: None,
         };
+        if params.check_intersections {
+            let mut g = super::guard::Guard::default();
+            g.build(c.faces.len(), |_| true, |f| c.face_box(f));
+            c.guard = Some(g);
+            c.orig_bvh = Some(crate::mesh::Bvh::new(mesh));
+        }
         c.heap.reserve(ef.len());
         for &[a, b] in ef.edges() {
             c.push(a.min(b), a.max(b));
         }
         c
+    }
+
+    /// The box of face `f` now.
+    fn face_box(&self, f: usize) -> (DVec3, DVec3) {
+        let [a, b, c] = self.faces[f].map(|u| self.pos[u as usize]);
+        (a.min(b).min(c), a.max(b).max(c))
+    }
+
+    /// With the intersection check: whether collapsing (a, b) to `c.p` makes a moved face
+    /// meet a live face that shares no vertex with it (exact predicates, on the f32 point
+    /// the output will hold: `candidate` rounds it). Faces that share a vertex are left to
+    /// the flip and zero-area checks, as `compare --check-folds` leaves them. Since faces
+    /// only ever gain common vertices by collapses, every pair of non-adjacent output faces
+    /// that meets was either tested here when the later of the two last moved, or already
+    /// met in the input.
+    ///
+    /// It also refuses a moved face that folds over against the input: a normal more than
+    /// 90° from the input's at the input point nearest to the face's centroid (the very
+    /// computation of `compare --check-folds`, on the same f32 corners in the same order, so
+    /// an output face that was ever moved passes that checker). The flip check compares
+    /// with the current mesh only, which drifts from the input over many collapses.
+    fn intersects(&mut self, a: u32, b: u32, c: &Candidate) -> bool {
+        let Some(mut guard) = self.guard.take() else {
+            return false;
+        };
+        let mut hit = false;
+        for v in [a, b] {
+            self.each_face(v, |f| {
+                let t = self.faces[f];
+                if hit || t.contains(&a) && t.contains(&b) {
+                    return;
+                }
+                let ids = t.map(|u| if u == b { a } else { u });
+                let tri = t.map(|u| {
+                    if u == a || u == b {
+                        c.p
+                    } else {
+                        self.pos[u as usize]
+                    }
+                });
+                if let Some(bvh) = &self.orig_bvh {
+                    let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
+                    if n != DVec3::ZERO {
+                        let centre = (tri[0] + tri[1] + tri[2]) / 3.0;
+                        if let Some(h) = bvh.closest(centre, None, f64::INFINITY) {
+                            let [p, q, r] = self.mesh.corners(h.triangle as usize);
+                            if n.dot((q - p).cross(r - p)) < 0.0 {
+                                hit = true;
+                                return;
+                            }
+                        }
+                    }
+                }
+                let lo = tri[0].min(tri[1]).min(tri[2]);
+                let hi = tri[0].max(tri[1]).max(tri[2]);
+                hit = guard.any(lo, hi, |g| {
+                    let g = g as usize;
+                    if !self.face_alive[g] {
+                        return false;
+                    }
+                    let gt = self.faces[g];
+                    if gt
+                        .iter()
+                        .any(|&u| ids.contains(&if u == b { a } else { u }))
+                    {
+                        return false;
+                    }
+                    crate::mesh::intersect::triangles_intersect(
+                        tri,
+                        gt.map(|u| self.pos[u as usize]),
+                    )
+                });
+            });
+        }
+        self.guard = Some(guard);
+        hit
+    }
+
+    /// After a collapse into `s`: the moved faces' boxes grow into the guard (rebuilt when
+    /// half of its faces have died).
+    fn refit(&mut self, s: u32) {
+        let Some(mut guard) = self.guard.take() else {
+            return;
+        };
+        if guard.stale(self.tris) {
+            guard.build(
+                self.faces.len(),
+                |f| self.face_alive[f],
+                |f| self.face_box(f),
+            );
+        } else {
+            self.each_face(s, |f| {
+                let (lo, hi) = self.face_box(f);
+                guard.grow(f, lo, hi);
+            });
+        }
+        self.guard = Some(guard);
     }
 
     /// Triangles now.
@@ -305,6 +414,12 @@ impl<'m> Collapse<'m> {
                     }
                 }
             },
+        };
+        // With the intersection check, the point is tested where the output will hold it.
+        let p = if self.params.check_intersections {
+            p.as_vec3().as_dvec3()
+        } else {
+            p
         };
         Some(Candidate {
             q,
@@ -437,7 +552,7 @@ impl<'m> Collapse<'m> {
                 }
             }
         }
-        true
+        !self.intersects(a, b, c)
     }
 
     /// Collapses (a, b), a < b, to `c`: `a` survives.
@@ -499,6 +614,7 @@ impl<'m> Collapse<'m> {
         self.collapses += 1;
         self.max_error = self.max_error.max(error(&c.q, c.p));
         self.log.push((s, g));
+        self.refit(s);
     }
 
     /// After a collapse into `s`: the edges of `s` get a new cost (its stamp changes, so

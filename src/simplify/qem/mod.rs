@@ -35,6 +35,7 @@
 //! tests) is a C++ library with a fixed cost.
 
 mod engine;
+mod guard;
 
 pub use engine::{simplify_slow, Checks, Collapse};
 
@@ -113,6 +114,9 @@ pub struct QemParams {
     pub lock_border: bool,
     /// The order of the collapses.
     pub cost: Cost,
+    /// Refuse any collapse after which a moved face would meet a face it shares no vertex
+    /// with (exact predicates; placed points are rounded to f32 first).
+    pub check_intersections: bool,
 }
 
 /// What a quadric edge collapse did.

@@ -64,6 +64,7 @@ fn params(triangles: u64, placement: Placement) -> QemParams {
         merge: QuadricMerge::Sum,
         lock_border: false,
         cost: Cost::Quadric,
+        check_intersections: false,
     }
 }
 
@@ -190,11 +191,14 @@ fn the_heap_equals_the_slow_twin() {
                 (QuadricMerge::Mean, Cost::Quadric),
                 (QuadricMerge::Sum, Cost::Distance),
             ] {
-                for lock_border in [false, true] {
+                for (lock_border, check_intersections) in
+                    [(false, false), (true, false), (false, true)]
+                {
                     let p = QemParams {
                         merge,
                         lock_border,
                         cost,
+                        check_intersections,
                         ..params(target, placement)
                     };
                     let prep = Prepared::new(&m);
@@ -313,4 +317,41 @@ fn colours_are_interpolated() {
             "{p} {c:?}"
         );
     }
+}
+
+/// Two bumpy spheres, one inside the other a hair apart, simplified hard: with the
+/// intersection check no pair of faces without a common vertex meets in the output (the
+/// exact checker of `compare --check-folds` says so); without it the count is printed.
+#[test]
+fn the_intersection_check_keeps_nested_spheres_apart() {
+    let outer = sphere(12);
+    let mut m = outer.clone();
+    let base = m.positions.len() as u32;
+    m.positions
+        .extend(outer.positions.iter().map(|p| *p * 0.97));
+    m.indices
+        .extend(outer.indices.iter().map(|t| t.map(|i| i + base)));
+    assert!(crate::mesh::intersect::self_intersections(&m).is_empty());
+    let mut unchecked = 0;
+    for placement in [Placement::Optimal, Placement::Endpoint] {
+        for target in [200u64, 60, 24] {
+            let mut found = [0usize; 2];
+            for (k, check) in [false, true].into_iter().enumerate() {
+                let p = QemParams {
+                    check_intersections: check,
+                    ..params(target, placement)
+                };
+                let r = simplify(&m, &p).unwrap();
+                found[k] = crate::mesh::intersect::self_intersections(&r.mesh).len();
+            }
+            println!(
+                "{placement} -> {target}: {} pairs unchecked, {} checked",
+                found[0], found[1]
+            );
+            assert_eq!(found[1], 0, "{placement} {target}");
+            unchecked += found[0];
+        }
+    }
+    // The fixture is one where the check matters.
+    assert!(unchecked > 0);
 }

@@ -1,0 +1,157 @@
+//! The optional exact intersection check of the collapse engine: a box hierarchy over the
+//! engine's faces whose boxes only ever grow (refit upward when a collapse moves a face),
+//! rebuilt from the live faces when half of them have gone.
+//!
+//! Why this is correct: every node's box contains the current box of every live face below
+//! it (a moved face's new box is merged into its leaf and ancestors before the next query;
+//! boxes never shrink, dead faces are skipped by the caller), so a box query returns a
+//! superset of the live faces whose boxes meet the query box, and the exact
+//! triangle–triangle test ([`crate::mesh::intersect::triangles_intersect`]) decides. The
+//! rebuild only tightens boxes. Written here rather than reusing [`crate::mesh::Bvh`]: that
+//! one is immutable (built once for closest-point queries) and has no refit.
+
+use glam::DVec3;
+
+const NONE: u32 = u32::MAX;
+const LEAF_MAX: usize = 4;
+
+#[derive(Debug, Clone, Copy)]
+struct Node {
+    min: DVec3,
+    max: DVec3,
+    /// Inner: right child (the left one follows); leaf: first slot in `items`.
+    index: u32,
+    /// Leaf: number of faces; inner: 0.
+    count: u32,
+    parent: u32,
+}
+
+/// Growing boxes over faces.
+#[derive(Debug, Default)]
+pub(crate) struct Guard {
+    nodes: Vec<Node>,
+    items: Vec<u32>,
+    leaf_of: Vec<u32>,
+    /// Live faces when last built.
+    built_with: usize,
+    stack: Vec<u32>,
+    scratch: Vec<(u32, DVec3, DVec3)>,
+}
+
+impl Guard {
+    /// (Re)builds over the faces `live` says are alive, with boxes from `tri_box`.
+    pub(crate) fn build(
+        &mut self,
+        faces: usize,
+        live: impl Fn(usize) -> bool,
+        tri_box: impl Fn(usize) -> (DVec3, DVec3),
+    ) {
+        self.nodes.clear();
+        self.leaf_of.clear();
+        self.leaf_of.resize(faces, NONE);
+        let mut items = std::mem::take(&mut self.scratch);
+        items.clear();
+        items.extend((0..faces).filter(|&f| live(f)).map(|f| {
+            let (lo, hi) = tri_box(f);
+            (f as u32, lo, hi)
+        }));
+        self.built_with = items.len();
+        if !items.is_empty() {
+            self.split(&mut items, 0, NONE);
+        }
+        self.items.clear();
+        self.items.extend(items.iter().map(|t| t.0));
+        for (n, node) in self.nodes.iter().enumerate() {
+            if node.count > 0 {
+                for s in node.index..node.index + node.count {
+                    self.leaf_of[self.items[s as usize] as usize] = n as u32;
+                }
+            }
+        }
+        self.scratch = items;
+    }
+
+    fn split(&mut self, items: &mut [(u32, DVec3, DVec3)], first: u32, parent: u32) -> u32 {
+        let me = self.nodes.len() as u32;
+        let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for t in items.iter() {
+            lo = lo.min(t.1);
+            hi = hi.max(t.2);
+        }
+        self.nodes.push(Node {
+            min: lo,
+            max: hi,
+            index: first,
+            count: items.len() as u32,
+            parent,
+        });
+        if items.len() <= LEAF_MAX {
+            return me;
+        }
+        // Median split on the longest axis of the box (deterministic: ties by face id).
+        let axis = (hi - lo).max_position();
+        let mid = items.len() / 2;
+        items.select_nth_unstable_by(mid, |x, y| {
+            (x.1[axis] + x.2[axis])
+                .total_cmp(&(y.1[axis] + y.2[axis]))
+                .then(x.0.cmp(&y.0))
+        });
+        let (l, r) = items.split_at_mut(mid);
+        self.split(l, first, me);
+        let right = self.split(r, first + mid as u32, me);
+        let n = &mut self.nodes[me as usize];
+        n.index = right;
+        n.count = 0;
+        me
+    }
+
+    /// Whether half of the faces built over have died since (then a rebuild pays).
+    pub(crate) fn stale(&self, live: usize) -> bool {
+        live * 2 < self.built_with
+    }
+
+    /// Face `f` now spans [lo, hi]: grow its leaf and the ancestors until one holds it.
+    pub(crate) fn grow(&mut self, f: usize, lo: DVec3, hi: DVec3) {
+        let mut n = self.leaf_of.get(f).copied().unwrap_or(NONE);
+        while n != NONE {
+            let node = &mut self.nodes[n as usize];
+            if node.min.cmple(lo).all() && node.max.cmpge(hi).all() {
+                break;
+            }
+            node.min = node.min.min(lo);
+            node.max = node.max.max(hi);
+            n = node.parent;
+        }
+    }
+
+    /// Calls `f` with every face in a leaf whose box meets [lo, hi] until `f` says stop
+    /// (returns true); returns whether it stopped.
+    pub(crate) fn any(&mut self, lo: DVec3, hi: DVec3, mut f: impl FnMut(u32) -> bool) -> bool {
+        if self.nodes.is_empty() {
+            return false;
+        }
+        let mut stack = std::mem::take(&mut self.stack);
+        stack.clear();
+        stack.push(0);
+        let mut found = false;
+        'walk: while let Some(n) = stack.pop() {
+            let node = &self.nodes[n as usize];
+            if node.min.cmpgt(hi).any() || lo.cmpgt(node.max).any() {
+                continue;
+            }
+            if node.count > 0 {
+                for s in node.index..node.index + node.count {
+                    if f(self.items[s as usize]) {
+                        found = true;
+                        break 'walk;
+                    }
+                }
+            } else {
+                stack.push(node.index);
+                stack.push(n + 1);
+            }
+        }
+        self.stack = stack;
+        found
+    }
+}
