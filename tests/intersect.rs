@@ -85,3 +85,39 @@ fn compare_check_folds_reports_counts() {
     assert!(r.stdout.contains("fold-overs: 0 faces"), "{}", r.stdout);
     assert!(r.stdout.contains("self-intersections: "), "{}", r.stdout);
 }
+
+/// `simplify --method qem --check-intersections` and `compare --check-folds` end to end:
+/// on bunny at 2 % (whose unchecked output has fold-overs) the checked output has none and
+/// no self-intersecting face.
+#[test]
+fn checked_qem_output_passes_the_checker() {
+    let Some(bunny) = common::data_file("meshes/bunny.obj") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let b = bunny.to_str().unwrap();
+    let mut counts = Vec::new();
+    for check in [false, true] {
+        let mut args = vec![
+            "simplify", b, "out.obj", "--method", "qem", "--ratio", "0.02",
+        ];
+        if check {
+            args.push("--check-intersections");
+        }
+        common::terratile(dir.path(), &args).ok();
+        let r = common::terratile(
+            dir.path(),
+            &["compare", b, "out.obj", "--check-folds", "--json"],
+        );
+        r.ok();
+        let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+        let f = &v["folds"];
+        counts.push((
+            f["fold_overs"].as_array().unwrap().len(),
+            f["self_intersecting_pairs"].as_u64().unwrap(),
+        ));
+        std::fs::remove_file(dir.path().join("out.obj")).unwrap();
+    }
+    assert!(counts[0].0 > 0, "{counts:?}");
+    assert_eq!(counts[1], (0, 0), "{counts:?}");
+}
