@@ -408,60 +408,17 @@ fn read_data<S: Source>(
         ..Default::default()
     };
     let mut strip: Vec<i64> = Vec::new();
-    let (mut drop_normals, mut drop_colours, mut drop_uvs) = (false, false, false);
+    let mut drops = Drops::default();
     for el in &header.elements {
-        let has = |pred: fn(Role) -> bool| el.props.iter().any(|p| pred(p.role));
         let is_vertex = el.name == "vertex";
-        let record: usize = el.props.iter().map(|p| src.min_size(p.kind)).sum();
-        if record == 0 {
-            // No properties: zero-size records, nothing to read whatever the count (a
-            // vertex element without x y z is refused below).
-            if !is_vertex {
-                continue;
-            }
-        } else if el.count.saturating_mul(record) > src.remaining().saturating_add(1) {
-            return Err(Error::text(
-                path,
-                el.line,
-                format!(
-                    "element `{}` declares {} records of at least {record} bytes each, but only {} bytes of data follow",
-                    el.name,
-                    el.count,
-                    src.remaining()
-                ),
-            ));
+        if !check_element_size(path, el, src, is_vertex)? {
+            continue;
         }
-        let (mut colour_scale, mut has_alpha) = ([1.0f64; 4], false);
-        if is_vertex {
-            for k in 0..3 {
-                if !el.props.iter().any(|p| p.role == Role::Coord(k)) {
-                    return Err(Error::format(
-                        path,
-                        0,
-                        format!(
-                            "the vertex element has no `{}` property",
-                            ["x", "y", "z"][k]
-                        ),
-                    ));
-                }
-            }
-            c.positions.reserve(el.count);
-            if has(|r| matches!(r, Role::Normal(_))) {
-                c.normals = Some(Vec::with_capacity(el.count));
-            }
-            if has(|r| matches!(r, Role::Colour(_))) {
-                c.colors = Some(Vec::with_capacity(el.count));
-                for p in &el.props {
-                    if let (Role::Colour(k), Kind::Scalar(t)) = (p.role, p.kind) {
-                        colour_scale[k] = t.colour_scale();
-                        has_alpha |= k == 3;
-                    }
-                }
-            }
-            if has(|r| matches!(r, Role::Tex(_))) {
-                c.uvs = Some(Vec::with_capacity(el.count));
-            }
-        }
+        let (colour_scale, has_alpha) = if is_vertex {
+            start_vertex_columns(path, el, &mut c)?
+        } else {
+            ([1.0f64; 4], false)
+        };
         let what = if is_vertex {
             "vertex"
         } else {
@@ -470,16 +427,21 @@ fn read_data<S: Source>(
         for i in 0..el.count {
             let at = src.loc();
             let ends = |m: String| err_at(path, at, format!("{what} {i} of {}: {m}", el.count));
-            let (mut p, mut n, mut col, mut t) = ([0f64; 3], [0f64; 3], [1f64; 4], [0f64; 2]);
+            let mut r = VertexRecord {
+                p: [0.0; 3],
+                n: [0.0; 3],
+                col: [1.0; 4],
+                t: [0.0; 2],
+            };
             for prop in &el.props {
                 match prop.kind {
                     Kind::Scalar(ty) => {
                         let v = src.value(ty).map_err(&ends)?;
                         match prop.role {
-                            Role::Coord(k) => p[k] = v,
-                            Role::Normal(k) => n[k] = v,
-                            Role::Colour(k) => col[k] = v / colour_scale[k],
-                            Role::Tex(k) => t[k] = v,
+                            Role::Coord(k) => r.p[k] = v,
+                            Role::Normal(k) => r.n[k] = v,
+                            Role::Colour(k) => r.col[k] = v / colour_scale[k],
+                            Role::Tex(k) => r.t[k] = v,
                             _ => {}
                         }
                     }
@@ -533,59 +495,165 @@ fn read_data<S: Source>(
                 }
             }
             if is_vertex {
-                let pos = Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32);
-                if !pos.is_finite() {
-                    return Err(ends(format!(
-                        "non-finite coordinate ({}, {}, {}): NaN or infinite positions are not allowed",
-                        p[0], p[1], p[2]
-                    )));
-                }
-                c.positions.push(pos);
-                let bad = |what: &str, v: &[f64]| ends(format!("{what} {v:?} is not finite"));
-                if c.normals.is_some() && !drop_normals && !n.iter().all(|x| x.is_finite()) {
-                    notes.lenient("normal", bad("normal", &n), "normals dropped")?;
-                    drop_normals = true;
-                }
-                if c.colors.is_some() && !drop_colours && !col.iter().all(|x| x.is_finite()) {
-                    notes.lenient("colour", bad("colour", &col), "colours dropped")?;
-                    drop_colours = true;
-                }
-                if c.uvs.is_some() && !drop_uvs && !t.iter().all(|x| x.is_finite()) {
-                    notes.lenient(
-                        "texture coordinate",
-                        bad("texture coordinate", &t),
-                        "texture coordinates dropped",
-                    )?;
-                    drop_uvs = true;
-                }
-                if let Some(nn) = c.normals.as_mut() {
-                    nn.push(Vec3::new(n[0] as f32, n[1] as f32, n[2] as f32));
-                }
-                if let Some(cc) = c.colors.as_mut() {
-                    let l = |x: f64| srgb_to_linear((x as f32).clamp(0.0, 1.0));
-                    let a = if has_alpha {
-                        (col[3] as f32).clamp(0.0, 1.0)
-                    } else {
-                        1.0
-                    };
-                    cc.push([l(col[0]), l(col[1]), l(col[2]), a]);
-                }
-                if let Some(uv) = c.uvs.as_mut() {
-                    uv.push(Vec2::new(t[0] as f32, t[1] as f32));
-                }
+                push_vertex(&mut c, &r, has_alpha, &ends, &mut drops, notes)?;
             }
         }
     }
-    if drop_normals {
-        c.normals = None;
-    }
-    if drop_colours {
-        c.colors = None;
-    }
-    if drop_uvs {
-        c.uvs = None;
-    }
+    drops.apply(&mut c);
     Ok(c)
+}
+
+/// Checks that `el`'s records can fit in the data left (at their smallest size). Returns
+/// false for an element with zero-size records, which has nothing to read (a vertex element
+/// without properties still goes on, to be refused for its missing x y z).
+fn check_element_size<S: Source>(
+    path: &Path,
+    el: &Element,
+    src: &S,
+    is_vertex: bool,
+) -> Result<bool> {
+    let record: usize = el.props.iter().map(|p| src.min_size(p.kind)).sum();
+    if record == 0 {
+        // No properties: zero-size records, nothing to read whatever the count (a
+        // vertex element without x y z is refused below).
+        return Ok(is_vertex);
+    }
+    if el.count.saturating_mul(record) > src.remaining().saturating_add(1) {
+        return Err(Error::text(
+            path,
+            el.line,
+            format!(
+                "element `{}` declares {} records of at least {record} bytes each, but only {} bytes of data follow",
+                el.name,
+                el.count,
+                src.remaining()
+            ),
+        ));
+    }
+    Ok(true)
+}
+
+/// Checks that the vertex element `el` has x y z and reserves the columns it has. Returns the
+/// scale of each colour channel (by its type) and whether there is an alpha channel.
+fn start_vertex_columns(path: &Path, el: &Element, c: &mut Collected) -> Result<([f64; 4], bool)> {
+    let has = |pred: fn(Role) -> bool| el.props.iter().any(|p| pred(p.role));
+    let (mut colour_scale, mut has_alpha) = ([1.0f64; 4], false);
+    for k in 0..3 {
+        if !el.props.iter().any(|p| p.role == Role::Coord(k)) {
+            return Err(Error::format(
+                path,
+                0,
+                format!(
+                    "the vertex element has no `{}` property",
+                    ["x", "y", "z"][k]
+                ),
+            ));
+        }
+    }
+    c.positions.reserve(el.count);
+    if has(|r| matches!(r, Role::Normal(_))) {
+        c.normals = Some(Vec::with_capacity(el.count));
+    }
+    if has(|r| matches!(r, Role::Colour(_))) {
+        c.colors = Some(Vec::with_capacity(el.count));
+        for p in &el.props {
+            if let (Role::Colour(k), Kind::Scalar(t)) = (p.role, p.kind) {
+                colour_scale[k] = t.colour_scale();
+                has_alpha |= k == 3;
+            }
+        }
+    }
+    if has(|r| matches!(r, Role::Tex(_))) {
+        c.uvs = Some(Vec::with_capacity(el.count));
+    }
+    Ok((colour_scale, has_alpha))
+}
+
+/// One vertex record's values: position, normal, colour (scaled to 0..1), texture coordinate.
+struct VertexRecord {
+    p: [f64; 3],
+    n: [f64; 3],
+    col: [f64; 4],
+    t: [f64; 2],
+}
+
+/// The attribute columns found to hold a non-finite value (reported once each, dropped at
+/// the end).
+#[derive(Default)]
+struct Drops {
+    normals: bool,
+    colours: bool,
+    uvs: bool,
+}
+
+impl Drops {
+    /// Drops the columns found bad.
+    fn apply(&self, c: &mut Collected) {
+        if self.normals {
+            c.normals = None;
+        }
+        if self.colours {
+            c.colors = None;
+        }
+        if self.uvs {
+            c.uvs = None;
+        }
+    }
+}
+
+/// Appends vertex `r` to `c`'s columns: a non-finite position is an error (`ends` names the
+/// vertex); a non-finite normal, colour or texture coordinate drops that column (leniently).
+#[inline]
+fn push_vertex(
+    c: &mut Collected,
+    r: &VertexRecord,
+    has_alpha: bool,
+    ends: &impl Fn(String) -> Error,
+    drops: &mut Drops,
+    notes: &mut Notes,
+) -> Result<()> {
+    let (p, n, col, t) = (r.p, r.n, r.col, r.t);
+    let pos = Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32);
+    if !pos.is_finite() {
+        return Err(ends(format!(
+            "non-finite coordinate ({}, {}, {}): NaN or infinite positions are not allowed",
+            p[0], p[1], p[2]
+        )));
+    }
+    c.positions.push(pos);
+    let bad = |what: &str, v: &[f64]| ends(format!("{what} {v:?} is not finite"));
+    if c.normals.is_some() && !drops.normals && !n.iter().all(|x| x.is_finite()) {
+        notes.lenient("normal", bad("normal", &n), "normals dropped")?;
+        drops.normals = true;
+    }
+    if c.colors.is_some() && !drops.colours && !col.iter().all(|x| x.is_finite()) {
+        notes.lenient("colour", bad("colour", &col), "colours dropped")?;
+        drops.colours = true;
+    }
+    if c.uvs.is_some() && !drops.uvs && !t.iter().all(|x| x.is_finite()) {
+        notes.lenient(
+            "texture coordinate",
+            bad("texture coordinate", &t),
+            "texture coordinates dropped",
+        )?;
+        drops.uvs = true;
+    }
+    if let Some(nn) = c.normals.as_mut() {
+        nn.push(Vec3::new(n[0] as f32, n[1] as f32, n[2] as f32));
+    }
+    if let Some(cc) = c.colors.as_mut() {
+        let l = |x: f64| srgb_to_linear((x as f32).clamp(0.0, 1.0));
+        let a = if has_alpha {
+            (col[3] as f32).clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        cc.push([l(col[0]), l(col[1]), l(col[2]), a]);
+    }
+    if let Some(uv) = c.uvs.as_mut() {
+        uv.push(Vec2::new(t[0] as f32, t[1] as f32));
+    }
+    Ok(())
 }
 
 /// Triangles of one strip (−1 restarts a strip); triangles with a repeated corner (the
