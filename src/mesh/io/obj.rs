@@ -166,188 +166,20 @@ pub fn parse_obj(path: &Path, text: &[u8]) -> Result<(TriMesh, ReadInfo)> {
 /// Parses OBJ text (`path` is for messages) as `opts` say.
 pub fn parse_obj_with(path: &Path, text: &[u8], opts: &ReadOptions) -> Result<(TriMesh, ReadInfo)> {
     let mut notes = Notes::new(opts);
-    let (mut drop_uvs, mut drop_normals, mut drop_colours) = (false, false, false);
-    let mut skipped_faces = 0usize;
-    let mut positions: Vec<Vec3> = Vec::new();
-    let mut colors: Vec<[f32; 3]> = Vec::new();
-    let mut any_color = false;
-    let mut texcoords: Vec<Vec2> = Vec::new();
-    let mut normals: Vec<Vec3> = Vec::new();
-    // Polygon corners as raw (v, vt, vn); polygon p is corners[starts[p]..starts[p + 1]].
-    let mut corners: Vec<[i64; 3]> = Vec::new();
-    let mut starts: Vec<usize> = vec![0];
-    let mut lines: Vec<u64> = Vec::new();
-    let mut zero_line: Option<u64> = None;
-    let mut skipped_elements = 0usize;
-    let mut spare: Vec<&[u8]> = Vec::with_capacity(16);
-
-    for (line_no, raw) in logical_lines(text) {
-        let mut toks = recycle(std::mem::take(&mut spare));
-        let line = match raw.iter().position(|&b| b == b'#') {
-            Some(p) => &raw[..p],
-            None => &raw[..],
-        };
-        toks.clear();
-        toks.extend(
-            line.split(|b| b.is_ascii_whitespace())
-                .filter(|t| !t.is_empty()),
-        );
-        let Some((&key, args)) = toks.split_first() else {
-            spare = recycle(toks);
-            continue;
-        };
-        match key {
-            b"v" => {
-                if args.len() < 3 {
-                    return Err(Error::text(path, line_no, "a vertex needs x, y and z"));
-                }
-                let p = Vec3::new(
-                    parse_f32(args[0], line_no, path)?,
-                    parse_f32(args[1], line_no, path)?,
-                    parse_f32(args[2], line_no, path)?,
-                );
-                positions.push(p);
-                // `v x y z w` has a weight, `v x y z r g b` a colour.
-                if args.len() >= 6 {
-                    let c = match parse_attr::<3>(&args[3..], line_no, path, "colour") {
-                        Ok(c) => c,
-                        Err(e) => {
-                            if !drop_colours {
-                                notes.lenient("colour", e, "vertex colours dropped")?;
-                                drop_colours = true;
-                            }
-                            [1.0; 3]
-                        }
-                    };
-                    if colors.len() < positions.len() - 1 {
-                        colors.resize(positions.len() - 1, [1.0; 3]);
-                    }
-                    colors.push(c);
-                    any_color = true;
-                }
-            }
-            b"vt" => {
-                // `vt u` alone means v = 0.
-                let uv = if args.len() == 1 {
-                    parse_attr::<1>(args, line_no, path, "texture coordinate").map(|[u]| [u, 0.0])
-                } else {
-                    parse_attr::<2>(args, line_no, path, "texture coordinate")
-                };
-                match uv {
-                    Ok(uv) => texcoords.push(Vec2::from(uv)),
-                    Err(e) => {
-                        if !drop_uvs {
-                            notes.lenient(
-                                "texture coordinate",
-                                e,
-                                "texture coordinates dropped",
-                            )?;
-                            drop_uvs = true;
-                        }
-                        texcoords.push(Vec2::ZERO);
-                    }
-                }
-            }
-            b"vn" => match parse_attr::<3>(args, line_no, path, "normal") {
-                Ok(n) => normals.push(Vec3::from(n)),
-                Err(e) => {
-                    if !drop_normals {
-                        notes.lenient("normal", e, "normals dropped")?;
-                        drop_normals = true;
-                    }
-                    normals.push(Vec3::ZERO);
-                }
-            },
-            b"f" | b"fo" => {
-                if args.len() < 3 {
-                    notes.lenient(
-                        "short face",
-                        Error::text(
-                            path,
-                            line_no,
-                            format!(
-                                "a face needs at least 3 vertices, this one has {}",
-                                args.len()
-                            ),
-                        ),
-                        "skipped",
-                    )?;
-                    skipped_faces += 1;
-                    spare = recycle(toks);
-                    continue;
-                }
-                for tok in args {
-                    let mut parts = tok.splitn(3, |&b| b == b'/');
-                    let v = raw_index(
-                        parts.next().unwrap_or(b""),
-                        positions.len(),
-                        line_no,
-                        path,
-                        "vertex",
-                    )?;
-                    if v == NONE {
-                        return Err(Error::text(
-                            path,
-                            line_no,
-                            format!(
-                                "face corner `{}` has no vertex index",
-                                String::from_utf8_lossy(tok)
-                            ),
-                        ));
-                    }
-                    let t = match raw_index(
-                        parts.next().unwrap_or(b""),
-                        texcoords.len(),
-                        line_no,
-                        path,
-                        "texture coordinate",
-                    ) {
-                        Ok(t) => t,
-                        Err(e) => {
-                            if !drop_uvs {
-                                notes.lenient(
-                                    "texture coordinate",
-                                    e,
-                                    "texture coordinates dropped",
-                                )?;
-                                drop_uvs = true;
-                            }
-                            NONE
-                        }
-                    };
-                    let n = match raw_index(
-                        parts.next().unwrap_or(b""),
-                        normals.len(),
-                        line_no,
-                        path,
-                        "normal",
-                    ) {
-                        Ok(n) => n,
-                        Err(e) => {
-                            if !drop_normals {
-                                notes.lenient("normal", e, "normals dropped")?;
-                                drop_normals = true;
-                            }
-                            NONE
-                        }
-                    };
-                    if (v == 0 || t == 0 || n == 0) && zero_line.is_none() {
-                        zero_line = Some(line_no);
-                    }
-                    corners.push([v, t, n]);
-                }
-                starts.push(corners.len());
-                lines.push(line_no);
-            }
-            b"l" | b"p" | b"curv" | b"curv2" | b"surf" => skipped_elements += 1,
-            _ => {}
-        }
-        spare = recycle(toks);
-    }
-    if any_color && colors.len() < positions.len() {
-        colors.resize(positions.len(), [1.0; 3]);
-    }
-
+    let mut drops = Drops::default();
+    let Scanned {
+        positions,
+        colors,
+        mut any_color,
+        mut texcoords,
+        mut normals,
+        mut corners,
+        starts,
+        lines,
+        zero_line,
+        skipped_elements,
+        skipped_faces,
+    } = scan(path, text, &mut notes, &mut drops)?;
     let zero_based = zero_line.is_some();
     if let Some(l) = zero_line {
         notes.note("0-based", || format!(
@@ -364,64 +196,37 @@ pub fn parse_obj_with(path: &Path, text: &[u8], opts: &ReadOptions) -> Result<(T
         });
     }
     // Resolve raw indices; every corner is checked against its array's final length.
-    let resolve = |raw: i64, len: usize, line: u64, what: &str| -> Result<u32> {
-        if raw == NONE {
-            return Ok(u32::MAX);
-        }
-        let (idx, shown) = if raw >= 0 {
-            (if zero_based { raw } else { raw - 1 }, raw)
-        } else {
-            (-raw - 1, -raw - 1 - len as i64)
-        };
-        if idx < 0 || idx >= len as i64 {
-            let base = if zero_based {
-                " (the file uses index 0, so it is read as 0-based)"
-            } else {
-                ""
-            };
-            return Err(Error::text(
-                path,
-                line,
-                format!(
-                    "face {what} index {shown} is out of range: the file has {len} {}{base}",
-                    if what == "vertex" {
-                        "vertices".to_string()
-                    } else {
-                        format!("{what}s")
-                    }
-                ),
-            ));
-        }
-        Ok(idx as u32)
+    let resolve = |raw: i64, len: usize, line: u64, what: &str| {
+        resolve_index(path, zero_based, raw, len, line, what)
     };
 
     // Texture coordinates and normals out of range: the attribute is dropped (lenient) or
     // the file refused (strict), decided before any vertex is built.
     for (p, &line) in lines.iter().enumerate() {
         for c in &corners[starts[p]..starts[p + 1]] {
-            if !drop_uvs {
+            if !drops.uvs {
                 if let Err(e) = resolve(c[1], texcoords.len(), line, "texture coordinate") {
                     notes.lenient("texture coordinate", e, "texture coordinates dropped")?;
-                    drop_uvs = true;
+                    drops.uvs = true;
                 }
             }
-            if !drop_normals {
+            if !drops.normals {
                 if let Err(e) = resolve(c[2], normals.len(), line, "normal") {
                     notes.lenient("normal", e, "normals dropped")?;
-                    drop_normals = true;
+                    drops.normals = true;
                 }
             }
         }
     }
-    if drop_uvs {
+    if drops.uvs {
         texcoords.clear();
         corners.iter_mut().for_each(|c| c[1] = NONE);
     }
-    if drop_normals {
+    if drops.normals {
         normals.clear();
         corners.iter_mut().for_each(|c| c[2] = NONE);
     }
-    if drop_colours {
+    if drops.colours {
         any_color = false;
     }
     let has_vt = corners.iter().any(|c| c[1] != NONE);
@@ -429,26 +234,7 @@ pub fn parse_obj_with(path: &Path, text: &[u8], opts: &ReadOptions) -> Result<(T
     let npos = positions.len();
     let mut mesh = TriMesh {
         positions,
-        colors: any_color.then(|| {
-            let scale = if colors.iter().flatten().any(|&c| c > 1.0) {
-                notes.note("0-255", || {
-                    format!(
-                        "{}: vertex colours above 1 read as 0–255 values",
-                        path.display()
-                    )
-                });
-                1.0 / 255.0
-            } else {
-                1.0
-            };
-            colors
-                .iter()
-                .map(|c| {
-                    let l = |x: f32| srgb_to_linear((x * scale).clamp(0.0, 1.0));
-                    [l(c[0]), l(c[1]), l(c[2]), 1.0]
-                })
-                .collect()
-        }),
+        colors: any_color.then(|| linear_colours(&colors, path, &mut notes)),
         uvs: has_vt.then(|| vec![Vec2::ZERO; npos]),
         normals: has_vn.then(|| vec![Vec3::ZERO; npos]),
         indices: Vec::with_capacity(corners.len().saturating_sub(2 * lines.len())),
@@ -497,23 +283,7 @@ pub fn parse_obj_with(path: &Path, text: &[u8], opts: &ReadOptions) -> Result<(T
             ids.push(id);
         }
     }
-    // Files written per vertex (one `vt`/`vn` per `v`, as terratile writes them) give
-    // unreferenced vertices their attributes too, so such files round-trip exactly.
-    for (k, c) in combo.iter().enumerate() {
-        if *c == UNSET {
-            let t = if texcoords.len() == npos {
-                k as u32
-            } else {
-                u32::MAX
-            };
-            let n = if normals.len() == npos {
-                k as u32
-            } else {
-                u32::MAX
-            };
-            set_attrs(&mut mesh, k as u32, t, n, &texcoords, &normals);
-        }
-    }
+    attrs_of_unreferenced(&mut mesh, &combo, &texcoords, &normals, npos);
     if mesh.positions.len() > u32::MAX as usize {
         return Err(Error::format(path, 0, "more than 2^32 - 1 vertices"));
     }
@@ -535,6 +305,330 @@ pub fn parse_obj_with(path: &Path, text: &[u8], opts: &ReadOptions) -> Result<(T
         skipped_faces,
     };
     Ok((mesh, info))
+}
+
+/// What the line pass collects: the attribute arrays as written and the faces as raw corner
+/// indices (polygon p is `corners[starts[p]..starts[p + 1]]`, from line `lines[p]`).
+struct Scanned {
+    positions: Vec<Vec3>,
+    colors: Vec<[f32; 3]>,
+    any_color: bool,
+    texcoords: Vec<Vec2>,
+    normals: Vec<Vec3>,
+    corners: Vec<[i64; 3]>,
+    starts: Vec<usize>,
+    lines: Vec<u64>,
+    /// The first line with a face index 0 (the file is then read as 0-based).
+    zero_line: Option<u64>,
+    skipped_elements: usize,
+    skipped_faces: usize,
+}
+
+/// The attributes found bad (reported once each, then dropped).
+#[derive(Default)]
+struct Drops {
+    uvs: bool,
+    normals: bool,
+    colours: bool,
+}
+
+/// The line pass: vertices, attributes and faces as written, indices not yet resolved.
+fn scan(path: &Path, text: &[u8], notes: &mut Notes, drops: &mut Drops) -> Result<Scanned> {
+    let mut skipped_faces = 0usize;
+    let mut positions: Vec<Vec3> = Vec::new();
+    let mut colors: Vec<[f32; 3]> = Vec::new();
+    let mut any_color = false;
+    let mut texcoords: Vec<Vec2> = Vec::new();
+    let mut normals: Vec<Vec3> = Vec::new();
+    // Polygon corners as raw (v, vt, vn); polygon p is corners[starts[p]..starts[p + 1]].
+    let mut corners: Vec<[i64; 3]> = Vec::new();
+    let mut starts: Vec<usize> = vec![0];
+    let mut lines: Vec<u64> = Vec::new();
+    let mut zero_line: Option<u64> = None;
+    let mut skipped_elements = 0usize;
+    let mut spare: Vec<&[u8]> = Vec::with_capacity(16);
+
+    for (line_no, raw) in logical_lines(text) {
+        let mut toks = recycle(std::mem::take(&mut spare));
+        let line = match raw.iter().position(|&b| b == b'#') {
+            Some(p) => &raw[..p],
+            None => &raw[..],
+        };
+        toks.clear();
+        toks.extend(
+            line.split(|b| b.is_ascii_whitespace())
+                .filter(|t| !t.is_empty()),
+        );
+        let Some((&key, args)) = toks.split_first() else {
+            spare = recycle(toks);
+            continue;
+        };
+        match key {
+            b"v" => {
+                if args.len() < 3 {
+                    return Err(Error::text(path, line_no, "a vertex needs x, y and z"));
+                }
+                let p = Vec3::new(
+                    parse_f32(args[0], line_no, path)?,
+                    parse_f32(args[1], line_no, path)?,
+                    parse_f32(args[2], line_no, path)?,
+                );
+                positions.push(p);
+                // `v x y z w` has a weight, `v x y z r g b` a colour.
+                if args.len() >= 6 {
+                    let c = match parse_attr::<3>(&args[3..], line_no, path, "colour") {
+                        Ok(c) => c,
+                        Err(e) => {
+                            if !drops.colours {
+                                notes.lenient("colour", e, "vertex colours dropped")?;
+                                drops.colours = true;
+                            }
+                            [1.0; 3]
+                        }
+                    };
+                    if colors.len() < positions.len() - 1 {
+                        colors.resize(positions.len() - 1, [1.0; 3]);
+                    }
+                    colors.push(c);
+                    any_color = true;
+                }
+            }
+            b"vt" => {
+                // `vt u` alone means v = 0.
+                let uv = if args.len() == 1 {
+                    parse_attr::<1>(args, line_no, path, "texture coordinate").map(|[u]| [u, 0.0])
+                } else {
+                    parse_attr::<2>(args, line_no, path, "texture coordinate")
+                };
+                match uv {
+                    Ok(uv) => texcoords.push(Vec2::from(uv)),
+                    Err(e) => {
+                        if !drops.uvs {
+                            notes.lenient(
+                                "texture coordinate",
+                                e,
+                                "texture coordinates dropped",
+                            )?;
+                            drops.uvs = true;
+                        }
+                        texcoords.push(Vec2::ZERO);
+                    }
+                }
+            }
+            b"vn" => match parse_attr::<3>(args, line_no, path, "normal") {
+                Ok(n) => normals.push(Vec3::from(n)),
+                Err(e) => {
+                    if !drops.normals {
+                        notes.lenient("normal", e, "normals dropped")?;
+                        drops.normals = true;
+                    }
+                    normals.push(Vec3::ZERO);
+                }
+            },
+            b"f" | b"fo" => {
+                if args.len() < 3 {
+                    notes.lenient(
+                        "short face",
+                        Error::text(
+                            path,
+                            line_no,
+                            format!(
+                                "a face needs at least 3 vertices, this one has {}",
+                                args.len()
+                            ),
+                        ),
+                        "skipped",
+                    )?;
+                    skipped_faces += 1;
+                    spare = recycle(toks);
+                    continue;
+                }
+                for tok in args {
+                    let lens = [positions.len(), texcoords.len(), normals.len()];
+                    let [v, t, n] = face_corner(tok, lens, line_no, path, notes, drops)?;
+                    if (v == 0 || t == 0 || n == 0) && zero_line.is_none() {
+                        zero_line = Some(line_no);
+                    }
+                    corners.push([v, t, n]);
+                }
+                starts.push(corners.len());
+                lines.push(line_no);
+            }
+            b"l" | b"p" | b"curv" | b"curv2" | b"surf" => skipped_elements += 1,
+            _ => {}
+        }
+        spare = recycle(toks);
+    }
+    if any_color && colors.len() < positions.len() {
+        colors.resize(positions.len(), [1.0; 3]);
+    }
+
+    Ok(Scanned {
+        positions,
+        colors,
+        any_color,
+        texcoords,
+        normals,
+        corners,
+        starts,
+        lines,
+        zero_line,
+        skipped_elements,
+        skipped_faces,
+    })
+}
+
+/// One face corner (`v`, `v/t`, `v//n` or `v/t/n`) as raw indices, `NONE` where absent,
+/// checked against the counts read so far (`lens`: vertices, texture coordinates, normals).
+/// A bad texture coordinate or normal index drops that attribute (leniently).
+fn face_corner(
+    tok: &[u8],
+    lens: [usize; 3],
+    line_no: u64,
+    path: &Path,
+    notes: &mut Notes,
+    drops: &mut Drops,
+) -> Result<[i64; 3]> {
+    let mut parts = tok.splitn(3, |&b| b == b'/');
+    let v = raw_index(
+        parts.next().unwrap_or(b""),
+        lens[0],
+        line_no,
+        path,
+        "vertex",
+    )?;
+    if v == NONE {
+        return Err(Error::text(
+            path,
+            line_no,
+            format!(
+                "face corner `{}` has no vertex index",
+                String::from_utf8_lossy(tok)
+            ),
+        ));
+    }
+    let t = match raw_index(
+        parts.next().unwrap_or(b""),
+        lens[1],
+        line_no,
+        path,
+        "texture coordinate",
+    ) {
+        Ok(t) => t,
+        Err(e) => {
+            if !drops.uvs {
+                notes.lenient("texture coordinate", e, "texture coordinates dropped")?;
+                drops.uvs = true;
+            }
+            NONE
+        }
+    };
+    let n = match raw_index(
+        parts.next().unwrap_or(b""),
+        lens[2],
+        line_no,
+        path,
+        "normal",
+    ) {
+        Ok(n) => n,
+        Err(e) => {
+            if !drops.normals {
+                notes.lenient("normal", e, "normals dropped")?;
+                drops.normals = true;
+            }
+            NONE
+        }
+    };
+    Ok([v, t, n])
+}
+
+/// A raw corner index resolved against its array's final length `len` (1-based, or 0-based
+/// when `zero_based`; negative: from the end); `u32::MAX` for an absent one.
+fn resolve_index(
+    path: &Path,
+    zero_based: bool,
+    raw: i64,
+    len: usize,
+    line: u64,
+    what: &str,
+) -> Result<u32> {
+    if raw == NONE {
+        return Ok(u32::MAX);
+    }
+    let (idx, shown) = if raw >= 0 {
+        (if zero_based { raw } else { raw - 1 }, raw)
+    } else {
+        (-raw - 1, -raw - 1 - len as i64)
+    };
+    if idx < 0 || idx >= len as i64 {
+        let base = if zero_based {
+            " (the file uses index 0, so it is read as 0-based)"
+        } else {
+            ""
+        };
+        return Err(Error::text(
+            path,
+            line,
+            format!(
+                "face {what} index {shown} is out of range: the file has {len} {}{base}",
+                if what == "vertex" {
+                    "vertices".to_string()
+                } else {
+                    format!("{what}s")
+                }
+            ),
+        ));
+    }
+    Ok(idx as u32)
+}
+
+/// The vertex colours in linear RGBA: sRGB values in 0–1, or 0–255 when any is above 1.
+fn linear_colours(colors: &[[f32; 3]], path: &Path, notes: &mut Notes) -> Vec<[f32; 4]> {
+    let scale = if colors.iter().flatten().any(|&c| c > 1.0) {
+        notes.note("0-255", || {
+            format!(
+                "{}: vertex colours above 1 read as 0–255 values",
+                path.display()
+            )
+        });
+        1.0 / 255.0
+    } else {
+        1.0
+    };
+    colors
+        .iter()
+        .map(|c| {
+            let l = |x: f32| srgb_to_linear((x * scale).clamp(0.0, 1.0));
+            [l(c[0]), l(c[1]), l(c[2]), 1.0]
+        })
+        .collect()
+}
+
+/// Files written per vertex (one `vt`/`vn` per `v`, as terratile writes them) give
+/// unreferenced vertices their attributes too, so such files round-trip exactly: the vertices
+/// no corner set (`combo` still `UNSET`) take the attribute of their own index.
+fn attrs_of_unreferenced(
+    mesh: &mut TriMesh,
+    combo: &[(u32, u32)],
+    texcoords: &[Vec2],
+    normals: &[Vec3],
+    npos: usize,
+) {
+    for (k, c) in combo.iter().enumerate() {
+        if *c == UNSET {
+            let t = if texcoords.len() == npos {
+                k as u32
+            } else {
+                u32::MAX
+            };
+            let n = if normals.len() == npos {
+                k as u32
+            } else {
+                u32::MAX
+            };
+            set_attrs(mesh, k as u32, t, n, texcoords, normals);
+        }
+    }
 }
 
 fn set_attrs(mesh: &mut TriMesh, id: u32, t: u32, n: u32, texcoords: &[Vec2], normals: &[Vec3]) {
