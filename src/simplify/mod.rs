@@ -7,6 +7,8 @@ pub mod prep;
 pub mod qem;
 pub mod quadric;
 pub mod target;
+#[cfg(test)]
+mod test_meshes;
 
 pub use cluster::{Method, RefineBox, Representative, Simplified, SimplifyParams, SimplifyReport};
 pub use qem::{Placement, QemReport, QuadricMerge};

@@ -958,24 +958,7 @@ fn average_attributes(mesh: &TriMesh, out_of: &[u32], no: usize, out: &mut TriMe
 mod tests {
     use super::*;
 
-    pub(crate) fn grid(n: usize) -> TriMesh {
-        let mut m = TriMesh::default();
-        for j in 0..=n {
-            for i in 0..=n {
-                let (x, y) = (i as f32 / n as f32, j as f32 / n as f32);
-                m.positions
-                    .push(Vec3::new(x, y, 0.1 * (6.0 * x).sin() * (4.0 * y).cos()));
-            }
-        }
-        let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
-        for j in 0..n {
-            for i in 0..n {
-                m.indices.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-                m.indices.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
-            }
-        }
-        m
-    }
+    pub(crate) use crate::simplify::test_meshes::grid;
 
     #[test]
     fn params_are_checked() {
