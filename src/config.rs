@@ -348,15 +348,7 @@ impl LoadedPipeline {
     /// read; an error names the file, line and dotted key, then the value and what is wrong.
     pub fn check_stages(&self) -> Result<()> {
         let c = &self.config;
-        let at_key = |e: Error| match e {
-            Error::Param {
-                stage,
-                param,
-                value,
-                message,
-            } => self.key_error(&format!("{stage}.{param}"), format!("{value}: {message}")),
-            other => other,
-        };
+        let at_key = |e: Error| self.param_error(e);
         if c.input.max_points == Some(0) {
             return Err(self.key_error("input.max_points", "0: must be at least 1"));
         }
