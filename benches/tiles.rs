@@ -14,8 +14,8 @@ mod common;
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
 use std::path::Path;
+use terratile::mesh::io::MeshFormat;
 use terratile::output::exr::{encode_tile, ExrCompression};
-use terratile::output::MeshFormat;
 use terratile::points::{self, ReadOptions};
 use terratile::terrain::extract::{self, ExtractParams, Refiner};
 use terratile::terrain::fill::FillParams;
@@ -179,7 +179,7 @@ fn mesh_encoding(c: &mut Criterion) {
         .collect();
     let mut g = c.benchmark_group("mesh_encoding");
     g.sample_size(10);
-    for f in [MeshFormat::Ply, MeshFormat::Obj, MeshFormat::Glb] {
+    for f in [MeshFormat::PlyBinaryLe, MeshFormat::Obj, MeshFormat::Glb] {
         let bytes: usize = meshes
             .iter()
             .map(|m| f.encode(m, "tile", 1.0).expect("encode").len())

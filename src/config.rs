@@ -17,7 +17,7 @@ pub struct Pipeline {
     pub input: InputConfig,
     /// `[output]`: where results go.
     #[serde(default)]
-    pub output: OutputConfig,
+    pub output: crate::output::OutputConfig,
     /// `[tiles]`: how the heightfield is cut into tiles.
     #[serde(default)]
     pub tiles: crate::terrain::tiles::TileParams,
@@ -78,76 +78,6 @@ pub enum FormatChoice {
     Laz,
     /// XYZ/CSV text.
     Xyz,
-}
-
-/// `[output]`
-#[derive(Debug, Clone, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct OutputConfig {
-    /// Output directory, relative to the pipeline file's directory (default `out`).
-    #[serde(default = "default_out")]
-    pub dir: PathBuf,
-    /// Write one OpenEXR file per tile: height, d2 (and mask) channels (default true).
-    #[serde(default = "yes")]
-    pub exr: bool,
-    /// EXR compression: `none` (default), `rle`, `zips`, `zip` or `piz`; all lossless.
-    #[serde(default)]
-    pub exr_compression: crate::output::exr::ExrCompression,
-    /// Write `manifest.json` (default true).
-    #[serde(default = "yes")]
-    pub manifest: bool,
-    /// Write a 16-bit PNG heightmap per tile (default true).
-    #[serde(default = "yes")]
-    pub png: bool,
-    /// Write a 16-bit RAW heightmap per tile, Unity's layout (default true).
-    #[serde(default = "yes")]
-    pub raw: bool,
-    /// Write the shaded-relief preview `preview/relief.png` (default true).
-    #[serde(default = "yes")]
-    pub relief: bool,
-    /// Write `preview/wireframe.png`, the CLOD mesh over the relief (default true).
-    #[serde(default = "yes")]
-    pub wireframe: bool,
-    /// Tile mesh formats to write (default `["glb"]`; `[]` for none).
-    #[serde(default = "default_meshes")]
-    pub meshes: Vec<crate::output::MeshFormat>,
-    /// Longer side of the preview pictures in pixels (default 2048; small grids are
-    /// enlarged at most 4×).
-    #[serde(default = "default_preview_size")]
-    pub preview_size: usize,
-}
-
-fn default_out() -> PathBuf {
-    PathBuf::from("out")
-}
-
-fn yes() -> bool {
-    true
-}
-
-fn default_meshes() -> Vec<crate::output::MeshFormat> {
-    crate::output::MeshFormat::DEFAULT.to_vec()
-}
-
-fn default_preview_size() -> usize {
-    2048
-}
-
-impl Default for OutputConfig {
-    fn default() -> Self {
-        OutputConfig {
-            dir: default_out(),
-            exr: true,
-            exr_compression: Default::default(),
-            manifest: true,
-            png: true,
-            raw: true,
-            relief: true,
-            wireframe: true,
-            meshes: default_meshes(),
-            preview_size: default_preview_size(),
-        }
-    }
 }
 
 impl InputConfig {
@@ -358,7 +288,7 @@ impl LoadedPipeline {
         c.tiles.validate().map_err(at_key)?;
         c.quadtree.validate().map_err(at_key)?;
         c.extract.validate().map_err(at_key)?;
-        crate::output::validate(&c.output).map_err(at_key)?;
+        c.output.validate().map_err(at_key)?;
         c.baseline.validate().map_err(at_key)
     }
 }

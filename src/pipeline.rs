@@ -500,7 +500,7 @@ fn run_baseline(
             .is_some_and(|e| e.eq_ignore_ascii_case("glb"));
         if glb {
             let mpu = grid.crs.as_ref().map_or(1.0, |c| c.metres_per_unit());
-            let bytes = crate::output::glb::glb_bytes(&mesh, "tin", mpu)?;
+            let bytes = crate::mesh::io::glb_bytes(&mesh, "tin", mpu)?;
             crate::fsutil::write_bytes_atomic(&path, &bytes)?;
         } else {
             crate::mesh::io::write(&mesh, &path)?;
@@ -611,7 +611,7 @@ pub fn tile_stages(
             ("holes".into(), set.holes().to_string()),
         ],
     });
-    if crate::output::wants_meshes(&cfg.output) {
+    if cfg.output.wants_meshes() {
         // Refuse before the work: a mesh needs a filled heightfield.
         crate::terrain::extract::check_no_holes(&set)?;
     }
@@ -625,20 +625,32 @@ pub fn tile_stages(
             ("K".into(), qt.k.to_string()),
         ],
     });
-    let w = crate::output::write_terrain(dir, &set, &qt, &cfg.extract, &cfg.output, progress)?;
-    if crate::output::wants_meshes(&cfg.output) {
+    cfg.output.validate()?;
+    let meshes = if cfg.output.wants_meshes() {
+        let t = Instant::now();
+        let m = crate::terrain::extract::extract_meshes(&set, &qt, &cfg.extract)?;
         reports.push(StageReport {
             stage: "extract".into(),
-            seconds: w.extract_s,
-            figures: vec![("triangles".into(), w.triangles.to_string())],
+            seconds: t.elapsed().as_secs_f64(),
+            figures: vec![("triangles".into(), m.triangles.to_string())],
         });
-    }
+        Some(m)
+    } else {
+        None
+    };
+    let t = Instant::now();
+    let products = crate::output::TerrainProducts {
+        set: &set,
+        quadtree: &qt,
+        meshes: meshes.as_ref(),
+    };
+    let files = crate::output::write_terrain(dir, &products, &cfg.output, progress)?;
     reports.push(StageReport {
         stage: "write".into(),
-        seconds: w.write_s,
-        figures: vec![("files".into(), w.files.len().to_string())],
+        seconds: t.elapsed().as_secs_f64(),
+        figures: vec![("files".into(), files.len().to_string())],
     });
-    Ok((reports, w.files))
+    Ok((reports, files))
 }
 /// The removed-noise file written with `denoise.write_removed = true`.
 pub const NOISE_FILE: &str = "noise.las";

@@ -7,15 +7,13 @@
 //! 3,408,187 points 63.7 s; Delaunay "more than 12 hours").
 
 use super::{current_rss, median, peak_rss, reset_peak_rss};
-use crate::config::OutputConfig;
 use crate::error::{Error, Result};
-use crate::output::write_terrain;
+use crate::output::{write_terrain, OutputConfig, TerrainProducts};
 use crate::points::{self, PointCloud, ReadOptions};
 use crate::progress::NoProgress;
 use crate::rng::SplitMix64;
 use crate::terrain::accuracy::{holdout, ErrorStats};
 use crate::terrain::delaunay::{self, TinMethod};
-use crate::terrain::extract::ExtractParams;
 use crate::terrain::grid_stages;
 use crate::terrain::quadtree::{self, QuadtreeParams};
 use crate::terrain::tiles::{self, TileParams};
@@ -141,14 +139,12 @@ fn grid_pipeline(cloud: &PointCloud, dir: &Path) -> Result<([f64; 6], usize)> {
     let t4 = Instant::now();
     let qt = quadtree::build(&set, &QuadtreeParams::default())?;
     let t5 = Instant::now();
-    write_terrain(
-        dir,
-        &set,
-        &qt,
-        &ExtractParams::default(),
-        &table1_outputs(dir),
-        &NoProgress,
-    )?;
+    let products = TerrainProducts {
+        set: &set,
+        quadtree: &qt,
+        meshes: None,
+    };
+    write_terrain(dir, &products, &table1_outputs(dir), &NoProgress)?;
     let t6 = Instant::now();
     let s = |a: Instant, b: Instant| (b - a).as_secs_f64();
     Ok((

@@ -158,7 +158,7 @@ fn dir_bytes(dir: &Path) -> u64 {
 /// compression, manifest, PNG and RAW heightmaps) into a fresh directory under the system's
 /// temporary directory (removed afterwards, untimed), then extracts the meshes.
 fn tile_run(hf: &Heightfield, run: usize) -> Result<TileRun> {
-    use crate::config::OutputConfig;
+    use crate::output::{OutputConfig, TerrainProducts};
     let dir = std::env::temp_dir().join(format!("terratile-bench-{}-{run}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
@@ -174,15 +174,19 @@ fn tile_run(hf: &Heightfield, run: usize) -> Result<TileRun> {
     let t1 = Instant::now();
     let qt = quadtree::build(&set, &QuadtreeParams::default())?;
     let t2 = Instant::now();
-    let written = crate::output::write_terrain(&dir, &set, &qt, &extract, &out, &NoProgress);
+    let products = TerrainProducts {
+        set: &set,
+        quadtree: &qt,
+        meshes: None,
+    };
+    let written = crate::output::write_terrain(&dir, &products, &out, &NoProgress);
     let t3 = Instant::now();
     let bytes = dir_bytes(&dir);
     let _ = std::fs::remove_dir_all(&dir);
     written?;
     let t4 = Instant::now();
     let triangles = if set.holes() == 0 {
-        let tris = crate::output::extract_meshes(&set, &qt, &extract)?;
-        tris.iter().map(|t| t.surface_triangles).sum()
+        crate::terrain::extract::extract_meshes(&set, &qt, &extract)?.triangles
     } else {
         0
     };

@@ -18,6 +18,10 @@ pub use denoise::{denoise, DenoiseParams, Denoised};
 pub use fill::{fill, Fallback, FillParams, FillReport};
 pub use heightfield::{CellState, Heightfield};
 pub use resample::{resample, CellMethod, ResampleParams, Resampled};
+// The products the encoders in `output` take (types only; the stages stay in their modules).
+pub use extract::{TileMeshes, TileTriangulation};
+pub use quadtree::Quadtree;
+pub use tiles::{Preset, Tile, TileSet};
 
 use crate::points::Bounds;
 use rayon::prelude::*;
