@@ -18,11 +18,9 @@ use terratile::mesh::io::MeshFormat;
 use terratile::output::exr::{encode_tile, ExrCompression};
 use terratile::points::{self, ReadOptions};
 use terratile::terrain::extract::{self, ExtractParams, Refiner};
-use terratile::terrain::fill::FillParams;
 use terratile::terrain::quadtree::{self, build, QuadtreeParams};
-use terratile::terrain::resample::ResampleParams;
 use terratile::terrain::tiles::{tile, TileParams, TileSet};
-use terratile::terrain::{self, CellState, Heightfield};
+use terratile::terrain::{CellState, Heightfield};
 use terratile::NoProgress;
 
 /// A rough 4097² terrain (waves and noise), deterministic.
@@ -62,14 +60,10 @@ fn real_set(rel: &str, size: usize) -> Option<TileSet> {
         return None;
     }
     let c = points::read(&path, &ReadOptions::default(), &NoProgress).ok()?;
-    let g = terrain::grid_stages(
-        &c,
-        None,
-        &ResampleParams::default(),
-        Some(&FillParams::default()),
-        &NoProgress,
-    )
-    .ok()?;
+    // The pipeline's grid stages without noise removal.
+    let mut cfg = terratile::config::Pipeline::default();
+    cfg.denoise.enabled = false;
+    let g = terratile::pipeline::grid_stages(&c, &cfg, &NoProgress).ok()?;
     tile(
         &g.resampled.grid,
         &TileParams {

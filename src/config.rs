@@ -9,8 +9,9 @@ use crate::terrain::{DenoiseParams, FillParams, ResampleParams};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// A whole pipeline file.
-#[derive(Debug, Clone, Deserialize, Serialize)]
+/// A whole pipeline file. `Default` is the pipeline with every table at its default and no
+/// input (what the benchmarks run on a cloud they read themselves).
+#[derive(Debug, Clone, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Pipeline {
     /// `[input]`: which point clouds to read and how.
@@ -45,7 +46,7 @@ pub struct Pipeline {
 }
 
 /// `[input]`
-#[derive(Debug, Clone, Deserialize, Serialize)]
+#[derive(Debug, Clone, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct InputConfig {
     /// Files or glob patterns (`fixtures/*.las`), relative to the pipeline file's directory.
@@ -152,6 +153,7 @@ impl LoadedPipeline {
                 value,
                 message,
             } => self.key_error(&format!("{stage}.{param}"), format!("{value}: {message}")),
+            Error::Key { key, message } => self.key_error(&key, message),
             Error::Data { stage, message } => {
                 Error::Usage(format!("{}: {stage}: {message}", self.path.display()))
             }
@@ -222,17 +224,16 @@ where
     })
 }
 
-/// Reads and checks a pipeline file.
+/// Reads and parses a pipeline file (the values are checked by the run's plan,
+/// `pipeline::Plan`, before any work).
 pub fn load(path: &Path) -> Result<LoadedPipeline> {
     let text = read_pipeline_text(path)?;
     let config = parse(path, &text)?;
-    let loaded = LoadedPipeline {
+    Ok(LoadedPipeline {
         config,
         path: path.to_path_buf(),
         text,
-    };
-    loaded.check_stages()?;
-    Ok(loaded)
+    })
 }
 
 /// Largest pipeline file read: 1 MiB (a real one is a few kilobytes).
