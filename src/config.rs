@@ -176,7 +176,7 @@ impl LoadedPipeline {
             let full = base.join(pat);
             let is_glob = pat.contains(['*', '?', '[']);
             if !is_glob {
-                if let Some(why) = crate::points::not_a_regular_file(&full) {
+                if let Some(why) = crate::fsutil::not_a_regular_file(&full) {
                     return Err(
                         self.key_error("input.paths", format!("input {} {why}", full.display()))
                     );
@@ -207,23 +207,6 @@ impl LoadedPipeline {
     }
 }
 
-/// Deserialises an optional fixed-length array (`size = [w, h]`), refusing a wrong number of
-/// elements: serde's own array support stops after N and silently drops the rest.
-pub(crate) fn exact_array<'de, D, T, const N: usize>(d: D) -> Result<Option<[T; N]>, D::Error>
-where
-    D: serde::Deserializer<'de>,
-    T: Deserialize<'de>,
-{
-    use serde::de::Error as _;
-    let Some(v) = Option::<Vec<T>>::deserialize(d)? else {
-        return Ok(None);
-    };
-    let n = v.len();
-    v.try_into().map(Some).map_err(|_| {
-        D::Error::invalid_length(n, &format!("an array of exactly {N} elements").as_str())
-    })
-}
-
 /// Reads and parses a pipeline file (the values are checked by the run's plan,
 /// `pipeline::Plan`, before any work).
 pub fn load(path: &Path) -> Result<LoadedPipeline> {
@@ -242,7 +225,7 @@ pub const MAX_PIPELINE_BYTES: u64 = 1 << 20;
 /// The text of a pipeline file: a regular file of at most [`MAX_PIPELINE_BYTES`], UTF-8.
 fn read_pipeline_text(path: &Path) -> Result<String> {
     use std::io::Read;
-    if let Some(why) = crate::points::not_a_regular_file(path) {
+    if let Some(why) = crate::fsutil::not_a_regular_file(path) {
         return Err(Error::Usage(format!(
             "{}: pipeline file {why}",
             path.display()

@@ -51,7 +51,7 @@ pub struct ExtractParams {
     pub tolerance: f64,
     /// View-dependent mode: the viewpoint in world coordinates `[x, y, z]`; when given, the
     /// Röttger criterion is used instead of the tolerance.
-    #[serde(default, deserialize_with = "crate::config::exact_array")]
+    #[serde(default, deserialize_with = "crate::terrain::exact_array")]
     pub viewpoint: Option<[f64; 3]>,
     /// Röttger's desired global resolution c of the view-dependent criterion (default 25).
     #[serde(default = "default_c")]

@@ -55,6 +55,26 @@ pub(crate) fn bounds_of(x: &[f64], y: &[f64], z: &[f64], keep: Option<&[bool]>) 
 }
 
 /// Small heightfields and tile sets for the unit tests of the terrain and output modules.
+/// Deserialises an optional fixed-length array (`size = [w, h]`), refusing a wrong number of
+/// elements: serde's own array support stops after N and silently drops the rest.
+pub(crate) fn exact_array<'de, D, T, const N: usize>(
+    d: D,
+) -> std::result::Result<Option<[T; N]>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: serde::Deserialize<'de>,
+{
+    use serde::de::Error as _;
+    use serde::Deserialize as _;
+    let Some(v) = Option::<Vec<T>>::deserialize(d)? else {
+        return Ok(None);
+    };
+    let n = v.len();
+    v.try_into().map(Some).map_err(|_| {
+        D::Error::invalid_length(n, &format!("an array of exactly {N} elements").as_str())
+    })
+}
+
 #[cfg(test)]
 pub(crate) mod testutil {
     use super::tiles::{tile, TileParams, TileSet};

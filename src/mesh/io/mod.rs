@@ -247,7 +247,7 @@ pub fn read_with_info(path: &Path) -> Result<(TriMesh, ReadInfo)> {
 
 /// Reads an OBJ, PLY or glb file as `opts` say and reports what was in it.
 pub fn read_with(path: &Path, opts: &ReadOptions) -> Result<(TriMesh, ReadInfo)> {
-    let map = crate::points::map_file(path)?;
+    let map = crate::fsutil::map_file(path)?;
     if map.starts_with(b"ply") && matches!(map.get(3), Some(b'\n' | b'\r')) {
         return ply::parse_ply_with(path, &map, opts);
     }
