@@ -3,12 +3,11 @@
 //! Every command runs under an 8 GiB address-space cap (`prlimit --as`) when `prlimit` is
 //! there, as the acceptance asks.
 
-use super::common::{self, Run};
+use crate::common::{self, Run};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-#[path = "../mesh_corpus/mod.rs"]
-mod corpus;
+use crate::mesh_corpus as corpus;
 
 use corpus::Expect;
 
