@@ -547,6 +547,7 @@ fn qem_table() {
                 lock_border: false,
                 cost: terratile::simplify::qem::Cost::Distance,
                 check_intersections: false,
+                weights: None,
             };
             let t = std::time::Instant::now();
             let s = terratile::simplify::qem::simplify(&m, &q).unwrap();

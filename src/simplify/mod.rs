@@ -43,6 +43,7 @@ pub fn simplify(mesh: &mesh::TriMesh, params: &SimplifyParams) -> Result<Simplif
         lock_border: params.lock_border.unwrap_or(false),
         cost: qem::Cost::default(),
         check_intersections: params.check_intersections.unwrap_or(false),
+        weights: None,
     };
     let r = qem::simplify(mesh, &p)?;
     let report = SimplifyReport {
