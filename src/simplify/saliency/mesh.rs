@@ -145,12 +145,12 @@ pub(crate) fn welded_curvature(w: &Welded) -> Vec<f64> {
                 obtuse = Some(i);
             }
         }
-        for i in 0..3 {
+        for (i, &ci) in cot.iter().enumerate() {
             let (j, l) = ((i + 1) % 3, (i + 2) % 3);
             let (vj, vl) = (t[j] as usize, t[l] as usize);
             // The angle at i weighs the opposite edge (j, l).
-            k[vj] += cot[i] * (p[j] - p[l]);
-            k[vl] += cot[i] * (p[l] - p[j]);
+            k[vj] += ci * (p[j] - p[l]);
+            k[vl] += ci * (p[l] - p[j]);
             let (a, b) = (t[j].min(t[l]), t[j].max(t[l]));
             edges.push((a, b));
         }
