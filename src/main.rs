@@ -158,6 +158,18 @@ struct SimplifyArgs {
     /// shares no vertex with (exact predicates through a box hierarchy).
     #[arg(long)]
     check_intersections: bool,
+    /// QEM: weight the cost by saliency: none (default), mesh, image or hybrid.
+    #[arg(long, value_enum)]
+    saliency: Option<SaliencyArg>,
+    /// QEM with saliency: the least weight H, in (0, 1] (default 0.1).
+    #[arg(long, value_name = "H", allow_negative_numbers = true)]
+    h_min: Option<f64>,
+    /// QEM with image or hybrid saliency: N, the camera angles 2πk/N (default 36).
+    #[arg(long, value_name = "N")]
+    views: Option<u32>,
+    /// QEM with image or hybrid saliency: rendered image side in pixels (default 256).
+    #[arg(long, value_name = "PX")]
+    view_size: Option<u32>,
     /// QEM: accept no collapse with a larger error: model units, or `P%` of the bbox diagonal.
     #[arg(long, value_name = "E", allow_hyphen_values = true)]
     max_error: Option<String>,
@@ -205,6 +217,14 @@ enum MethodArg {
     Floating,
     Octree,
     Qem,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum SaliencyArg {
+    None,
+    Mesh,
+    Image,
+    Hybrid,
 }
 
 #[derive(ValueEnum, Debug, Clone, Copy)]
@@ -694,6 +714,18 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
         check_intersections: a.check_intersections.then_some(true),
         max_error: None,
         max_error_pct: None,
+        saliency: a.saliency.map(|s| {
+            use terratile::simplify::saliency::Saliency;
+            match s {
+                SaliencyArg::None => Saliency::None,
+                SaliencyArg::Mesh => Saliency::Mesh,
+                SaliencyArg::Image => Saliency::Image,
+                SaliencyArg::Hybrid => Saliency::Hybrid,
+            }
+        }),
+        saliency_h_min: a.h_min,
+        saliency_views: a.views,
+        saliency_view_size: a.view_size,
     };
     let mut params = params;
     if let Some(e) = &a.max_error {

@@ -46,6 +46,13 @@ pub fn simplify(mesh: &mesh::TriMesh, params: &SimplifyParams) -> Result<Simplif
         check_intersections: params.check_intersections.unwrap_or(false),
         weights: None,
     };
+    let mut p = p;
+    if let Some(kind) = params.saliency {
+        let views = params.views();
+        views.validate()?;
+        let h_min = params.saliency_h_min.unwrap_or(saliency::H_MIN);
+        p.weights = saliency::weights(mesh, kind, h_min, &views)?.map(Into::into);
+    }
     let r = qem::simplify(mesh, &p)?;
     let report = SimplifyReport {
         method: Method::Qem,
