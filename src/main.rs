@@ -133,6 +133,28 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Per-vertex curvature, mesh saliency, multi-view image saliency (max, min, mean) and
+    /// the hybrid saliency of a mesh, written to DIR as saliency.ply (one float property
+    /// per map, hybrid-coloured vertices) and one PNG per map (front and back, colour bar).
+    Saliency {
+        /// The mesh (.obj, .ply or .glb).
+        input: PathBuf,
+        /// The output directory (must not exist or be empty).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// N: the camera angles 2πk/N in both directions (default 36).
+        #[arg(long, value_name = "N", default_value_t = 36)]
+        views: u32,
+        /// Rendered image side for the image saliency, in pixels.
+        #[arg(long, value_name = "PX", default_value_t = 256)]
+        view_size: u32,
+        /// Side of each view in the PNG pictures, in pixels.
+        #[arg(long, value_name = "PX", default_value_t = 512)]
+        picture_size: u32,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Args, Debug)]
@@ -670,6 +692,26 @@ fn run(cli: Cli) -> Result<()> {
             for w in &r.warnings {
                 eprintln!("terratile: warning: {}", one_line(w));
             }
+            if json {
+                print_json(&r)?;
+            } else {
+                out!("{r}");
+            }
+        }
+        Command::Saliency {
+            input,
+            out,
+            views,
+            view_size,
+            picture_size,
+            json,
+        } => {
+            let views = terratile::simplify::saliency::image::ViewParams {
+                views,
+                size: view_size,
+            };
+            let r =
+                terratile::simplify::saliency::saliency_file(&input, &out, &views, picture_size)?;
             if json {
                 print_json(&r)?;
             } else {
