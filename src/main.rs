@@ -133,6 +133,28 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Per-vertex curvature, mesh saliency, multi-view image saliency (max, min, mean) and
+    /// the hybrid saliency of a mesh, written to DIR as saliency.ply (one float property
+    /// per map, hybrid-coloured vertices) and one PNG per map (front and back, colour bar).
+    Saliency {
+        /// The mesh (.obj, .ply or .glb).
+        input: PathBuf,
+        /// The output directory (must not exist or be empty).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// N: the camera angles 2πk/N in both directions (default 36).
+        #[arg(long, value_name = "N", default_value_t = 36)]
+        views: u32,
+        /// Rendered image side for the image saliency, in pixels.
+        #[arg(long, value_name = "PX", default_value_t = 256)]
+        view_size: u32,
+        /// Side of each view in the PNG pictures, in pixels.
+        #[arg(long, value_name = "PX", default_value_t = 512)]
+        picture_size: u32,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Args, Debug)]
@@ -158,6 +180,18 @@ struct SimplifyArgs {
     /// shares no vertex with (exact predicates through a box hierarchy).
     #[arg(long)]
     check_intersections: bool,
+    /// QEM: weight the cost by saliency: none (default), mesh, image or hybrid.
+    #[arg(long, value_enum)]
+    saliency: Option<SaliencyArg>,
+    /// QEM with saliency: the least weight H, in (0, 1] (default 0.1).
+    #[arg(long, value_name = "H", allow_negative_numbers = true)]
+    h_min: Option<f64>,
+    /// QEM with image or hybrid saliency: N, the camera angles 2πk/N (default 36).
+    #[arg(long, value_name = "N")]
+    views: Option<u32>,
+    /// QEM with image or hybrid saliency: rendered image side in pixels (default 256).
+    #[arg(long, value_name = "PX")]
+    view_size: Option<u32>,
     /// QEM: accept no collapse with a larger error: model units, or `P%` of the bbox diagonal.
     #[arg(long, value_name = "E", allow_hyphen_values = true)]
     max_error: Option<String>,
@@ -205,6 +239,14 @@ enum MethodArg {
     Floating,
     Octree,
     Qem,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum SaliencyArg {
+    None,
+    Mesh,
+    Image,
+    Hybrid,
 }
 
 #[derive(ValueEnum, Debug, Clone, Copy)]
@@ -656,6 +698,26 @@ fn run(cli: Cli) -> Result<()> {
                 out!("{r}");
             }
         }
+        Command::Saliency {
+            input,
+            out,
+            views,
+            view_size,
+            picture_size,
+            json,
+        } => {
+            let views = terratile::simplify::saliency::image::ViewParams {
+                views,
+                size: view_size,
+            };
+            let r =
+                terratile::simplify::saliency::saliency_file(&input, &out, &views, picture_size)?;
+            if json {
+                print_json(&r)?;
+            } else {
+                out!("{r}");
+            }
+        }
     }
     Ok(())
 }
@@ -694,6 +756,18 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
         check_intersections: a.check_intersections.then_some(true),
         max_error: None,
         max_error_pct: None,
+        saliency: a.saliency.map(|s| {
+            use terratile::simplify::saliency::Saliency;
+            match s {
+                SaliencyArg::None => Saliency::None,
+                SaliencyArg::Mesh => Saliency::Mesh,
+                SaliencyArg::Image => Saliency::Image,
+                SaliencyArg::Hybrid => Saliency::Hybrid,
+            }
+        }),
+        saliency_h_min: a.h_min,
+        saliency_views: a.views,
+        saliency_view_size: a.view_size,
     };
     let mut params = params;
     if let Some(e) = &a.max_error {

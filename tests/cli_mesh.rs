@@ -385,3 +385,182 @@ fn bad_asset_entries_name_the_key_and_line() {
         assert!(!d.join("out").exists(), "no output\n{}", r.context());
     }
 }
+
+/// A flat n × n grid (every vertex on the plane z = 0.3x − 0.2y) as OBJ text.
+fn plane_obj(n: usize) -> String {
+    let mut s = String::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, y) = (i as f64 / n as f64, j as f64 / n as f64);
+            s += &format!("v {x} {y} {}\n", 0.3 * x - 0.2 * y);
+        }
+    }
+    let id = |i: usize, j: usize| j * (n + 1) + i + 1;
+    for j in 0..n {
+        for i in 0..n {
+            s += &format!("f {} {} {}\n", id(i, j), id(i + 1, j), id(i + 1, j + 1));
+            s += &format!("f {} {} {}\n", id(i, j), id(i + 1, j + 1), id(i, j + 1));
+        }
+    }
+    s
+}
+
+#[test]
+fn saliency_bad_input_is_one_line_and_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    write(d, "s.obj", &sphere_obj(12));
+    write(d, "flat.obj", "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n");
+    let simplify = |extra: &[&str]| {
+        let mut a = vec![
+            "simplify", "s.obj", "out.obj", "--method", "qem", "--ratio", "0.5",
+        ];
+        a.extend_from_slice(extra);
+        terratile(d, &a)
+    };
+    simplify(&["--saliency", "image", "--views", "1"])
+        .input_error(&["views"])
+        .left_nothing("out.obj");
+    for size in ["15", "4097"] {
+        simplify(&["--saliency", "image", "--view-size", size])
+            .input_error(&["view_size", size])
+            .left_nothing("out.obj");
+    }
+    for h in ["0", "1.5", "-0.2"] {
+        simplify(&["--saliency", "mesh", "--h-min", h])
+            .input_error(&["saliency_h_min"])
+            .left_nothing("out.obj");
+    }
+    // Saliency keys belong to QEM.
+    terratile(
+        d,
+        &[
+            "simplify",
+            "s.obj",
+            "out.obj",
+            "--ratio",
+            "0.5",
+            "--saliency",
+            "mesh",
+        ],
+    )
+    .input_error(&["saliency"])
+    .left_nothing("out.obj");
+    terratile(d, &["saliency", "flat.obj", "--out", "maps"])
+        .input_error(&["flat.obj", "no area"])
+        .left_nothing("maps");
+    terratile(d, &["saliency", "s.obj", "--out", "maps", "--views", "1"])
+        .input_error(&["views"])
+        .left_nothing("maps");
+    // A user's directory with something in it is not written into.
+    std::fs::create_dir(d.join("mine")).unwrap();
+    write(&d.join("mine"), "keep.txt", "mine");
+    terratile(d, &["saliency", "s.obj", "--out", "mine"]).input_error(&["mine", "not empty"]);
+    assert_eq!(std::fs::read_dir(d.join("mine")).unwrap().count(), 1);
+}
+
+#[test]
+fn saliency_on_a_plane_is_plain_qem() {
+    // Curvature and mesh saliency are zero everywhere: the weight is dropped, not divided by.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    write(d, "p.obj", &plane_obj(16));
+    let base = [
+        "simplify",
+        "p.obj",
+        "",
+        "--method",
+        "qem",
+        "--ratio",
+        "0.3",
+        "--no-error",
+    ];
+    let mut plain = base;
+    plain[2] = "plain.obj";
+    terratile(d, &plain).ok();
+    let mut weighted = base.to_vec();
+    weighted[2] = "mesh.obj";
+    weighted.extend(["--saliency", "mesh"]);
+    terratile(d, &weighted).ok();
+    assert_eq!(
+        std::fs::read(d.join("plain.obj")).unwrap(),
+        std::fs::read(d.join("mesh.obj")).unwrap()
+    );
+}
+
+#[test]
+fn saliency_maps_of_cow_are_written() {
+    let Some(cow) = common::data_file("meshes/cow.obj") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cow = cow.to_str().unwrap();
+    let r = terratile(
+        d,
+        &[
+            "saliency",
+            cow,
+            "--out",
+            "maps",
+            "--views",
+            "6",
+            "--view-size",
+            "64",
+            "--picture-size",
+            "64",
+            "--json",
+        ],
+    );
+    r.ok();
+    let j: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+    assert_eq!(j["vertices"], 2903);
+    let classes: u64 = j["classes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_u64().unwrap())
+        .sum();
+    assert_eq!(classes, 2903);
+    let ply = std::fs::read(d.join("maps/saliency.ply")).unwrap();
+    let head = String::from_utf8_lossy(&ply[..600]);
+    for p in [
+        "curvature",
+        "mesh_saliency",
+        "image_max",
+        "image_min",
+        "image_mean",
+        "hybrid",
+    ] {
+        assert!(head.contains(&format!("property float {p}\n")), "{head}");
+        let png = image::open(d.join(format!("maps/{p}.png"))).unwrap();
+        assert_eq!(png.height(), 64);
+    }
+    // The PLY reads back as the same mesh.
+    let back = terratile::mesh::io::read(&d.join("maps/saliency.ply")).unwrap();
+    assert_eq!(back.vertex_count(), 2903);
+    // Hybrid-weighted QEM runs on it and reaches its target.
+    let r = terratile(
+        d,
+        &[
+            "simplify",
+            cow,
+            "h.obj",
+            "--method",
+            "qem",
+            "--triangles",
+            "580",
+            "--saliency",
+            "hybrid",
+            "--views",
+            "6",
+            "--view-size",
+            "64",
+            "--no-error",
+            "--json",
+        ],
+    );
+    r.ok();
+    let j: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+    assert!(j["triangles_out"].as_u64().unwrap() <= 580);
+}

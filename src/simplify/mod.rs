@@ -6,6 +6,7 @@ pub mod cluster;
 pub mod prep;
 pub mod qem;
 pub mod quadric;
+pub mod saliency;
 pub mod target;
 #[cfg(test)]
 mod test_meshes;
@@ -43,7 +44,15 @@ pub fn simplify(mesh: &mesh::TriMesh, params: &SimplifyParams) -> Result<Simplif
         lock_border: params.lock_border.unwrap_or(false),
         cost: qem::Cost::default(),
         check_intersections: params.check_intersections.unwrap_or(false),
+        weights: None,
     };
+    let mut p = p;
+    if let Some(kind) = params.saliency {
+        let views = params.views();
+        views.validate()?;
+        let h_min = params.saliency_h_min.unwrap_or(saliency::H_MIN);
+        p.weights = saliency::weights(mesh, kind, h_min, &views)?.map(Into::into);
+    }
     let r = qem::simplify(mesh, &p)?;
     let report = SimplifyReport {
         method: Method::Qem,

@@ -158,6 +158,18 @@ pub struct SimplifyParams {
     /// QEM: the same in % of the bounding-box diagonal.
     #[serde(default)]
     pub max_error_pct: Option<f64>,
+    /// QEM: weight the cost by `none` (default), `mesh`, `image` or `hybrid` saliency.
+    #[serde(default)]
+    pub saliency: Option<crate::simplify::saliency::Saliency>,
+    /// QEM with saliency: the least weight, in (0, 1] (default 0.1).
+    #[serde(default)]
+    pub saliency_h_min: Option<f64>,
+    /// QEM with image or hybrid saliency: views N (angles 2πk/N; default 36, at least 2).
+    #[serde(default)]
+    pub saliency_views: Option<u32>,
+    /// QEM with image or hybrid saliency: image side in pixels (default 256, 16–4096).
+    #[serde(default)]
+    pub saliency_view_size: Option<u32>,
 }
 
 impl SimplifyParams {
@@ -197,6 +209,10 @@ impl SimplifyParams {
             check_intersections: None,
             max_error: None,
             max_error_pct: None,
+            saliency: None,
+            saliency_h_min: None,
+            saliency_views: None,
+            saliency_view_size: None,
         }
     }
 
@@ -208,6 +224,15 @@ impl SimplifyParams {
     /// The representative in effect.
     pub fn representative(&self) -> Representative {
         self.representative.unwrap_or(Representative::Quadric)
+    }
+
+    /// The views of the image saliency (defaults where not given).
+    pub fn views(&self) -> crate::simplify::saliency::image::ViewParams {
+        let d = crate::simplify::saliency::image::ViewParams::default();
+        crate::simplify::saliency::image::ViewParams {
+            views: self.saliency_views.unwrap_or(d.views),
+            size: self.saliency_view_size.unwrap_or(d.size),
+        }
     }
 
     /// Checks the values and returns the target for a mesh of `triangles_in` triangles.
@@ -335,6 +360,10 @@ impl SimplifyParams {
             ("check_intersections", self.check_intersections.is_some()),
             ("max_error", self.max_error.is_some()),
             ("max_error_pct", self.max_error_pct.is_some()),
+            ("saliency", self.saliency.is_some()),
+            ("saliency_h_min", self.saliency_h_min.is_some()),
+            ("saliency_views", self.saliency_views.is_some()),
+            ("saliency_view_size", self.saliency_view_size.is_some()),
         ] {
             if given && !qem {
                 return Err(Error::param(
@@ -362,6 +391,10 @@ impl SimplifyParams {
                 ));
             }
         }
+        if let Some(h) = self.saliency_h_min {
+            crate::simplify::saliency::check_h_min(h)?;
+        }
+        self.views().validate()?;
         for (name, e) in [
             ("max_error", self.max_error),
             ("max_error_pct", self.max_error_pct),

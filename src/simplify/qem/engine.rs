@@ -82,6 +82,8 @@ pub struct Collapse<'m> {
     border: Vec<bool>,
     locked: Vec<bool>,
     stamp: Vec<u32>,
+    /// Saliency weight H per dense vertex (`params.weights`; empty without).
+    weight: Vec<f64>,
     /// Refused edges at each vertex (so that only vertices with some are searched).
     refused_at: Vec<u32>,
     head: Vec<u32>,
@@ -226,6 +228,17 @@ impl<'m> Collapse<'m> {
         fn pick<T: Copy>(a: &[T], source: &[u32]) -> Vec<T> {
             source.iter().map(|&v| a[v as usize]).collect()
         }
+        // Saliency weights per dense vertex: the largest of the welded copies' weights.
+        let mut weight = Vec::new();
+        if let Some(w) = &params.weights {
+            weight = vec![0.0f64; n];
+            for (v, &x) in w.iter().enumerate() {
+                let d = prep.dense_of[prep.weld[v] as usize];
+                if d != NONE {
+                    weight[d as usize] = weight[d as usize].max(x);
+                }
+            }
+        }
         let diag = prep.bounds.diagonal();
         let tris = faces.len();
         let mut c = Collapse {
@@ -238,6 +251,7 @@ impl<'m> Collapse<'m> {
             border,
             locked,
             stamp: vec![0; n],
+            weight,
             refused_at: vec![0; n],
             head,
             normals: mesh.normals.as_deref().map(|a| pick(a, &source)),
@@ -389,6 +403,12 @@ impl<'m> Collapse<'m> {
         }
     }
 
+    /// The saliency weight of the vertex that collapsing (a, b) leaves: (H_a + H_b) / 2.
+    #[inline]
+    fn merged_weight(&self, a: u32, b: u32) -> f64 {
+        0.5 * (self.weight[a as usize] + self.weight[b as usize])
+    }
+
     /// The collapse of edge (a, b): merged quadric, placement and cost; `None` when the
     /// edge may not be collapsed whatever the neighbourhood (a locked vertex, two pinned
     /// border vertices).
@@ -421,17 +441,19 @@ impl<'m> Collapse<'m> {
         } else {
             p
         };
-        Some(Candidate {
-            q,
-            p,
-            cost: match self.params.cost {
-                super::Cost::Quadric => q.eval(p),
-                super::Cost::Distance => {
-                    let e = error(&q, p);
-                    e * e
-                }
-            },
-        })
+        let cost = match self.params.cost {
+            super::Cost::Quadric => q.eval(p),
+            super::Cost::Distance => {
+                let e = error(&q, p);
+                e * e
+            }
+        };
+        // C(e) = Q(e) · H(e), H(e) the weight the collapsed vertex will carry.
+        let cost = match self.weight.is_empty() {
+            true => cost,
+            false => cost * self.merged_weight(a, b),
+        };
+        Some(Candidate { q, p, cost })
     }
 
     /// Pushes edge (a, b), a < b, with its current cost.
@@ -607,6 +629,9 @@ impl<'m> Collapse<'m> {
             cnr = nxt;
         }
         self.head[us] = moved;
+        if !self.weight.is_empty() {
+            self.weight[us] = self.merged_weight(s, g);
+        }
         self.pos[us] = c.p;
         self.quad[us] = c.q;
         self.border[us] |= self.border[ug];

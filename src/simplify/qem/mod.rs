@@ -117,6 +117,10 @@ pub struct QemParams {
     /// Refuse any collapse after which a moved face would meet a face it shares no vertex
     /// with (exact predicates; placed points are rounded to f32 first).
     pub check_intersections: bool,
+    /// Per-input-vertex saliency weights H in (0, 1] (An's thesis, eq. 4.1–4.2): the cost of
+    /// an edge is multiplied by the mean H of its endpoints, and the collapsed vertex takes
+    /// that mean. A welded vertex takes the largest H of its copies. `None`: plain QEM.
+    pub weights: Option<std::sync::Arc<[f64]>>,
 }
 
 /// What a quadric edge collapse did.
@@ -175,6 +179,24 @@ pub(crate) fn check(mesh: &TriMesh, params: &QemParams) -> Result<()> {
             0,
             "must be at least 1",
         ));
+    }
+    if let Some(w) = &params.weights {
+        if w.len() != mesh.vertex_count() {
+            return Err(Error::param(
+                "simplify",
+                "weights",
+                w.len(),
+                "must hold one weight per input vertex",
+            ));
+        }
+        if let Some(x) = w.iter().find(|x| !(x.is_finite() && **x > 0.0)) {
+            return Err(Error::param(
+                "simplify",
+                "weights",
+                x,
+                "must be finite numbers > 0",
+            ));
+        }
     }
     if let Some(e) = params.max_error {
         if !(e.is_finite() && e >= 0.0) {

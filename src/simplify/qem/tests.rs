@@ -47,6 +47,7 @@ fn params(triangles: u64, placement: Placement) -> QemParams {
         lock_border: false,
         cost: Cost::Quadric,
         check_intersections: false,
+        weights: None,
     }
 }
 
@@ -336,4 +337,49 @@ fn the_intersection_check_keeps_nested_spheres_apart() {
     }
     // The fixture is one where the check matters.
     assert!(unchecked > 0);
+}
+
+#[test]
+fn saliency_weights_keep_the_twin_and_spare_the_salient_part() {
+    // Weights that vary over the surface: the fast path still equals the twin; weights of
+    // 1 everywhere are plain QEM; a heavy half keeps more of its vertices.
+    for (m, target) in [(grid(9), 40), (sphere(8), 20)] {
+        let cx = m.bounds().unwrap().center().x;
+        let heavy = |p: Vec3| if p.x > cx { 1.0 } else { 0.05 };
+        let w: Vec<f64> = m.positions.iter().map(|&p| heavy(p)).collect();
+        for placement in [Placement::Optimal, Placement::Endpoint] {
+            let p = QemParams {
+                weights: Some(w.clone().into()),
+                ..params(target, placement)
+            };
+            let prep = Prepared::new(&m);
+            let mut fast = Collapse::new(&prep, &p);
+            fast.run_fast(target as usize);
+            let mut slow = Collapse::new(&prep, &p);
+            slow.run_slow(target as usize);
+            assert_eq!(fast.log, slow.log, "{placement}");
+            let ones = QemParams {
+                weights: Some(vec![1.0; m.vertex_count()].into()),
+                ..params(target, placement)
+            };
+            let plain = simplify(&m, &params(target, placement)).unwrap();
+            let one = simplify(&m, &ones).unwrap();
+            assert_eq!(plain.mesh.positions, one.mesh.positions);
+            assert_eq!(plain.mesh.indices, one.mesh.indices);
+            let weighted = simplify(&m, &p).unwrap();
+            let kept = |r: &QemResult| {
+                r.mesh
+                    .positions
+                    .iter()
+                    .filter(|p| heavy(**p) == 1.0)
+                    .count()
+            };
+            assert!(kept(&weighted) > kept(&plain), "{placement}");
+        }
+    }
+    let bad = QemParams {
+        weights: Some(vec![0.0; 3].into()),
+        ..params(1, Placement::Optimal)
+    };
+    assert!(simplify(&sphere(4), &bad).is_err());
 }

@@ -1,0 +1,82 @@
+//! The saliency stages (issue 12): mesh saliency on cow (5,804 triangles) and bunny
+//! (69,451), multi-view image saliency (N = 36: 614 views of 256 × 256) on cow, and the
+//! weighted against the unweighted quadric simplifier on bunny → 10 % once H is known.
+//! Targets: mesh saliency ≤ 0.05 s on 5,000 triangles and ≤ 0.5 s on bunny; image
+//! saliency ≤ 1.5 s on 5,000 triangles; weighted QEM within 1.2× of plain.
+//!
+//! Run: `cargo bench --bench saliency` (needs ../shared/data or TERRATILE_DATA).
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use std::hint::black_box;
+use std::path::PathBuf;
+use terratile::mesh::{io, TriMesh};
+use terratile::simplify::qem;
+use terratile::simplify::saliency::{self, image::ViewParams};
+
+fn load(name: &str) -> Option<TriMesh> {
+    let dir = std::env::var_os("TERRATILE_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let path = dir.join("meshes").join(name);
+    if !path.is_file() {
+        eprintln!(
+            "skipping: {} not found (set TERRATILE_DATA)",
+            path.display()
+        );
+        return None;
+    }
+    Some(io::read(&path).expect("a readable mesh"))
+}
+
+fn mesh_saliency(c: &mut Criterion) {
+    let mut g = c.benchmark_group("mesh_saliency");
+    g.sample_size(10);
+    for name in ["cow.obj", "bunny.obj"] {
+        let Some(m) = load(name) else { return };
+        g.bench_function(name, |b| {
+            b.iter(|| black_box(saliency::mesh::mesh_saliency(&m)))
+        });
+    }
+    g.finish();
+}
+
+fn image_saliency(c: &mut Criterion) {
+    let Some(m) = load("cow.obj") else { return };
+    let mut g = c.benchmark_group("image_saliency");
+    g.sample_size(10);
+    g.bench_function("cow.obj N=36 256px", |b| {
+        b.iter(|| black_box(saliency::image::image_saliency(&m, &ViewParams::default()).unwrap()))
+    });
+    g.finish();
+}
+
+fn weighted_qem(c: &mut Criterion) {
+    let Some(m) = load("bunny.obj") else { return };
+    let w = saliency::hybrid::weights(&saliency::mesh::mesh_saliency(&m).saliency, saliency::H_MIN);
+    let plain = qem::QemParams {
+        triangles: m.triangle_count() as u64 / 10,
+        max_error: None,
+        placement: qem::Placement::Optimal,
+        merge: qem::QuadricMerge::Sum,
+        lock_border: false,
+        cost: qem::Cost::Quadric,
+        check_intersections: false,
+        weights: None,
+    };
+    let weighted = qem::QemParams {
+        weights: w.map(Into::into),
+        ..plain.clone()
+    };
+    let mut g = c.benchmark_group("qem_bunny_10pct");
+    g.sample_size(10);
+    g.bench_function("plain", |b| {
+        b.iter(|| black_box(qem::simplify(&m, &plain).unwrap()))
+    });
+    g.bench_function("weighted", |b| {
+        b.iter(|| black_box(qem::simplify(&m, &weighted).unwrap()))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, mesh_saliency, image_saliency, weighted_qem);
+criterion_main!(benches);

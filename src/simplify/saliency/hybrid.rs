@@ -1,0 +1,158 @@
+//! The hybrid saliency of An's thesis (§3.4.2–3.4.3) and the weights H of the simplifier.
+//!
+//! Every quantity is first turned into its percentile rank over the vertices (ties share
+//! their mean rank), so that the heavy-tailed curvature and saliency and the image values
+//! share one scale. The vertices are then classed, the first class that applies winning:
+//!
+//! | class | test | value | output range |
+//! |---|---|---|---|
+//! | A | curvature in the top 5 % | curvature | [0.85, 1] |
+//! | B | mesh saliency in the top 10 % | mesh saliency | [0.6, 0.9] |
+//! | C | min image saliency > 0 and in the top 10 % | that min | [0.6, 0.9] |
+//! | D | max image saliency in the bottom 10 % | that max | [0, 0.15] |
+//! | E | the rest | mean of (mean image saliency, mesh saliency) | [0.15, 0.6] |
+//!
+//! Within a class the value's rank among the class's vertices is mapped linearly onto the
+//! range. The thesis' Fig. 3.7 draws such ranges without numbers; these are chosen so that
+//! the classes keep the thesis' order (shape features A above everything, what is salient
+//! in every view C and salient shape B next, what no view finds salient D at the bottom)
+//! and so that the top fifth of the hybrid holds A, B, C and the top of E; the README shows
+//! the class sizes on real meshes. C needs the min over *all* views, where a vertex not
+//! visible in a view counts 0 (as the thesis does): on a closed mesh no vertex is visible
+//! from every direction, so C is empty there and matters for open, sheet-like meshes only.
+
+/// Class bounds: (A top share of curvature, B top share of mesh saliency, C top share of
+/// min image saliency, D bottom share of max image saliency).
+pub const SHARES: (f64, f64, f64, f64) = (0.05, 0.10, 0.10, 0.10);
+/// Output ranges of the classes A–E.
+pub const RANGES: [(f64, f64); 5] = [
+    (0.85, 1.0),
+    (0.6, 0.9),
+    (0.6, 0.9),
+    (0.0, 0.15),
+    (0.15, 0.6),
+];
+
+/// The percentile rank of every value in [0, 1] (ties get the mean of their ranks; a
+/// single value or all equal: 0.5).
+pub fn ranks(values: &[f64]) -> Vec<f64> {
+    let n = values.len();
+    let mut order: Vec<u32> = (0..n as u32).collect();
+    order.sort_by(|&a, &b| {
+        values[a as usize]
+            .total_cmp(&values[b as usize])
+            .then(a.cmp(&b))
+    });
+    let mut out = vec![0.5; n];
+    if n < 2 {
+        return out;
+    }
+    let mut i = 0;
+    while i < n {
+        let mut j = i + 1;
+        while j < n && values[order[j] as usize] == values[order[i] as usize] {
+            j += 1;
+        }
+        let r = 0.5 * (i + j - 1) as f64 / (n - 1) as f64;
+        for &k in &order[i..j] {
+            out[k as usize] = r;
+        }
+        i = j;
+    }
+    out
+}
+
+/// The hybrid saliency in [0, 1] and the class (0–4 for A–E) of every vertex.
+pub fn hybrid(
+    curvature: &[f64],
+    mesh: &[f64],
+    image_max: &[f64],
+    image_min: &[f64],
+    image_mean: &[f64],
+) -> (Vec<f64>, Vec<u8>) {
+    let n = curvature.len();
+    let (rc, rm) = (ranks(curvature), ranks(mesh));
+    let (rmax, rmin, rmean) = (ranks(image_max), ranks(image_min), ranks(image_mean));
+    let (a, b, c, d) = SHARES;
+    let mut class = vec![4u8; n];
+    let mut value = vec![0.0f64; n];
+    for v in 0..n {
+        (class[v], value[v]) = if curvature[v] > 0.0 && rc[v] >= 1.0 - a {
+            (0, rc[v])
+        } else if mesh[v] > 0.0 && rm[v] >= 1.0 - b {
+            (1, rm[v])
+        } else if image_min[v] > 0.0 && rmin[v] >= 1.0 - c {
+            (2, rmin[v])
+        } else if rmax[v] <= d {
+            (3, rmax[v])
+        } else {
+            (4, 0.5 * (rmean[v] + rm[v]))
+        };
+    }
+    let mut h = vec![0.0f64; n];
+    for (k, &(lo, hi)) in RANGES.iter().enumerate() {
+        let members: Vec<usize> = (0..n).filter(|&v| class[v] == k as u8).collect();
+        let vals: Vec<f64> = members.iter().map(|&v| value[v]).collect();
+        let r = ranks(&vals);
+        for (&v, &x) in members.iter().zip(&r) {
+            h[v] = lo + (hi - lo) * x;
+        }
+    }
+    (h, class)
+}
+
+/// The simplifier's weights H = h_min + (1 − h_min) · rank(values): `None` (plain QEM)
+/// when every value is the same (a plane has zero curvature and saliency everywhere).
+pub fn weights(values: &[f64], h_min: f64) -> Option<Vec<f64>> {
+    let first = *values.first()?;
+    if values.iter().all(|&x| x == first) {
+        return None;
+    }
+    Some(
+        ranks(values)
+            .into_iter()
+            .map(|u| h_min + (1.0 - h_min) * u)
+            .collect(),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ranks_share_ties_and_span_zero_to_one() {
+        assert_eq!(ranks(&[3.0, 1.0, 2.0]), vec![1.0, 0.0, 0.5]);
+        assert_eq!(ranks(&[1.0, 1.0, 5.0]), vec![0.25, 0.25, 1.0]);
+        assert_eq!(ranks(&[7.0; 4]), vec![0.5; 4]);
+    }
+
+    #[test]
+    fn classes_take_their_ranges() {
+        // 100 vertices: vertex 99 has the top curvature (A), 90..98 top mesh saliency (B),
+        // 0..9 the lowest max image saliency (D), the rest E.
+        let n = 100;
+        let curvature: Vec<f64> = (0..n).map(|v| if v == 99 { 9.0 } else { 1.0 }).collect();
+        let mesh: Vec<f64> = (0..n).map(|v| v as f64).collect();
+        let max: Vec<f64> = (0..n).map(|v| 1.0 + v as f64).collect();
+        let zeros = vec![0.0; n];
+        let mean: Vec<f64> = (0..n).map(|v| 0.01 * v as f64).collect();
+        let (h, class) = hybrid(&curvature, &mesh, &max, &zeros, &mean);
+        assert_eq!(class[99], 0);
+        assert!((90..99).all(|v| class[v] == 1), "{class:?}");
+        assert!((0..10).all(|v| class[v] == 3), "{class:?}");
+        assert!((10..90).all(|v| class[v] == 4));
+        for v in 0..n {
+            let (lo, hi) = RANGES[class[v] as usize];
+            assert!(h[v] >= lo && h[v] <= hi);
+        }
+        assert_eq!(h[99], 0.925); // a class of one sits mid-range
+    }
+
+    #[test]
+    fn equal_values_give_plain_qem() {
+        assert_eq!(weights(&[0.0; 10], 0.1), None);
+        let w = weights(&[0.0, 2.0, 1.0], 0.1).unwrap();
+        assert_eq!(w, vec![0.1, 1.0, 0.55]);
+    }
+}

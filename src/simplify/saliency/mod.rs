@@ -1,0 +1,251 @@
+//! Saliency for the quadric simplifier (An's thesis, "Mesh simplification with hybrid
+//! saliency"): what the shape says ([`mesh`]: curvature and Lee et al.'s mesh saliency).
+//! The per-vertex maps become the weight H of [`crate::simplify::qem::QemParams::weights`].
+
+pub mod hybrid;
+pub mod image;
+pub mod itti;
+pub mod mesh;
+pub mod render;
+
+use crate::error::{Error, Result};
+use crate::mesh::TriMesh;
+use serde::{Deserialize, Serialize};
+
+/// Which saliency weights the quadric simplifier.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Saliency {
+    /// Plain QEM.
+    #[default]
+    None,
+    /// Lee et al.'s mesh saliency.
+    Mesh,
+    /// The mean multi-view image saliency.
+    Image,
+    /// An's hybrid saliency.
+    Hybrid,
+}
+
+impl std::fmt::Display for Saliency {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Saliency::None => "none",
+            Saliency::Mesh => "mesh",
+            Saliency::Image => "image",
+            Saliency::Hybrid => "hybrid",
+        })
+    }
+}
+
+/// The default lower end of the weights H ∈ [h_min, 1]: the least salient edge costs a
+/// tenth of the most salient one at the same quadric error.
+pub const H_MIN: f64 = 0.1;
+
+/// Refuses h_min outside (0, 1].
+pub fn check_h_min(h_min: f64) -> Result<()> {
+    if h_min > 0.0 && h_min <= 1.0 {
+        Ok(())
+    } else {
+        Err(Error::param(
+            "simplify",
+            "saliency_h_min",
+            h_min,
+            "must be in (0, 1]",
+        ))
+    }
+}
+
+/// Every per-vertex map, in the input's vertex order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Maps {
+    /// |mean curvature| (1 / model units).
+    pub curvature: Vec<f64>,
+    /// Lee et al.'s mesh saliency.
+    pub mesh_saliency: Vec<f64>,
+    /// Image saliency over the views: max, min, mean (each in [0, 1]).
+    pub image: image::ImageSaliency,
+    /// The hybrid saliency in [0, 1].
+    pub hybrid: Vec<f64>,
+    /// The hybrid class of each vertex (0–4 for A–E).
+    pub class: Vec<u8>,
+}
+
+/// All maps of `mesh` (which must be valid and have triangles).
+pub fn maps(mesh: &TriMesh, views: &image::ViewParams) -> Result<Maps> {
+    let m = mesh::mesh_saliency(mesh);
+    let image = image::image_saliency(mesh, views)?;
+    let (hybrid, class) = hybrid::hybrid(
+        &m.curvature,
+        &m.saliency,
+        &image.max,
+        &image.min,
+        &image.mean,
+    );
+    Ok(Maps {
+        curvature: m.curvature,
+        mesh_saliency: m.saliency,
+        image,
+        hybrid,
+        class,
+    })
+}
+
+/// The weights H ∈ [h_min, 1] of `kind` for `mesh` (`None`: plain QEM, also when the
+/// saliency is the same everywhere).
+pub fn weights(
+    mesh: &TriMesh,
+    kind: Saliency,
+    h_min: f64,
+    views: &image::ViewParams,
+) -> Result<Option<Vec<f64>>> {
+    check_h_min(h_min)?;
+    let values = match kind {
+        Saliency::None => return Ok(None),
+        Saliency::Mesh => mesh::mesh_saliency(mesh).saliency,
+        Saliency::Image => image::image_saliency(mesh, views)?.mean,
+        Saliency::Hybrid => maps(mesh, views)?.hybrid,
+    };
+    Ok(hybrid::weights(&values, h_min))
+}
+pub mod pictures;
+
+/// What `terratile saliency` computed and wrote.
+#[derive(Debug, Clone, Serialize)]
+pub struct FileReport {
+    /// The input mesh.
+    pub input: std::path::PathBuf,
+    /// The directory written.
+    pub out: std::path::PathBuf,
+    /// Vertices and triangles of the input.
+    pub vertices: usize,
+    /// Triangles.
+    pub triangles: usize,
+    /// Distinct views rendered.
+    pub views: usize,
+    /// Seconds for curvature and mesh saliency.
+    pub mesh_seconds: f64,
+    /// Seconds for the multi-view image saliency.
+    pub image_seconds: f64,
+    /// Vertices per hybrid class A–E.
+    pub classes: [usize; 5],
+    /// Per map (in [`pictures::NAMES`] order): min, mean, max.
+    pub stats: Vec<(String, [f64; 3])>,
+    /// The files written.
+    pub files: Vec<std::path::PathBuf>,
+}
+
+impl std::fmt::Display for FileReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "{}: {} vertices, {} triangles; mesh saliency {:.3} s, image saliency {:.3} s ({} views)",
+            self.input.display(),
+            self.vertices,
+            self.triangles,
+            self.mesh_seconds,
+            self.image_seconds,
+            self.views
+        )?;
+        let [a, b, c, d, e] = self.classes;
+        writeln!(f, "hybrid classes: A {a}, B {b}, C {c}, D {d}, E {e}")?;
+        for (n, [lo, mean, hi]) in &self.stats {
+            writeln!(f, "{n:>14}: min {lo:.4}, mean {mean:.4}, max {hi:.4}")?;
+        }
+        write!(
+            f,
+            "wrote {} files to {}",
+            self.files.len(),
+            self.out.display()
+        )
+    }
+}
+
+/// Reads `input`, computes every map and writes `saliency.ply` and one PNG per map
+/// (`picture` pixels per view) into `out`, which must not exist or be empty (nothing of
+/// the user's is overwritten; nothing is written when anything fails before).
+pub fn saliency_file(
+    input: &std::path::Path,
+    out: &std::path::Path,
+    views: &image::ViewParams,
+    picture: u32,
+) -> Result<FileReport> {
+    views.validate()?;
+    if !(image::SIZE_RANGE.0..=image::SIZE_RANGE.1).contains(&picture) {
+        return Err(Error::param(
+            "saliency",
+            "picture_size",
+            picture,
+            "must be between 16 and 4096 pixels",
+        ));
+    }
+    if out.exists() {
+        let empty = std::fs::read_dir(out)
+            .map_err(|e| Error::io(out, e))?
+            .next()
+            .is_none();
+        if !empty {
+            return Err(Error::Usage(format!(
+                "{}: the output directory exists and is not empty",
+                out.display()
+            )));
+        }
+    }
+    let (m, _warnings) = crate::mesh::io::read_surface_with(input, &Default::default())?;
+    m.validate("the input mesh")?;
+    if m.triangle_count() == 0 || m.area().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return Err(Error::Data {
+            stage: "saliency",
+            message: format!("{}: the mesh has no area", input.display()),
+        });
+    }
+    let t = std::time::Instant::now();
+    let ms = mesh::mesh_saliency(&m);
+    let mesh_seconds = t.elapsed().as_secs_f64();
+    let t = std::time::Instant::now();
+    let img = image::image_saliency(&m, views)?;
+    let image_seconds = t.elapsed().as_secs_f64();
+    let (hybrid, class) =
+        hybrid::hybrid(&ms.curvature, &ms.saliency, &img.max, &img.min, &img.mean);
+    let maps = Maps {
+        curvature: ms.curvature,
+        mesh_saliency: ms.saliency,
+        image: img,
+        hybrid,
+        class,
+    };
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let mut files = vec![out.join("saliency.ply")];
+    pictures::write_ply(&m, &maps, &files[0])?;
+    for (name, col) in pictures::NAMES.iter().zip(pictures::columns(&maps)) {
+        let p = out.join(format!("{name}.png"));
+        pictures::write_png(&m, col, picture as usize, &p)?;
+        files.push(p);
+    }
+    let mut classes = [0usize; 5];
+    for &c in &maps.class {
+        classes[c as usize] += 1;
+    }
+    let stats = pictures::NAMES
+        .iter()
+        .zip(pictures::columns(&maps))
+        .map(|(n, c)| {
+            let lo = c.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = c.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let mean = c.iter().sum::<f64>() / c.len().max(1) as f64;
+            (n.to_string(), [lo, mean, hi])
+        })
+        .collect();
+    Ok(FileReport {
+        input: input.to_path_buf(),
+        out: out.to_path_buf(),
+        vertices: m.vertex_count(),
+        triangles: m.triangle_count(),
+        views: maps.image.views,
+        mesh_seconds,
+        image_seconds,
+        classes,
+        stats,
+        files,
+    })
+}
