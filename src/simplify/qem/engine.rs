@@ -109,6 +109,8 @@ pub struct Collapse<'m> {
     refused: Vec<bool>,
     ring: Vec<u32>,
     fan: Vec<(u32, [u32; 3])>,
+    tlm_fan: Vec<[DVec3; 3]>,
+    diag: f64,
     half: Vec<(u32, u32)>,
     dead: Vec<u32>,
     pairs: Vec<[u32; 2]>,
@@ -262,6 +264,8 @@ impl<'m> Collapse<'m> {
             refused: Vec::new(),
             ring: Vec::new(),
             fan: Vec::new(),
+            tlm_fan: Vec::new(),
+            diag,
             half: Vec::new(),
             dead: Vec::new(),
             pairs: Vec::new(),
@@ -458,7 +462,11 @@ impl<'m> Collapse<'m> {
             (true, false) => pa,
             (false, true) => pb,
             (false, false) => match self.params.placement {
-                super::Placement::Optimal => optimal(&q, pa, pb),
+                // Two local mappings: ordered by the optimal point's error; the point itself
+                // is found in `valid`.
+                super::Placement::Optimal | super::Placement::TwoLocalMappings => {
+                    optimal(&q, pa, pb)
+                }
                 super::Placement::Endpoint => {
                     if q.eval(pb) < q.eval(pa) {
                         pb
@@ -531,21 +539,59 @@ impl<'m> Collapse<'m> {
     }
 
     /// Whether collapsing (a, b) to `c` passes the checks. The live faces of a and of b
-    /// are gathered once (the corner lists are the pointer chase of the run).
-    fn valid(&mut self, a: u32, b: u32, c: &Candidate) -> bool {
-        if let Some(e) = self.params.max_error {
-            if error(&c.q, c.p) > e {
-                return false;
-            }
-        }
+    /// are gathered once (the corner lists are the pointer chase of the run). With the
+    /// two-local-mappings placement, this is where the point is found (it depends on the
+    /// faces around the edge, so it is part of the validity, not of the cost: the order
+    /// stays that of the optimal point's quadric error, a lower bound of the placed
+    /// point's), and `c.p` becomes it.
+    fn valid(&mut self, a: u32, b: u32, c: &mut Candidate) -> bool {
         let mut fan = std::mem::take(&mut self.fan);
         fan.clear();
         self.each_face(a, |f| fan.push((f as u32, self.faces[f])));
         let na = fan.len();
         self.each_face(b, |f| fan.push((f as u32, self.faces[f])));
-        let ok = self.valid_fans(a, b, c, &fan[..na], &fan[na..]);
+        let placed = self.place_two_mappings(a, b, c, &fan[..na], &fan[na..]);
+        let ok = placed && self.valid_fans(a, b, c, &fan[..na], &fan[na..]);
         self.fan = fan;
         ok && !self.intersects(a, b, c)
+    }
+
+    /// With the two-local-mappings placement (and neither endpoint pinned): moves `c.p` to
+    /// its point; false when there is none. True otherwise; then the error bound.
+    fn place_two_mappings(
+        &mut self,
+        a: u32,
+        b: u32,
+        c: &mut Candidate,
+        fa: &[(u32, [u32; 3])],
+        fb: &[(u32, [u32; 3])],
+    ) -> bool {
+        let pinned =
+            self.params.lock_border && (self.border[a as usize] || self.border[b as usize]);
+        if self.params.placement == super::Placement::TwoLocalMappings && !pinned {
+            let mut faces = std::mem::take(&mut self.tlm_fan);
+            faces.clear();
+            for (v, other, fan) in [(a, b, fa), (b, a, fb)] {
+                for (_, t) in fan {
+                    if !t.contains(&other) {
+                        let k = t.iter().position(|&u| u == v).expect("a face of v");
+                        faces.push([0, 1, 2].map(|i| self.pos[t[(k + i) % 3] as usize]));
+                    }
+                }
+            }
+            let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
+            let p = super::tlm::place(&c.q, &faces, pa, pb, self.diag);
+            self.tlm_fan = faces;
+            let Some(p) = p else {
+                return false;
+            };
+            c.p = if self.params.check_intersections {
+                p.as_vec3().as_dvec3()
+            } else {
+                p
+            };
+        }
+        self.params.max_error.is_none_or(|e| error(&c.q, c.p) <= e)
     }
 
     /// [`Collapse::valid`] on the gathered fans of a and b, without the intersection check.
@@ -793,10 +839,10 @@ impl<'m> Collapse<'m> {
                 break;
             };
             let (a, b) = ((k >> 32) as u32, k as u32);
-            let Some(c) = self.candidate(a, b) else {
+            let Some(mut c) = self.candidate(a, b) else {
                 continue;
             };
-            if self.valid(a, b, &c) {
+            if self.valid(a, b, &mut c) {
                 self.collapse(a, b, &c);
                 self.update(a);
             } else {
@@ -825,14 +871,14 @@ impl<'m> Collapse<'m> {
             edges.dedup();
             let mut best: Option<(u64, u32, u32, Candidate)> = None;
             for &[a, b] in &edges {
-                let Some(c) = self.candidate(a, b) else {
+                let Some(mut c) = self.candidate(a, b) else {
                     continue;
                 };
                 let key = (c.cost.to_bits(), a, b);
                 if best.as_ref().is_some_and(|x| (x.0, x.1, x.2) <= key) {
                     continue;
                 }
-                if self.valid(a, b, &c) {
+                if self.valid(a, b, &mut c) {
                     best = Some((key.0, a, b, c));
                 }
             }

@@ -37,6 +37,7 @@
 mod engine;
 mod guard;
 mod heap;
+pub mod tlm;
 
 pub use engine::{simplify_slow, Checks, Collapse};
 
@@ -55,6 +56,10 @@ pub enum Placement {
     Optimal,
     /// The better of the two endpoints (the output's vertices are a subset of the input's).
     Endpoint,
+    /// Fold-free placement by two local mappings (Liu, Geng & Zhou 2004; see [`tlm`]): a
+    /// point on a line along a direction every surviving face faces, inside the kernel of
+    /// the projected link, at the least quadric error on that line.
+    TwoLocalMappings,
 }
 
 impl std::fmt::Display for Placement {
@@ -62,6 +67,7 @@ impl std::fmt::Display for Placement {
         f.write_str(match self {
             Placement::Optimal => "optimal",
             Placement::Endpoint => "endpoint",
+            Placement::TwoLocalMappings => "two-local-mappings",
         })
     }
 }
