@@ -580,7 +580,7 @@ impl<'m> Collapse<'m> {
                 }
             }
             let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
-            let p = super::tlm::place(&c.q, &faces, pa, pb, self.diag);
+            let p = super::tlm::place(&c.q, &faces, pa, pb, c.p, self.diag);
             self.tlm_fan = faces;
             let Some(p) = p else {
                 return false;

@@ -12,9 +12,12 @@
 //! 2. Kernel: in the plane ⟂ d, each surviving face (v, x, y) (v the moving vertex) keeps
 //!    its orientation iff the new vertex lies strictly left of its projected far edge
 //!    x → y. The intersection of those half-planes (clipped to the box of the projected
-//!    neighbourhood, which bounds it on a border) is the kernel of the link polygon; the
-//!    new vertex's projection is the mean of the kernel polygon's vertices. Empty kernel:
-//!    no placement.
+//!    neighbourhood, which bounds it on a border) is the kernel of the link polygon. The
+//!    paper takes the mean of the kernel polygon's vertices and names a better choice as
+//!    future work; we take the projection of the quadric's optimal point when it lies in
+//!    the kernel, else the point 0.9 of the way from the mean towards it where the segment
+//!    leaves the kernel (the mean alone measured 1.9 × optimal's Metro mean on bunny at
+//!    10 %). Empty kernel: no placement.
 //! 3. Map back: on the line through that point along d, the point of least quadric error;
 //!    accepted when the summed and the largest distance between each surviving face before
 //!    and after (d_sum and E2 of the paper) are within [`MAX_E2`] and [`MAX_DSUM`] of the
@@ -193,12 +196,37 @@ impl Poly {
     }
 }
 
+/// The point of the segment from `centre` (inside the convex polygon `k`) to `target`
+/// that is nearest `target` while staying inside: `target` itself when it is inside,
+/// else 0.9 of the way to the polygon's boundary (strictly inside).
+fn toward(k: &Poly, centre: DVec2, target: DVec2) -> DVec2 {
+    let p = k.points();
+    let mut t = 1.0f64;
+    for i in 0..p.len() {
+        let e = p[(i + 1) % p.len()] - p[i];
+        let (sc, st) = (e.perp_dot(centre - p[i]), e.perp_dot(target - p[i]));
+        if st <= 0.0 && sc > 0.0 {
+            t = t.min(0.9 * sc / (sc - st));
+        } else if st <= 0.0 {
+            t = 0.0;
+        }
+    }
+    centre + (target - centre) * t
+}
+
 /// The two-local-mappings point for the surviving faces `fan` (each `[v, x, y]` with v the
-/// moving vertex's current position, counter-clockwise), the merged quadric `q`, and the
-/// edge's endpoints (for the box and the fallback along the line); `diag` is the bbox
-/// diagonal. `None`: no fold-free point (empty cone or kernel, too many faces, or the
+/// moving vertex's current position, counter-clockwise), the merged quadric `q`, the
+/// edge's endpoints (for the box and the fallback along the line) and the quadric's own
+/// best point `best`; `diag` is the bbox diagonal. `None`: no fold-free point (empty cone or kernel, too many faces, or the
 /// distances over their thresholds).
-pub fn place(q: &Quadric, fan: &[[DVec3; 3]], a: DVec3, b: DVec3, diag: f64) -> Option<DVec3> {
+pub fn place(
+    q: &Quadric,
+    fan: &[[DVec3; 3]],
+    a: DVec3,
+    b: DVec3,
+    best: DVec3,
+    diag: f64,
+) -> Option<DVec3> {
     if fan.is_empty() || fan.len() > MAX_FAN {
         return None;
     }
@@ -227,7 +255,8 @@ pub fn place(q: &Quadric, fan: &[[DVec3; 3]], a: DVec3, b: DVec3, diag: f64) -> 
     if k.len == 0 {
         return None;
     }
-    let c2 = k.points().iter().copied().sum::<DVec2>() / k.len as f64;
+    let centre = k.points().iter().copied().sum::<DVec2>() / k.len as f64;
+    let c2 = toward(&k, centre, to2(best));
     // Mapping 2: back along d, the least quadric error on the line c + t d.
     let c = o + e1 * c2.x + e2 * c2.y;
     let m = q.matrix();
@@ -370,15 +399,23 @@ mod tests {
             .map(|i| [DVec3::new(0.5, 5.0, 0.0), c[i], c[(i + 1) % c.len()]])
             .collect();
         let q = Quadric::plane(DVec3::Z, 0.0, 1.0);
-        assert_eq!(place(&q, &fan, fan[0][0], fan[0][0], 20.0), None);
+        assert_eq!(place(&q, &fan, fan[0][0], fan[0][0], fan[0][0], 20.0), None);
         // The same fan with a star-shaped link (a square) is placed, on the plane.
         let s = [(0.0, 0.0), (10.0, 0.0), (10.0, 10.0), (0.0, 10.0)]
             .map(|(x, y)| DVec3::new(x, y, 0.0));
         let fan: Vec<[DVec3; 3]> = (0..4)
             .map(|i| [DVec3::new(3.0, 4.0, 0.0), s[i], s[(i + 1) % 4]])
             .collect();
-        let p = place(&q, &fan, fan[0][0], DVec3::new(4.0, 4.0, 0.0), 20.0).expect("a kernel");
-        assert!(p.z.abs() < 1e-9 && p.x > 0.0 && p.x < 10.0 && p.y > 0.0 && p.y < 10.0);
+        let b = DVec3::new(4.0, 4.0, 0.0);
+        let p = place(&q, &fan, fan[0][0], b, b, 20.0).expect("a kernel");
+        assert!(
+            (p - b).length() < 1e-9,
+            "the best point is in the kernel: {p}"
+        );
+        // A best point outside the kernel is pulled inside.
+        let far = DVec3::new(15.0, 5.0, 3.0);
+        let p = place(&q, &fan, fan[0][0], b, far, 20.0).expect("a kernel");
+        assert!(p.z.abs() < 1e-9 && p.x > 5.0 && p.x < 10.0 && p.y > 0.0 && p.y < 10.0);
     }
 
     #[test]
