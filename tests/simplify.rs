@@ -485,7 +485,7 @@ fn qem_table() {
     let (mut mean_wins, mut max_ok, mut cases) = (0, 0, 0);
     let mut clean = 0;
     let (mut dist_mean_wins, mut dist_max_ok) = (0, 0);
-    let mut tlm_ratio = 0.0;
+    let (mut tlm_sum, mut opt_sum) = (0.0, 0.0);
     for name in [
         "bunny.obj",
         "armadillo.obj",
@@ -589,7 +589,8 @@ fn qem_table() {
             best = (best.0.min(mx), best.1.min(mn));
             cases += 1;
             // ours: optimal, endpoint, two local mappings; then the same with the check.
-            tlm_ratio += ours[2].1 / ours[0].1.max(1e-12);
+            tlm_sum += ours[2].1;
+            opt_sum += ours[0].1;
             mean_wins += (ours[0].1 <= best.1) as usize;
             max_ok += (ours[0].0 <= 1.2 * best.0) as usize;
             dist_mean_wins += (dist.1 <= best.1) as usize;
@@ -603,8 +604,8 @@ fn qem_table() {
         "with the intersection check, both placements: 0 fold-overs and no self-intersecting pair beyond the input's own count on {clean}/{cases}"
     );
     println!(
-        "two local mappings: Metro mean / optimal's, averaged over the cases: {:.3}",
-        tlm_ratio / cases as f64
+        "two local mappings: mean over the cases of the Metro mean / optimal's: {:.3}",
+        tlm_sum / opt_sum
     );
     println!(
         "optimal, distance cost: Metro mean <= meshopt's best on {dist_mean_wins}/{cases}; max <= 1.2 x on {dist_max_ok}/{cases}"
