@@ -253,6 +253,7 @@ enum SaliencyArg {
 enum PlacementArg {
     Optimal,
     Endpoint,
+    TwoLocalMappings,
 }
 
 #[derive(ValueEnum, Debug, Clone, Copy)]
@@ -747,6 +748,7 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
         placement: a.placement.map(|p| match p {
             PlacementArg::Optimal => terratile::simplify::Placement::Optimal,
             PlacementArg::Endpoint => terratile::simplify::Placement::Endpoint,
+            PlacementArg::TwoLocalMappings => terratile::simplify::Placement::TwoLocalMappings,
         }),
         quadric_merge: a.quadric_merge.map(|m| match m {
             MergeArg::Sum => terratile::simplify::QuadricMerge::Sum,

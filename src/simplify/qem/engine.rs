@@ -1,16 +1,23 @@
 //! The collapse engine: flat per-vertex and per-face arrays, vertex → corner lists as
-//! intrusive linked lists (a collapse splices one list into another: no allocation), a
-//! binary heap of candidates with per-vertex stamps for lazy invalidation, and scratch
-//! vectors reused across collapses. See the module above for the order and the checks.
+//! intrusive linked lists (a collapse splices one list into another: no allocation), an
+//! indexed heap of candidates over face corners, and scratch vectors reused across
+//! collapses. See the module above for the order and the checks.
+//!
+//! Edges as corners: corner `3f + k` stands for the edge from face f's k-th vertex to its
+//! next one. Corner slots never move (a collapse renames vertices in place), so an edge
+//! keeps its slot through collapses; of the (one or two) corners of an edge the one of
+//! least slot is its *canonical* corner, the only one that may be in the heap or marked
+//! refused. A collapse into `s` changes which corner is canonical only for edges at `s`
+//! (faces die only on the collapsed edge), and those are all re-examined after it.
 
+use super::heap::IndexedHeap;
 use super::{QemParams, QemReport, QemResult, QuadricMerge};
 use crate::mesh::adjacency::EdgeFaces;
 use crate::mesh::TriMesh;
 use crate::simplify::prep::Prepared;
 use crate::simplify::quadric::Quadric;
 use glam::{DVec3, Vec2, Vec3};
-use std::cmp::Reverse;
-use std::collections::BinaryHeap;
+use rayon::prelude::*;
 
 const NONE: u32 = u32::MAX;
 
@@ -50,15 +57,11 @@ impl Default for Checks {
     }
 }
 
-/// A candidate in the heap: ordered by cost (non-negative f64 bits order as the numbers),
-/// then by its vertices; the stamps say which state it was computed from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-struct Entry {
-    cost: u64,
-    a: u32,
-    b: u32,
-    sa: u32,
-    sb: u32,
+/// A candidate's heap key: ordered by cost (non-negative f64 bits order as the numbers),
+/// then by its vertices a < b.
+#[inline]
+fn key(cost: f64, a: u32, b: u32) -> u128 {
+    (cost.to_bits() as u128) << 64 | (a as u128) << 32 | b as u128
 }
 
 /// A candidate collapse: the merged quadric, the placed point and its cost.
@@ -81,11 +84,14 @@ pub struct Collapse<'m> {
     alive: Vec<bool>,
     border: Vec<bool>,
     locked: Vec<bool>,
-    stamp: Vec<u32>,
     /// Saliency weight H per dense vertex (`params.weights`; empty without).
     weight: Vec<f64>,
-    /// Refused edges at each vertex (so that only vertices with some are searched).
+    /// More than zero when some refused edge may touch the vertex (an over-count: it is
+    /// exact again, zero, after the vertex's edges are searched).
     refused_at: Vec<u32>,
+    /// Per vertex: a visit mark (see `epoch`).
+    mark: Vec<u32>,
+    epoch: u32,
     head: Vec<u32>,
     /// The input vertex whose attributes a dense vertex carries.
     source: Vec<u32>,
@@ -98,12 +104,17 @@ pub struct Collapse<'m> {
     orig_face: Vec<u32>,
     next: Vec<u32>,
     // Candidates and scratch.
-    heap: BinaryHeap<Reverse<Entry>>,
-    /// Edges refused when they came up and not pushed again since.
-    refused: rustc_hash::FxHashSet<u64>,
+    /// Canonical corners of the edges not known to be invalid, keyed by [`key`].
+    heap: IndexedHeap,
+    /// Per corner: a canonical corner whose edge was refused when it came up and not
+    /// examined again since.
+    refused: Vec<bool>,
     ring: Vec<u32>,
-    nb: Vec<u32>,
-    nb2: Vec<u32>,
+    fan: Vec<(u32, [u32; 3])>,
+    tlm_fan: Vec<[DVec3; 3]>,
+    diag: f64,
+    half: Vec<(u32, u32)>,
+    dead: Vec<u32>,
     pairs: Vec<[u32; 2]>,
     // Figures.
     tris: usize,
@@ -250,9 +261,10 @@ impl<'m> Collapse<'m> {
             alive: vec![true; n],
             border,
             locked,
-            stamp: vec![0; n],
             weight,
             refused_at: vec![0; n],
+            mark: vec![0; n],
+            epoch: 0,
             head,
             normals: mesh.normals.as_deref().map(|a| pick(a, &source)),
             colors: mesh.colors.as_deref().map(|a| pick(a, &source)),
@@ -262,11 +274,14 @@ impl<'m> Collapse<'m> {
             faces,
             orig_face,
             next,
-            heap: BinaryHeap::new(),
-            refused: Default::default(),
+            heap: IndexedHeap::default(),
+            refused: Vec::new(),
             ring: Vec::new(),
-            nb: Vec::new(),
-            nb2: Vec::new(),
+            fan: Vec::new(),
+            tlm_fan: Vec::new(),
+            diag,
+            half: Vec::new(),
+            dead: Vec::new(),
             pairs: Vec::new(),
             tris,
             collapses: 0,
@@ -284,11 +299,53 @@ impl<'m> Collapse<'m> {
             c.guard = Some(g);
             c.orig_bvh = Some(crate::mesh::Bvh::new(mesh));
         }
-        c.heap.reserve(ef.len());
-        for &[a, b] in ef.edges() {
-            c.push(a.min(b), a.max(b));
+        // Every edge of at most two faces at its canonical corner, its cost computed in
+        // parallel (the one parallel part: the collapses themselves are a sequence).
+        let mut canon: Vec<(u32, u32, u32)> = Vec::with_capacity(ef.len());
+        for (e, &[a, b]) in ef.edges().iter().enumerate() {
+            let fs = ef.faces(e as u32);
+            if fs.len() > 2 {
+                continue;
+            }
+            let corner = fs
+                .iter()
+                .flat_map(|&f| {
+                    let t = c.faces[f as usize];
+                    (0..3).filter_map(move |k| {
+                        let (u, v) = (t[k], t[(k + 1) % 3]);
+                        ((u == a && v == b) || (u == b && v == a)).then_some(3 * f + k as u32)
+                    })
+                })
+                .min()
+                .expect("an edge's face holds it");
+            canon.push((corner, a.min(b), a.max(b)));
         }
+        let entries: Vec<(u128, u32)> = canon
+            .par_iter()
+            .with_min_len(4096)
+            .filter_map(|&(corner, a, b)| c.candidate(a, b).map(|x| (key(x.cost, a, b), corner)))
+            .collect();
+        c.refused = vec![false; c.faces.len() * 3];
+        c.heap = IndexedHeap::from_entries(c.faces.len() * 3, entries);
         c
+    }
+
+    /// The vertices of corner `c`'s edge.
+    #[inline]
+    fn corner_edge(&self, c: u32) -> (u32, u32) {
+        let (f, k) = (c as usize / 3, c as usize % 3);
+        let t = self.faces[f];
+        (t[k], t[(k + 1) % 3])
+    }
+
+    /// A fresh visit mark (two values: `e` and `e + 1`).
+    fn next_epoch(&mut self) -> u32 {
+        if self.epoch >= u32::MAX - 2 {
+            self.mark.fill(0);
+            self.epoch = 0;
+        }
+        self.epoch += 2;
+        self.epoch
     }
 
     /// The box of face `f` now.
@@ -425,7 +482,11 @@ impl<'m> Collapse<'m> {
             (true, false) => pa,
             (false, true) => pb,
             (false, false) => match self.params.placement {
-                super::Placement::Optimal => optimal(&q, pa, pb),
+                // Two local mappings: ordered by the optimal point's error; the point itself
+                // is found in `valid`.
+                super::Placement::Optimal | super::Placement::TwoLocalMappings => {
+                    optimal(&q, pa, pb)
+                }
                 super::Placement::Endpoint => {
                     if q.eval(pb) < q.eval(pa) {
                         pb
@@ -456,16 +517,14 @@ impl<'m> Collapse<'m> {
         Some(Candidate { q, p, cost })
     }
 
-    /// Pushes edge (a, b), a < b, with its current cost.
-    fn push(&mut self, a: u32, b: u32) {
-        if let Some(c) = self.candidate(a, b) {
-            self.heap.push(Reverse(Entry {
-                cost: c.cost.to_bits(),
-                a,
-                b,
-                sa: self.stamp[a as usize],
-                sb: self.stamp[b as usize],
-            }));
+    /// Puts the edge of canonical corner `corner` in the heap with its current cost (or
+    /// takes it out when it may not be collapsed).
+    fn push(&mut self, corner: u32) {
+        let (u, v) = self.corner_edge(corner);
+        let (a, b) = (u.min(v), u.max(v));
+        match self.candidate(a, b) {
+            Some(c) => self.heap.set(corner, key(c.cost, a, b)),
+            None => self.heap.remove(corner),
         }
     }
 
@@ -482,29 +541,91 @@ impl<'m> Collapse<'m> {
         }
     }
 
-    /// The neighbours of `v`, sorted, into `out`.
-    fn neighbours(&self, v: u32, out: &mut Vec<u32>) {
+    /// The neighbours of `v` (each once, in fan order) into `out`.
+    fn neighbours(&mut self, v: u32, out: &mut Vec<u32>) {
         out.clear();
-        self.each_face(v, |f| {
-            out.extend(self.faces[f].iter().filter(|&&u| u != v));
-        });
-        out.sort_unstable();
-        out.dedup();
+        let e = self.next_epoch();
+        let mut c = self.head[v as usize];
+        while c != NONE {
+            let face = c as usize / 3;
+            if self.face_alive[face] {
+                for u in self.faces[face] {
+                    if u != v && self.mark[u as usize] != e {
+                        self.mark[u as usize] = e;
+                        out.push(u);
+                    }
+                }
+            }
+            c = self.next[c as usize];
+        }
     }
 
-    /// Whether collapsing (a, b) to `c` passes the checks.
-    fn valid(&mut self, a: u32, b: u32, c: &Candidate) -> bool {
-        if let Some(e) = self.params.max_error {
-            if error(&c.q, c.p) > e {
+    /// Whether collapsing (a, b) to `c` passes the checks. The live faces of a and of b
+    /// are gathered once (the corner lists are the pointer chase of the run). With the
+    /// two-local-mappings placement, this is where the point is found (it depends on the
+    /// faces around the edge, so it is part of the validity, not of the cost: the order
+    /// stays that of the optimal point's quadric error, a lower bound of the placed
+    /// point's), and `c.p` becomes it.
+    fn valid(&mut self, a: u32, b: u32, c: &mut Candidate) -> bool {
+        let mut fan = std::mem::take(&mut self.fan);
+        fan.clear();
+        self.each_face(a, |f| fan.push((f as u32, self.faces[f])));
+        let na = fan.len();
+        self.each_face(b, |f| fan.push((f as u32, self.faces[f])));
+        let placed = self.place_two_mappings(a, b, c, &fan[..na], &fan[na..]);
+        let ok = placed && self.valid_fans(a, b, c, &fan[..na], &fan[na..]);
+        self.fan = fan;
+        ok && !self.intersects(a, b, c)
+    }
+
+    /// With the two-local-mappings placement (and neither endpoint pinned): moves `c.p` to
+    /// its point; false when there is none. True otherwise; then the error bound.
+    fn place_two_mappings(
+        &mut self,
+        a: u32,
+        b: u32,
+        c: &mut Candidate,
+        fa: &[(u32, [u32; 3])],
+        fb: &[(u32, [u32; 3])],
+    ) -> bool {
+        let pinned =
+            self.params.lock_border && (self.border[a as usize] || self.border[b as usize]);
+        if self.params.placement == super::Placement::TwoLocalMappings && !pinned {
+            let mut faces = std::mem::take(&mut self.tlm_fan);
+            faces.clear();
+            for (v, other, fan) in [(a, b, fa), (b, a, fb)] {
+                for (_, t) in fan {
+                    if !t.contains(&other) {
+                        let k = t.iter().position(|&u| u == v).expect("a face of v");
+                        faces.push([0, 1, 2].map(|i| self.pos[t[(k + i) % 3] as usize]));
+                    }
+                }
+            }
+            let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
+            let p = super::tlm::place(&c.q, &faces, pa, pb, c.p, self.diag);
+            self.tlm_fan = faces;
+            let Some(p) = p else {
                 return false;
-            }
+            };
+            c.p = if self.params.check_intersections {
+                p.as_vec3().as_dvec3()
+            } else {
+                p
+            };
         }
-        let mut shared = 0;
-        self.each_face(a, |f| {
-            if self.faces[f].contains(&b) {
-                shared += 1;
-            }
-        });
+        self.params.max_error.is_none_or(|e| error(&c.q, c.p) <= e)
+    }
+
+    /// [`Collapse::valid`] on the gathered fans of a and b, without the intersection check.
+    fn valid_fans(
+        &mut self,
+        a: u32,
+        b: u32,
+        c: &Candidate,
+        fa: &[(u32, [u32; 3])],
+        fb: &[(u32, [u32; 3])],
+    ) -> bool {
+        let shared = fa.iter().filter(|(_, t)| t.contains(&b)).count();
         if shared == 0 || shared > 2 {
             return false;
         }
@@ -513,27 +634,37 @@ impl<'m> Collapse<'m> {
                 return false;
             }
             // Link condition: the common neighbours are the far corners of the edge's
-            // triangles, no more.
-            let (mut na, mut nb) = (std::mem::take(&mut self.nb), std::mem::take(&mut self.nb2));
-            self.neighbours(a, &mut na);
-            self.neighbours(b, &mut nb);
-            let common = count_common(&na, &nb); // a, b are not in their own lists
-            self.nb = na;
-            self.nb2 = nb;
+            // triangles, no more (marks: e on a's neighbours, e + 1 once counted).
+            let e = self.next_epoch();
+            for (_, t) in fa {
+                for &u in t {
+                    if u != a {
+                        self.mark[u as usize] = e;
+                    }
+                }
+            }
+            let mut common = 0;
+            for (_, t) in fb {
+                for &u in t {
+                    if u != b && self.mark[u as usize] == e {
+                        self.mark[u as usize] = e + 1;
+                        common += 1;
+                    }
+                }
+            }
             if common != shared {
                 return false;
             }
             // No duplicate triangle: a face (a, x, y) and a face (b, x, y) would both become
             // (s, x, y).
-            let mut pairs = std::mem::take(&mut self.pairs);
+            let pairs = &mut self.pairs;
             pairs.clear();
-            for (v, other) in [(a, b), (b, a)] {
-                self.each_face(v, |f| {
-                    let t = self.faces[f];
+            for (v, other, fan) in [(a, b, fa), (b, a, fb)] {
+                for (_, t) in fan {
                     if !t.contains(&other) {
                         let mut r: [u32; 2] = [0; 2];
                         let mut k = 0;
-                        for &u in &t {
+                        for &u in t {
                             if u != v {
                                 r[k] = u;
                                 k += 1;
@@ -541,40 +672,33 @@ impl<'m> Collapse<'m> {
                         }
                         pairs.push([r[0].min(r[1]), r[0].max(r[1])]);
                     }
-                });
+                }
             }
             pairs.sort_unstable();
-            let dup = pairs.windows(2).any(|w| w[0] == w[1]);
-            self.pairs = pairs;
-            if dup {
+            if pairs.windows(2).any(|w| w[0] == w[1]) {
                 return false;
             }
         }
         if self.checks.flips || self.checks.zero_area {
-            for v in [a, b] {
-                let mut ok = true;
-                self.each_face(v, |f| {
-                    let t = self.faces[f];
-                    if !ok || t.contains(&a) && t.contains(&b) {
-                        return;
+            for (v, fan) in [(a, fa), (b, fb)] {
+                for (_, t) in fan {
+                    if t.contains(&a) && t.contains(&b) {
+                        continue;
                     }
                     let old = t.map(|u| self.pos[u as usize]);
                     let new = t.map(|u| if u == v { c.p } else { self.pos[u as usize] });
                     let n0 = (old[1] - old[0]).cross(old[2] - old[0]);
                     let n1 = (new[1] - new[0]).cross(new[2] - new[0]);
                     if self.checks.zero_area && n1.length() <= self.area_eps {
-                        ok = false;
+                        return false;
                     }
                     if self.checks.flips && n0.dot(n1) <= 0.0 {
-                        ok = false;
+                        return false;
                     }
-                });
-                if !ok {
-                    return false;
                 }
             }
         }
-        !self.intersects(a, b, c)
+        true
     }
 
     /// Collapses (a, b), a < b, to `c`: `a` survives.
@@ -609,6 +733,7 @@ impl<'m> Collapse<'m> {
                 if self.faces[f].contains(&s) {
                     self.face_alive[f] = false;
                     self.tris -= 1;
+                    self.dead.push(f as u32);
                 } else {
                     self.faces[f][cnr as usize % 3] = s;
                     self.next[cnr as usize] = moved;
@@ -632,9 +757,20 @@ impl<'m> Collapse<'m> {
         if !self.weight.is_empty() {
             self.weight[us] = self.merged_weight(s, g);
         }
+        // The dead faces' third corners leave their vertices' lists (else every list
+        // grows by the faces that died around it, and the walks over them dominate).
+        for i in 0..self.dead.len() {
+            let f = self.dead[i] as usize;
+            for x in self.faces[f] {
+                if x != s && x != g {
+                    self.prune(x);
+                }
+            }
+        }
         self.pos[us] = c.p;
         self.quad[us] = c.q;
         self.border[us] |= self.border[ug];
+        self.refused_at[us] += self.refused_at[ug];
         self.alive[ug] = false;
         self.collapses += 1;
         self.max_error = self.max_error.max(error(&c.q, c.p));
@@ -642,38 +778,81 @@ impl<'m> Collapse<'m> {
         self.refit(s);
     }
 
-    /// After a collapse into `s`: the edges of `s` get a new cost (its stamp changes, so
-    /// their old entries are skipped), and the edges of its neighbours that were refused
-    /// before are pushed again (their validity may have changed; their cost has not, so
-    /// the entries still in the heap stay as they are).
+    /// Drops the corners of dead faces from `v`'s list.
+    fn prune(&mut self, v: u32) {
+        let mut prev = NONE;
+        let mut cnr = self.head[v as usize];
+        while cnr != NONE {
+            let nxt = self.next[cnr as usize];
+            if self.face_alive[cnr as usize / 3] {
+                prev = cnr;
+            } else if prev == NONE {
+                self.head[v as usize] = nxt;
+            } else {
+                self.next[prev as usize] = nxt;
+            }
+            cnr = nxt;
+        }
+    }
+
+    /// After a collapse into `s`: the corners of the dead faces leave the heap; the edges of
+    /// `s` get their canonical corner anew and a new cost; and the edges of its neighbours
+    /// that were refused before are examined again (their validity may have changed; their
+    /// cost has not, so the entries still in the heap stay as they are).
     fn update(&mut self, s: u32) {
+        let mut dead = std::mem::take(&mut self.dead);
+        for &f in &dead {
+            for c in 3 * f..3 * f + 3 {
+                self.heap.remove(c);
+                self.refused[c as usize] = false;
+            }
+        }
+        dead.clear();
+        self.dead = dead;
+        // The corners of s's edges as (other end, corner), grouped by the other end.
+        let mut half = std::mem::take(&mut self.half);
+        half.clear();
+        self.each_face(s, |f| {
+            let t = self.faces[f];
+            let k = t.iter().position(|&u| u == s).expect("a face of s");
+            half.push((t[(k + 1) % 3], (3 * f + k) as u32));
+            half.push((t[(k + 2) % 3], (3 * f + (k + 2) % 3) as u32));
+        });
+        half.sort_unstable();
+        for (i, &(x, corner)) in half.iter().enumerate() {
+            self.refused[corner as usize] = false;
+            if i > 0 && half[i - 1].0 == x {
+                self.heap.remove(corner);
+            } else {
+                self.push(corner);
+            }
+        }
+        self.half = half;
+        self.refused_at[s as usize] = 0;
         let mut ring = std::mem::take(&mut self.ring);
         self.neighbours(s, &mut ring);
-        let us = s as usize;
-        self.stamp[us] = self.stamp[us].wrapping_add(1);
-        for &x in &ring {
-            let key = edge_key(s, x);
-            if self.refused_at[us] > 0 && self.refused.remove(&key) {
-                self.refused_at[us] -= 1;
-                self.refused_at[x as usize] -= 1;
-            }
-            self.push(s.min(x), s.max(x));
-        }
-        let mut nb = std::mem::take(&mut self.nb);
         for &w in &ring {
             if self.refused_at[w as usize] == 0 {
                 continue;
             }
-            self.neighbours(w, &mut nb);
-            for &x in &nb {
-                if x != s && self.refused.remove(&edge_key(w, x)) {
-                    self.refused_at[w as usize] -= 1;
-                    self.refused_at[x as usize] -= 1;
-                    self.push(w.min(x), w.max(x));
+            let mut c = self.head[w as usize];
+            while c != NONE {
+                let f = c as usize / 3;
+                if self.face_alive[f] {
+                    for corner in 3 * f as u32..3 * f as u32 + 3 {
+                        if self.refused[corner as usize] {
+                            let (u, v) = self.corner_edge(corner);
+                            if u == w || v == w {
+                                self.refused[corner as usize] = false;
+                                self.push(corner);
+                            }
+                        }
+                    }
                 }
+                c = self.next[c as usize];
             }
+            self.refused_at[w as usize] = 0;
         }
-        self.nb = nb;
         self.ring = ring;
     }
 
@@ -681,29 +860,21 @@ impl<'m> Collapse<'m> {
     /// or no valid collapse is left.
     pub fn run_fast(&mut self, target: usize) {
         while self.tris > target {
-            let Some(Reverse(e)) = self.heap.pop() else {
+            let Some((k, corner)) = self.heap.pop() else {
                 break;
             };
-            let (ua, ub) = (e.a as usize, e.b as usize);
-            if !self.alive[ua]
-                || !self.alive[ub]
-                || self.stamp[ua] != e.sa
-                || self.stamp[ub] != e.sb
-            {
-                continue;
-            }
-            let Some(c) = self.candidate(e.a, e.b) else {
+            let (a, b) = ((k >> 32) as u32, k as u32);
+            let Some(mut c) = self.candidate(a, b) else {
                 continue;
             };
-            if self.valid(e.a, e.b, &c) {
-                self.collapse(e.a, e.b, &c);
-                self.update(e.a);
+            if self.valid(a, b, &mut c) {
+                self.collapse(a, b, &c);
+                self.update(a);
             } else {
                 self.rejected += 1;
-                if self.refused.insert(edge_key(e.a, e.b)) {
-                    self.refused_at[ua] += 1;
-                    self.refused_at[ub] += 1;
-                }
+                self.refused[corner as usize] = true;
+                self.refused_at[a as usize] += 1;
+                self.refused_at[b as usize] += 1;
             }
         }
     }
@@ -725,14 +896,14 @@ impl<'m> Collapse<'m> {
             edges.dedup();
             let mut best: Option<(u64, u32, u32, Candidate)> = None;
             for &[a, b] in &edges {
-                let Some(c) = self.candidate(a, b) else {
+                let Some(mut c) = self.candidate(a, b) else {
                     continue;
                 };
                 let key = (c.cost.to_bits(), a, b);
                 if best.as_ref().is_some_and(|x| (x.0, x.1, x.2) <= key) {
                     continue;
                 }
-                if self.valid(a, b, &c) {
+                if self.valid(a, b, &mut c) {
                     best = Some((key.0, a, b, c));
                 }
             }
@@ -835,11 +1006,16 @@ pub(crate) fn error(q: &Quadric, p: DVec3) -> f64 {
 /// ill-conditioned (flat or crease-like neighbourhoods), the best of `a`, `b` and their
 /// midpoint (ties in that order).
 pub(crate) fn optimal(q: &Quadric, a: DVec3, b: DVec3) -> DVec3 {
+    // Cramer's rule through the cofactor columns: the determinant is computed once
+    // (`DMat3::inverse` would compute it again).
     let m = q.matrix();
-    let det = m.determinant();
+    let (c0, c1, c2) = (m.x_axis, m.y_axis, m.z_axis);
+    let (k0, k1, k2) = (c1.cross(c2), c2.cross(c0), c0.cross(c1));
+    let det = c0.dot(k0);
     let s = q.weight() / 3.0;
     if s > 0.0 && det.abs() > ILL_CONDITIONED * s * s * s {
-        let x = m.inverse() * -q.linear();
+        let r = -q.linear();
+        let x = DVec3::new(k0.dot(r), k1.dot(r), k2.dot(r)) / det;
         if x.is_finite() {
             return x;
         }
@@ -853,29 +1029,6 @@ pub(crate) fn optimal(q: &Quadric, a: DVec3, b: DVec3) -> DVec3 {
         }
     }
     best.1
-}
-
-/// An undirected edge as one number.
-#[inline]
-fn edge_key(a: u32, b: u32) -> u64 {
-    (a.min(b) as u64) << 32 | a.max(b) as u64
-}
-
-/// Number of values in both sorted lists.
-fn count_common(x: &[u32], y: &[u32]) -> usize {
-    let (mut i, mut j, mut n) = (0, 0, 0);
-    while i < x.len() && j < y.len() {
-        match x[i].cmp(&y[j]) {
-            std::cmp::Ordering::Less => i += 1,
-            std::cmp::Ordering::Greater => j += 1,
-            std::cmp::Ordering::Equal => {
-                n += 1;
-                i += 1;
-                j += 1;
-            }
-        }
-    }
-    n
 }
 
 /// [`super::simplify`] through the slow twin (every candidate recomputed every step).

@@ -10,16 +10,16 @@
 //!
 //! Order: every edge (a, b) has a cost — the quadric error at the placed point — and the
 //! engine repeatedly collapses the *valid* edge of least (cost, a, b). The fast path keeps
-//! the candidates in a binary heap with lazy invalidation. A collapse of (a, b) into `s`
-//! changes the faces, the position and the quadric of `s` and the faces of its neighbours
-//! N(s), and nothing else. The cost of an edge depends only on its endpoints' quadrics and
-//! positions, so only the edges of `s` get a new cost: `s`'s stamp changes (its old entries
-//! are skipped when popped) and they are pushed again. The validity of an edge depends only
-//! on its endpoints' faces and their corners' positions, so it can change only for edges
-//! touching {s} ∪ N(s): an edge refused when it came up is kept in a refused set and pushed
-//! again when a collapse touches it. The heap therefore holds, with their current cost,
-//! exactly the edges that are not known to be invalid. The slow twin ([`simplify_slow`],
-//! tests) recomputes every edge's cost and validity at every step and takes the least: the
+//! the candidates in an indexed heap (one entry per edge, its key changed in place). A
+//! collapse of (a, b) into `s` changes the faces, the position and the quadric of `s` and
+//! the faces of its neighbours N(s), and nothing else. The cost of an edge depends only on
+//! its endpoints' quadrics and positions, so only the edges of `s` get a new cost. The
+//! validity of an edge depends only on its endpoints' faces and their corners' positions,
+//! so it can change only for edges touching {s} ∪ N(s): an edge refused when it came up
+//! leaves the heap, is marked refused, and is put back when a collapse touches it. The heap
+//! therefore holds, with their current cost, exactly the edges that are not known to be
+//! invalid. The slow twin ([`simplify_slow`], tests) recomputes every edge's cost and
+//! validity at every step and takes the least: the
 //! same sequence, by the argument above (tested).
 //!
 //! Validity checks before each collapse ([`Checks`]): the link condition (the common
@@ -36,6 +36,8 @@
 
 mod engine;
 mod guard;
+mod heap;
+pub mod tlm;
 
 pub use engine::{simplify_slow, Checks, Collapse};
 
@@ -54,6 +56,10 @@ pub enum Placement {
     Optimal,
     /// The better of the two endpoints (the output's vertices are a subset of the input's).
     Endpoint,
+    /// Fold-free placement by two local mappings (Liu, Geng & Zhou 2004; see [`tlm`]): a
+    /// point on a line along a direction every surviving face faces, inside the kernel of
+    /// the projected link, at the least quadric error on that line.
+    TwoLocalMappings,
 }
 
 impl std::fmt::Display for Placement {
@@ -61,6 +67,7 @@ impl std::fmt::Display for Placement {
         f.write_str(match self {
             Placement::Optimal => "optimal",
             Placement::Endpoint => "endpoint",
+            Placement::TwoLocalMappings => "two-local-mappings",
         })
     }
 }

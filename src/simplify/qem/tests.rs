@@ -168,7 +168,11 @@ fn the_heap_equals_the_slow_twin() {
         (sphere(8), 8),
         (cube(3), 12),
     ] {
-        for placement in [Placement::Optimal, Placement::Endpoint] {
+        for placement in [
+            Placement::Optimal,
+            Placement::Endpoint,
+            Placement::TwoLocalMappings,
+        ] {
             for (merge, cost) in [
                 (QuadricMerge::Sum, Cost::Quadric),
                 (QuadricMerge::Mean, Cost::Quadric),
@@ -316,7 +320,11 @@ fn the_intersection_check_keeps_nested_spheres_apart() {
         .extend(outer.indices.iter().map(|t| t.map(|i| i + base)));
     assert!(crate::mesh::intersect::self_intersections(&m).is_empty());
     let mut unchecked = 0;
-    for placement in [Placement::Optimal, Placement::Endpoint] {
+    for placement in [
+        Placement::Optimal,
+        Placement::Endpoint,
+        Placement::TwoLocalMappings,
+    ] {
         for target in [200u64, 60, 24] {
             let mut found = [0usize; 2];
             for (k, check) in [false, true].into_iter().enumerate() {
