@@ -6,6 +6,7 @@ pub mod cluster;
 pub mod prep;
 pub mod qem;
 pub mod quadric;
+pub mod strips;
 pub mod target;
 #[cfg(test)]
 mod test_meshes;
