@@ -99,6 +99,47 @@ pub fn dtfs_into(strip: &[u32], join: Join, out: &mut Vec<u32>) {
     *out = b.out;
 }
 
+/// DTFS with a look-ahead: the next triangle is the first of the next `window` surviving
+/// ones that continues the output (regular, then swap), else the next one starts a new
+/// strip. Window 1 is [`dtfs_into`].
+pub fn dtfs_window_into(
+    strip: &[u32],
+    join: Join,
+    window: usize,
+    scratch: &mut Vec<[u32; 3]>,
+    out: &mut Vec<u32>,
+) {
+    scratch.clear();
+    super::stripify::each_triangle(strip, |t| scratch.push(t));
+    let mut b = Builder {
+        out: std::mem::take(out),
+        join,
+        tail: None,
+    };
+    b.out.clear();
+    let window = window.max(1);
+    let mut i = 0;
+    while i < scratch.len() {
+        let end = (i + window).min(scratch.len());
+        let pick = b.tail.and_then(|([x, y], parity)| {
+            let w = &scratch[i..end];
+            w.iter()
+                .position(|&t| follows(t, x, y, parity).is_some())
+                .or_else(|| {
+                    w.iter()
+                        .position(|&t| follows(t, y, x, parity ^ 1).is_some())
+                })
+        });
+        // Keep the order of the others: move the pick to the front of the window.
+        if let Some(k) = pick {
+            scratch[i..=i + k].rotate_right(1);
+        }
+        b.push(scratch[i]);
+        i += 1;
+    }
+    *out = b.out;
+}
+
 /// [`dtfs_into`] into a new vector.
 pub fn dtfs(strip: &[u32], join: Join) -> Vec<u32> {
     let mut out = Builder::new(join, strip.len()).out;

@@ -10,6 +10,7 @@
 
 pub mod filter;
 pub mod format;
+pub mod measure;
 pub mod progressive;
 pub mod stripify;
 

@@ -60,7 +60,9 @@ pub enum Encoding {
 pub struct ProgressiveParams {
     /// The base mesh's share of the triangles, in (0, 1); default 0.05 (as the paper).
     pub base_ratio: f64,
-    /// How the original mesh is stripified.
+    /// How the original mesh is stripified: by default the global order (window 0, the
+    /// longest strips whatever the file's order; the paper used STRIPE, a global greedy
+    /// too) with restarts.
     pub strip: StripParams,
     /// The engine's error bound, in model units (none by default).
     pub max_error: Option<f64>,
@@ -70,7 +72,10 @@ impl Default for ProgressiveParams {
     fn default() -> ProgressiveParams {
         ProgressiveParams {
             base_ratio: 0.05,
-            strip: StripParams::default(),
+            strip: StripParams {
+                window: 0,
+                ..StripParams::default()
+            },
             max_error: None,
         }
     }
