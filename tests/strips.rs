@@ -179,3 +179,93 @@ fn dtfs_window_experiment() {
         println!("{row}");
     }
 }
+
+#[test]
+fn the_cli_builds_and_decodes_and_refuses_bad_input() {
+    let Some(cow) = common::data_file("meshes/cow.obj") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cow = cow.to_str().unwrap();
+    let r = common::terratile(d, &["strips", cow, "cow.tps"]);
+    assert_eq!(r.code, 0, "{r:?}");
+    for (level, want) in [("0", None), ("full", Some(5804)), ("100", None)] {
+        let r = common::terratile(
+            d,
+            &["strips", "decode", "cow.tps", "--level", level, "l.ply"],
+        );
+        assert_eq!(r.code, 0, "{r:?}");
+        let m = io::read(&d.join("l.ply")).unwrap();
+        if let Some(t) = want {
+            assert_eq!(m.triangle_count(), t);
+        }
+    }
+    let r = common::terratile(
+        d,
+        &["strips", "decode", "cow.tps", "--level", "999999", "x.obj"],
+    );
+    assert_eq!(r.code, 2, "{r:?}");
+    assert!(
+        r.stderr.contains("--level: `999999` is not a level"),
+        "{}",
+        r.stderr
+    );
+    assert!(!d.join("x.obj").exists());
+    for bad in ["0", "1", "-0.1", "2"] {
+        let arg = format!("--base-ratio={bad}");
+        let r = common::terratile(d, &["strips", cow, "b.tps", &arg]);
+        assert_eq!(r.code, 2, "{r:?}");
+        assert!(r.stderr.contains("--base-ratio"), "{}", r.stderr);
+    }
+    let bytes = std::fs::read(d.join("cow.tps")).unwrap();
+    std::fs::write(d.join("t.tps"), &bytes[..1000]).unwrap();
+    let r = common::terratile(d, &["strips", "decode", "t.tps", "--level", "0", "y.obj"]);
+    assert_eq!(r.code, 2, "{r:?}");
+    assert!(
+        r.stderr.contains("t.tps: byte 28: truncated"),
+        "{}",
+        r.stderr
+    );
+    assert!(!d.join("y.obj").exists());
+}
+
+/// The paper's experiments (cow, bunny, dragon_10k, igea; base mesh at 5 %):
+/// `cargo test --release --test strips paper_table -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn paper_table() {
+    println!("mesh | splits | slots/split naive | E-PS | cut | records naive B | E-PS B | cut | DTFS vs list | DTFS vs STSS | DTFS idx/tri mean | max");
+    for name in ["cow.obj", "bunny.obj", "dragon_10k.obj", "igea.ply"] {
+        let Some(m) = load(name) else { return };
+        let p = progressive(&m, &ProgressiveParams::default()).unwrap();
+        let (n, e) = p.mean_updates();
+        let (bn, be) = p.paper_record_bytes();
+        let rows = gpu_indices(&p, &even_levels(&p, 101), Join::Restart);
+        let s = |f: fn(&terratile::simplify::strips::measure::LevelIndices) -> usize| {
+            rows.iter().map(f).sum::<usize>() as f64
+        };
+        let per: Vec<f64> = rows
+            .iter()
+            .map(|r| r.dtfs as f64 / r.triangles as f64)
+            .collect();
+        println!(
+            "{name} | {} | {n:.2} | {e:.2} | {:.1} % | {bn} | {be} | {:.1} % | {:.1} % | {:.1} % | {:.2} | {:.2}",
+            p.splits.len(),
+            100.0 * (1.0 - e / n),
+            100.0 * (1.0 - be as f64 / bn as f64),
+            100.0 * (1.0 - s(|r| r.dtfs) / s(|r| r.list)),
+            100.0 * (1.0 - s(|r| r.dtfs) / s(|r| r.stss)),
+            per.iter().sum::<f64>() / per.len() as f64,
+            per.iter().cloned().fold(0.0, f64::max),
+        );
+        if name == "bunny.obj" {
+            for r in &rows {
+                println!(
+                    "  {} {} {} {} {} {}",
+                    r.level, r.triangles, r.unfiltered, r.stss, r.dtfs, r.list
+                );
+            }
+        }
+    }
+}

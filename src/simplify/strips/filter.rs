@@ -1,7 +1,7 @@
 //! Filters that turn a simplified strip (full of degenerate triangles after collapses)
 //! into a strip worth sending to the GPU.
 //!
-//! - DTFS, degenerate-triangle-free scanning (Kim, Lee et al.'s progressive strips): scan
+//! - DTFS, degenerate-triangle-free scanning (the progressive-strips paper's filter): scan
 //!   the consecutive triples, keep only those with three distinct vertices, and rebuild
 //!   strips from them: a triangle that continues the output through its last edge adds one
 //!   vertex (the regular case {a, b, c, f}), one that continues through the other edge of

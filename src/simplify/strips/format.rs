@@ -406,3 +406,84 @@ fn resolve(slots: &[u32]) -> std::result::Result<Vec<u32>, usize> {
     }
     Ok(out)
 }
+
+/// What `terratile strips` did.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct BuildReport {
+    /// Triangles of the full mesh.
+    pub triangles: usize,
+    /// Vertices of the base mesh and of the full mesh.
+    pub base_vertices: u32,
+    /// All vertices.
+    pub vertices: usize,
+    /// Splits in the stream.
+    pub splits: usize,
+    /// Length of the base strip.
+    pub strip_len: usize,
+    /// Mean strip slots restored per split, Naive-PS and E-PS.
+    pub mean_updates: (f64, f64),
+    /// Bytes written.
+    pub bytes: usize,
+}
+
+impl std::fmt::Display for BuildReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "triangles {}, vertices {} (base {}), splits {}, strip {} indices",
+            self.triangles, self.vertices, self.base_vertices, self.splits, self.strip_len
+        )?;
+        writeln!(
+            f,
+            "slots per split: naive {:.2}, encoded {:.2}; {} bytes",
+            self.mean_updates.0, self.mean_updates.1, self.bytes
+        )
+    }
+}
+
+/// Reads the mesh at `input`, builds its progressive strips and writes the stream to
+/// `output` (atomically).
+pub fn build_file(
+    input: &Path,
+    output: &Path,
+    params: &super::ProgressiveParams,
+    encoding: Encoding,
+) -> Result<BuildReport> {
+    let mesh = crate::mesh::io::read(input)?;
+    let p = super::progressive(&mesh, params)?;
+    let bytes = encode(&p, encoding);
+    crate::fsutil::write_bytes_atomic(output, &bytes)?;
+    Ok(BuildReport {
+        triangles: p.triangles,
+        base_vertices: p.base_vertices,
+        vertices: p.vertices.vertex_count(),
+        splits: p.splits.len(),
+        strip_len: p.base.len(),
+        mean_updates: p.mean_updates(),
+        bytes: bytes.len(),
+    })
+}
+
+/// A level of a stream: a number of splits, or all of them.
+pub fn parse_level(text: &str, splits: usize) -> Result<usize> {
+    if text == "full" {
+        return Ok(splits);
+    }
+    match text.parse::<usize>() {
+        Ok(l) if l <= splits => Ok(l),
+        _ => Err(Error::Usage(format!(
+            "--level: `{text}` is not a level of this stream (0 to {splits}, or full)"
+        ))),
+    }
+}
+
+/// Decodes the stream at `input` to `level` (see [`parse_level`]) and writes that mesh to
+/// `output` (OBJ or PLY by its extension); returns (level, triangles).
+pub fn decode_file(input: &Path, level: &str, output: &Path) -> Result<(usize, usize)> {
+    let bytes = std::fs::read(input).map_err(|e| Error::io(input, e))?;
+    let (p, encoding) = decode(&bytes, input)?;
+    let l = parse_level(level, p.splits.len())?;
+    let m = p.mesh_at(l, encoding);
+    crate::mesh::io::write(&m, output)?;
+    Ok((l, m.triangle_count()))
+}

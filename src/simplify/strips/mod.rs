@@ -1,4 +1,4 @@
-//! Progressive triangle strips (Kim, Lee et al.): a mesh as a strip of its base mesh plus
+//! Progressive triangle strips (after a Korean paper on "progressive strips", undated): a mesh as a strip of its base mesh plus
 //! vertex splits that restore the original strip in place, so that every intermediate
 //! level can be drawn as a strip without stripifying again.
 //!

@@ -3,7 +3,7 @@
 //!
 //! A collapse of p into q rewrites p in the strip as q: the triangles on the edge become
 //! degenerate and draw nothing (implicit removal). Its inverse, the vertex split, restores
-//! p at the offsets it was rewritten at. Two forms of the record (Kim, Lee et al.):
+//! p at the offsets it was rewritten at. Two forms of the record (the progressive-strips paper):
 //!
 //! - Naive-PS: the offsets of every slot that holds p, including the slots of vertices
 //!   collapsed into p before. These pile up as the strip coarsens.
