@@ -108,6 +108,9 @@ enum Command {
     /// Simplify a mesh (OBJ or PLY) by vertex clustering; prints triangles in/out, the time
     /// and the Hausdorff error against the input.
     Simplify(SimplifyArgs),
+    /// Progressive triangle strips: `strips IN OUT.tps` builds a stream (base mesh plus
+    /// vertex splits); `strips decode IN.tps --level L OUT` writes the mesh of a level.
+    Strips(StripsArgs),
     /// Measure the Metro-style Hausdorff error between two meshes (OBJ or PLY): both
     /// one-sided errors and the symmetric one, max and mean, absolute and in % of the
     /// original's bounding-box diagonal.
@@ -155,6 +158,45 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+}
+
+#[derive(Args, Debug)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+struct StripsArgs {
+    #[command(subcommand)]
+    decode: Option<StripsCommand>,
+    /// The mesh (OBJ, PLY or glb).
+    #[arg(required = true)]
+    input: Option<PathBuf>,
+    /// The stream to write (.tps).
+    #[arg(required = true)]
+    output: Option<PathBuf>,
+    /// The base mesh's share of the triangles, in (0, 1).
+    #[arg(long, default_value_t = 0.05)]
+    base_ratio: f64,
+    /// The form of the split records.
+    #[arg(long, value_enum, default_value = "encoded")]
+    encoding: EncodingArg,
+}
+
+#[derive(clap::Subcommand, Debug)]
+enum StripsCommand {
+    /// Write the mesh of one level of a stream (OBJ or PLY by the extension).
+    Decode {
+        /// The stream (.tps).
+        input: PathBuf,
+        /// Splits to apply: 0 for the base mesh, `full` for all.
+        #[arg(long)]
+        level: String,
+        /// The mesh to write.
+        output: PathBuf,
+    },
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+enum EncodingArg {
+    Naive,
+    Encoded,
 }
 
 #[derive(Args, Debug)]
@@ -671,6 +713,7 @@ fn run(cli: Cli) -> Result<()> {
             outln!("{}", mb.map_or("none".into(), |m| m.to_string()));
         }
         Command::Simplify(a) => simplify(a)?,
+        Command::Strips(a) => strips(a)?,
         Command::Compare {
             original,
             simplified,
@@ -808,6 +851,42 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
     } else {
         out!("{r}");
     }
+    Ok(())
+}
+
+fn strips(a: StripsArgs) -> Result<()> {
+    use terratile::simplify::strips::{format, Encoding, ProgressiveParams};
+    if let Some(StripsCommand::Decode {
+        input,
+        level,
+        output,
+    }) = a.decode
+    {
+        terratile::remove_stale_temps(&output);
+        let (l, t) = format::decode_file(&input, &level, &output)?;
+        outln!("level {l}: {t} triangles");
+        return Ok(());
+    }
+    let (Some(input), Some(output)) = (a.input, a.output) else {
+        return Err(Error::Usage("strips: IN and OUT.tps are needed".into()));
+    };
+    if !(a.base_ratio > 0.0 && a.base_ratio < 1.0) {
+        return Err(Error::Usage(format!(
+            "--base-ratio: {} is not in (0, 1)",
+            a.base_ratio
+        )));
+    }
+    let params = ProgressiveParams {
+        base_ratio: a.base_ratio,
+        ..ProgressiveParams::default()
+    };
+    let encoding = match a.encoding {
+        EncodingArg::Naive => Encoding::Naive,
+        EncodingArg::Encoded => Encoding::Encoded,
+    };
+    terratile::remove_stale_temps(&output);
+    let r = format::build_file(&input, &output, &params, encoding)?;
+    out!("{r}");
     Ok(())
 }
 

@@ -21,6 +21,7 @@ mod quadtree;
 mod read;
 mod read_fuzz;
 mod simplify;
+mod strips;
 mod terrain_props;
 mod terrain_real;
 

@@ -7,6 +7,7 @@ pub mod prep;
 pub mod qem;
 pub mod quadric;
 pub mod saliency;
+pub mod strips;
 pub mod target;
 #[cfg(test)]
 mod test_meshes;

@@ -57,6 +57,18 @@ impl Default for Checks {
     }
 }
 
+/// One collapse, as input vertices: enough to replay the sequence on another
+/// representation of the mesh (progressive strips).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CollapseStep {
+    /// The input vertex standing for the survivor (its welded representative).
+    pub kept: u32,
+    /// The input vertex standing for the vertex removed.
+    pub removed: u32,
+    /// Where the survivor is placed.
+    pub position: DVec3,
+}
+
 /// A candidate's heap key: ordered by cost (non-negative f64 bits order as the numbers),
 /// then by its vertices a < b.
 #[inline]
@@ -125,6 +137,10 @@ pub struct Collapse<'m> {
     area_eps: f64,
     /// The sequence of collapses (survivor, removed), kept for the twin test.
     pub log: Vec<(u32, u32)>,
+    /// Whether `steps` is filled (off by default: most runs need no replay).
+    pub record: bool,
+    /// With `record`: every collapse in order, as input vertices.
+    pub steps: Vec<CollapseStep>,
     /// The exact intersection check's boxes, when `params.check_intersections`.
     guard: Option<super::guard::Guard>,
     /// The input's closest-point hierarchy, for the fold-over half of that check.
@@ -290,6 +306,8 @@ impl<'m> Collapse<'m> {
             non_manifold,
             area_eps: ZERO_AREA * diag * diag,
             log: Vec::new(),
+            record: false,
+            steps: Vec::new(),
             guard: None,
             orig_bvh: None,
         };
@@ -775,6 +793,13 @@ impl<'m> Collapse<'m> {
         self.collapses += 1;
         self.max_error = self.max_error.max(error(&c.q, c.p));
         self.log.push((s, g));
+        if self.record {
+            self.steps.push(CollapseStep {
+                kept: self.source[us],
+                removed: self.source[ug],
+                position: c.p,
+            });
+        }
         self.refit(s);
     }
 

@@ -39,7 +39,7 @@ mod guard;
 mod heap;
 pub mod tlm;
 
-pub use engine::{simplify_slow, Checks, Collapse};
+pub use engine::{simplify_slow, Checks, Collapse, CollapseStep};
 
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
@@ -168,6 +168,20 @@ pub fn simplify(mesh: &TriMesh, params: &QemParams) -> Result<QemResult> {
     let mut c = Collapse::new(&prep, params);
     c.run_fast(params.triangles as usize);
     Ok(c.finish())
+}
+
+/// [`simplify`] that also returns the collapse sequence (for replaying it on strips).
+pub fn simplify_logged(
+    mesh: &TriMesh,
+    params: &QemParams,
+) -> Result<(QemResult, Vec<CollapseStep>)> {
+    check(mesh, params)?;
+    let prep = Prepared::new(mesh);
+    let mut c = Collapse::new(&prep, params);
+    c.record = true;
+    c.run_fast(params.triangles as usize);
+    let steps = std::mem::take(&mut c.steps);
+    Ok((c.finish(), steps))
 }
 
 /// The checks shared by the fast path and the twin.

@@ -1,0 +1,557 @@
+//! Progressive strips: a base strip and the vertex splits that refine it, replayed from the
+//! quadric engine's collapse sequence.
+//!
+//! A collapse of p into q rewrites p in the strip as q: the triangles on the edge become
+//! degenerate and draw nothing (implicit removal). Its inverse, the vertex split, restores
+//! p at the offsets it was rewritten at. Two forms of the record (the progressive-strips paper):
+//!
+//! - Naive-PS: the offsets of every slot that holds p, including the slots of vertices
+//!   collapsed into p before. These pile up as the strip coarsens.
+//! - E-PS: a slot of p whose neighbour at distance 1 or 2 already shows q is written as
+//!   a reference to it (R−2, R−1, R+1, R+2) rather than as q; a slot that is a reference
+//!   follows its target, so a later collapse of q rewrites only the slots that name q
+//!   directly, and its split restores only those. References point at slots that showed
+//!   q before the collapse, so they never form cycles.
+//!
+//! The collapses are half-edge collapses (the engine with endpoint placement): a split
+//! restores one vertex and moves no other, as the record holds one position. The stream
+//! numbers vertices as it sends them: the base mesh's first, then one per split.
+
+use super::stripify::{self, StripParams, RESTART};
+use crate::error::{Error, Result};
+use crate::mesh::TriMesh;
+use crate::simplify::qem::{self, QemParams};
+use glam::{Vec2, Vec3};
+use rustc_hash::FxHashMap;
+
+/// A strip slot that refers to the slot at offset k ∈ {−2, −1, 1, 2} from it:
+/// `REF_BASE + (k + 2)`. Vertex ids stay below it.
+pub const REF_BASE: u32 = 0xFFFF_FFF0;
+
+/// The slot value of a reference to the slot `k` away.
+#[inline]
+pub const fn ref_slot(k: i32) -> u32 {
+    REF_BASE + (k + 2) as u32
+}
+
+/// The offset a slot value refers by, if it is a reference.
+#[inline]
+pub const fn ref_offset(v: u32) -> Option<i32> {
+    if v >= REF_BASE && v <= REF_BASE + 4 && v != REF_BASE + 2 {
+        Some((v - REF_BASE) as i32 - 2)
+    } else {
+        None
+    }
+}
+
+/// Which form of the vertex-split records a stream carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Encoding {
+    /// Naive-PS: every offset restored is listed.
+    Naive,
+    /// E-PS: only the slots that name the vertex directly.
+    #[default]
+    Encoded,
+}
+
+/// How to build progressive strips.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProgressiveParams {
+    /// The base mesh's share of the triangles, in (0, 1); default 0.05 (as the paper).
+    pub base_ratio: f64,
+    /// How the original mesh is stripified: by default the global order (window 0, the
+    /// longest strips whatever the file's order; the paper used STRIPE, a global greedy
+    /// too) with restarts.
+    pub strip: StripParams,
+    /// The engine's error bound, in model units (none by default).
+    pub max_error: Option<f64>,
+}
+
+impl Default for ProgressiveParams {
+    fn default() -> ProgressiveParams {
+        ProgressiveParams {
+            base_ratio: 0.05,
+            strip: StripParams {
+                window: 0,
+                ..StripParams::default()
+            },
+            max_error: None,
+        }
+    }
+}
+
+/// One vertex split: vertex `base_vertices + i` (for split i) comes back.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Split {
+    /// The vertex it was collapsed into (present at the coarser level).
+    pub kept: u32,
+    /// Naive-PS: the offsets of every slot that shows `kept` at the coarser level and the
+    /// restored vertex at the finer one, ascending.
+    pub naive: Vec<u32>,
+    /// E-PS: the offsets that name the restored vertex directly at the finer level, with
+    /// what they hold at the coarser one (`kept` or a reference), ascending.
+    pub encoded: Vec<(u32, u32)>,
+}
+
+/// A mesh as progressive strips.
+#[derive(Debug, Clone)]
+pub struct Progressive {
+    /// Every vertex in stream order (the base mesh's, then one per split), with the
+    /// input's attributes; no triangles.
+    pub vertices: TriMesh,
+    /// Vertices of the base mesh.
+    pub base_vertices: u32,
+    /// The base strip as drawn (vertex ids and restarts): the Naive-PS state.
+    pub base: Vec<u32>,
+    /// The base strip with E-PS references.
+    pub base_slots: Vec<u32>,
+    /// The splits, coarse to fine.
+    pub splits: Vec<Split>,
+    /// Triangles of the full mesh (with three distinct vertices).
+    pub triangles: usize,
+}
+
+/// The input with exact duplicate vertices (same position and attributes) merged, unused
+/// vertices dropped, and triangles with a repeated position left out (they draw nothing).
+fn canonical_mesh(mesh: &TriMesh) -> TriMesh {
+    let bits = |x: f32| (x + 0.0).to_bits();
+    let mut first: FxHashMap<Vec<u32>, u32> = FxHashMap::default();
+    let mut id = vec![u32::MAX; mesh.vertex_count()];
+    let mut out = TriMesh {
+        normals: mesh.normals.as_ref().map(|_| Vec::new()),
+        colors: mesh.colors.as_ref().map(|_| Vec::new()),
+        uvs: mesh.uvs.as_ref().map(|_| Vec::new()),
+        ..TriMesh::default()
+    };
+    let mut key = Vec::with_capacity(12);
+    for t in &mesh.indices {
+        let p = t.map(|v| mesh.positions[v as usize]);
+        if p[0] == p[1] || p[1] == p[2] || p[0] == p[2] {
+            continue;
+        }
+        let mut tri = [0u32; 3];
+        for (k, &v) in t.iter().enumerate() {
+            let v = v as usize;
+            if id[v] == u32::MAX {
+                key.clear();
+                key.extend(mesh.positions[v].to_array().map(bits));
+                if let Some(n) = &mesh.normals {
+                    key.extend(n[v].to_array().map(bits));
+                }
+                if let Some(c) = &mesh.colors {
+                    key.extend(c[v].map(bits));
+                }
+                if let Some(u) = &mesh.uvs {
+                    key.extend(u[v].to_array().map(bits));
+                }
+                let next = out.positions.len() as u32;
+                let c = *first.entry(key.clone()).or_insert(next);
+                if c == next {
+                    out.positions.push(mesh.positions[v]);
+                    push_attributes(&mut out, mesh, v);
+                }
+                id[v] = c;
+            }
+            tri[k] = id[v];
+        }
+        if tri[0] != tri[1] && tri[1] != tri[2] && tri[0] != tri[2] {
+            out.indices.push(tri);
+        }
+    }
+    out
+}
+
+fn push_attributes(out: &mut TriMesh, mesh: &TriMesh, v: usize) {
+    if let (Some(o), Some(a)) = (&mut out.normals, &mesh.normals) {
+        o.push(a[v]);
+    }
+    if let (Some(o), Some(a)) = (&mut out.colors, &mesh.colors) {
+        o.push(a[v]);
+    }
+    if let (Some(o), Some(a)) = (&mut out.uvs, &mesh.uvs) {
+        o.push(a[v]);
+    }
+}
+
+/// The strip state while collapses are replayed.
+struct Replay {
+    /// As drawn.
+    resolved: Vec<u32>,
+    /// With E-PS references.
+    slots: Vec<u32>,
+    /// Per vertex: the offsets that show it (Naive-PS) and that name it (E-PS).
+    shows: Vec<Vec<u32>>,
+    names: Vec<Vec<u32>>,
+}
+
+impl Replay {
+    fn new(strip: Vec<u32>, vertices: usize) -> Replay {
+        let mut shows = vec![Vec::new(); vertices];
+        for (o, &v) in strip.iter().enumerate() {
+            if v != RESTART {
+                shows[v as usize].push(o as u32);
+            }
+        }
+        Replay {
+            slots: strip.clone(),
+            resolved: strip,
+            names: shows.clone(),
+            shows,
+        }
+    }
+
+    /// Collapses `p` into `q`; returns the split that undoes it.
+    fn collapse(&mut self, p: u32, q: u32) -> Split {
+        let len = self.resolved.len() as i64;
+        // E-PS first, against the strip before the collapse: a slot of p refers to a
+        // neighbour that shows q already (never to another slot of p).
+        let names = std::mem::take(&mut self.names[p as usize]);
+        let mut encoded = Vec::with_capacity(names.len());
+        for &o in &names {
+            let near = [-1i32, 1, -2, 2].into_iter().find(|&k| {
+                let j = o as i64 + k as i64;
+                (0..len).contains(&j) && self.resolved[j as usize] == q
+            });
+            let v = match near {
+                Some(k) => ref_slot(k),
+                None => {
+                    self.names[q as usize].push(o);
+                    q
+                }
+            };
+            self.slots[o as usize] = v;
+            encoded.push((o, v));
+        }
+        let mut naive = std::mem::take(&mut self.shows[p as usize]);
+        for &o in &naive {
+            self.resolved[o as usize] = q;
+        }
+        self.shows[q as usize].extend_from_slice(&naive);
+        naive.sort_unstable();
+        encoded.sort_unstable();
+        Split {
+            kept: q,
+            naive,
+            encoded,
+        }
+    }
+}
+
+/// Builds the progressive strips of `mesh`: stripify, simplify to the base mesh with the
+/// quadric engine (endpoint placement), replay the collapses on the strip.
+pub fn progressive(mesh: &TriMesh, params: &ProgressiveParams) -> Result<Progressive> {
+    mesh.validate("the input mesh")?;
+    let r = params.base_ratio;
+    if !(r > 0.0 && r < 1.0) {
+        return Err(Error::param(
+            "strips",
+            "base_ratio",
+            r,
+            "must be a number in (0, 1)",
+        ));
+    }
+    let canon = canonical_mesh(mesh);
+    if canon.vertex_count() >= REF_BASE as usize {
+        return Err(Error::Data {
+            stage: "strips",
+            message: format!("{} vertices are too many for a strip", canon.vertex_count()),
+        });
+    }
+    if canon.indices.is_empty() {
+        return Err(Error::Data {
+            stage: "strips",
+            message: "the mesh has no triangles with three distinct corners".into(),
+        });
+    }
+    let strip = stripify::stripify(&canon.indices, &params.strip);
+    let (_, steps) = qem::simplify_logged(&canon, &qem_params(&canon, params))?;
+    let n = canon.vertex_count();
+    // The strip id standing for each engine vertex: the engine's survivor keeps its id
+    // but, with endpoint placement, may take the other endpoint's position; then that
+    // endpoint is the one kept.
+    let mut alias: Vec<u32> = (0..n as u32).collect();
+    let mut removed = vec![false; n];
+    let mut pairs = Vec::with_capacity(steps.len());
+    for s in &steps {
+        let (a, b) = (alias[s.kept as usize], alias[s.removed as usize]);
+        let at = s.position.as_vec3();
+        let (q, p) = if at == canon.positions[b as usize] && at != canon.positions[a as usize] {
+            (b, a)
+        } else {
+            (a, b)
+        };
+        alias[s.kept as usize] = q;
+        removed[p as usize] = true;
+        pairs.push((p, q));
+    }
+    // Stream ids: base vertices ascending, then the removed ones, last collapse first.
+    let mut stream = vec![u32::MAX; n];
+    let mut next = 0u32;
+    for v in 0..n {
+        if !removed[v] {
+            stream[v] = next;
+            next += 1;
+        }
+    }
+    let base_vertices = next;
+    for &(p, _) in pairs.iter().rev() {
+        stream[p as usize] = next;
+        next += 1;
+    }
+    let mut vertices = TriMesh {
+        positions: vec![Vec3::ZERO; n],
+        normals: canon.normals.as_ref().map(|_| vec![Vec3::ZERO; n]),
+        colors: canon.colors.as_ref().map(|_| vec![[0.0; 4]; n]),
+        uvs: canon.uvs.as_ref().map(|_| vec![Vec2::ZERO; n]),
+        indices: Vec::new(),
+    };
+    for v in 0..n {
+        let s = stream[v] as usize;
+        vertices.positions[s] = canon.positions[v];
+        if let (Some(o), Some(a)) = (&mut vertices.normals, &canon.normals) {
+            o[s] = a[v];
+        }
+        if let (Some(o), Some(a)) = (&mut vertices.colors, &canon.colors) {
+            o[s] = a[v];
+        }
+        if let (Some(o), Some(a)) = (&mut vertices.uvs, &canon.uvs) {
+            o[s] = a[v];
+        }
+    }
+    let full: Vec<u32> = strip
+        .iter()
+        .map(|&v| if v == RESTART { v } else { stream[v as usize] })
+        .collect();
+    let kept: Vec<Split> = pairs
+        .iter()
+        .rev()
+        .map(|&(_, q)| Split {
+            kept: stream[q as usize],
+            ..Split::default()
+        })
+        .collect();
+    Ok(Progressive::from_full(
+        vertices,
+        base_vertices,
+        full,
+        &kept,
+        canon.triangle_count(),
+    ))
+}
+
+/// The engine's parameters for `params` on the canonical mesh.
+fn qem_params(canon: &TriMesh, params: &ProgressiveParams) -> QemParams {
+    let t = canon.triangle_count() as f64 * params.base_ratio;
+    QemParams {
+        triangles: (t.ceil() as u64).max(1),
+        max_error: params.max_error,
+        placement: qem::Placement::Endpoint,
+        merge: Default::default(),
+        lock_border: false,
+        cost: Default::default(),
+        check_intersections: false,
+        weights: None,
+    }
+}
+
+/// The mesh the progressive strips are built on (duplicates merged) and the engine's
+/// parameters: for tests that compare a level with the engine's own result.
+pub fn engine_input(mesh: &TriMesh, params: &ProgressiveParams) -> (TriMesh, QemParams) {
+    let canon = canonical_mesh(mesh);
+    let q = qem_params(&canon, params);
+    (canon, q)
+}
+
+/// Sets slot `o` of the drawn `strip` to `v`, and every slot that refers to it through
+/// the E-PS `slots`, transitively; returns the number of slots written.
+#[inline]
+pub(crate) fn show(slots: &[u32], strip: &mut [u32], stack: &mut Vec<u32>, o: u32, v: u32) -> u64 {
+    strip[o as usize] = v;
+    let mut n = 1;
+    stack.clear();
+    stack.push(o);
+    let len = slots.len() as i64;
+    while let Some(x) = stack.pop() {
+        for k in [-2i64, -1, 1, 2] {
+            let j = x as i64 - k;
+            if (0..len).contains(&j) && slots[j as usize] == ref_slot(k as i32) {
+                strip[j as usize] = v;
+                n += 1;
+                stack.push(j as u32);
+            }
+        }
+    }
+    n
+}
+
+/// Applies splits to the base strip, in place, in either direction.
+#[derive(Debug, Clone)]
+pub struct Decoder<'p> {
+    p: &'p Progressive,
+    encoding: Encoding,
+    level: usize,
+    strip: Vec<u32>,
+    slots: Vec<u32>,
+    stack: Vec<u32>,
+    /// Strip indices written so far (the drawn strip's, not the references').
+    pub updates: u64,
+}
+
+impl<'p> Decoder<'p> {
+    /// At the base level.
+    pub fn new(p: &'p Progressive, encoding: Encoding) -> Decoder<'p> {
+        Decoder {
+            p,
+            encoding,
+            level: 0,
+            strip: p.base.clone(),
+            slots: match encoding {
+                Encoding::Naive => Vec::new(),
+                Encoding::Encoded => p.base_slots.clone(),
+            },
+            stack: Vec::new(),
+            updates: 0,
+        }
+    }
+
+    /// Splits applied.
+    pub fn level(&self) -> usize {
+        self.level
+    }
+
+    /// The strip at this level, as drawn.
+    pub fn strip(&self) -> &[u32] {
+        &self.strip
+    }
+
+    /// Vertices present at this level (the first ones of [`Progressive::vertices`]).
+    pub fn vertex_count(&self) -> usize {
+        self.p.base_vertices as usize + self.level
+    }
+
+    #[inline]
+    fn show(&mut self, o: u32, v: u32) {
+        self.updates += show(&self.slots, &mut self.strip, &mut self.stack, o, v);
+    }
+
+    /// Applies the next split; false at the full level.
+    pub fn refine(&mut self) -> bool {
+        let p = self.p;
+        let Some(s) = p.splits.get(self.level) else {
+            return false;
+        };
+        let v = p.base_vertices + self.level as u32;
+        match self.encoding {
+            Encoding::Naive => {
+                for &o in &s.naive {
+                    self.strip[o as usize] = v;
+                }
+                self.updates += s.naive.len() as u64;
+            }
+            Encoding::Encoded => {
+                for &(o, _) in &s.encoded {
+                    self.slots[o as usize] = v;
+                    self.show(o, v);
+                }
+            }
+        }
+        self.level += 1;
+        true
+    }
+
+    /// Undoes the last split; false at the base level.
+    pub fn coarsen(&mut self) -> bool {
+        if self.level == 0 {
+            return false;
+        }
+        self.level -= 1;
+        let p = self.p;
+        let s = &p.splits[self.level];
+        match self.encoding {
+            Encoding::Naive => {
+                for &o in &s.naive {
+                    self.strip[o as usize] = s.kept;
+                }
+                self.updates += s.naive.len() as u64;
+            }
+            Encoding::Encoded => {
+                for &(o, was) in &s.encoded {
+                    self.slots[o as usize] = was;
+                    self.show(o, s.kept);
+                }
+            }
+        }
+        true
+    }
+
+    /// Goes to `level` splits (clamped to the full level).
+    pub fn set_level(&mut self, level: usize) {
+        let level = level.min(self.p.splits.len());
+        while self.level < level {
+            self.refine();
+        }
+        while self.level > level {
+            self.coarsen();
+        }
+    }
+}
+
+impl Progressive {
+    /// Progressive strips from the full strip (stream ids) and the kept vertex of each
+    /// split (`splits[i].kept`, for vertex `base_vertices + i`): the collapses are
+    /// replayed from the last split to the first.
+    pub fn from_full(
+        vertices: TriMesh,
+        base_vertices: u32,
+        full: Vec<u32>,
+        splits: &[Split],
+        triangles: usize,
+    ) -> Progressive {
+        let mut replay = Replay::new(full, vertices.vertex_count());
+        let mut out: Vec<Split> = (0..splits.len())
+            .rev()
+            .map(|i| replay.collapse(base_vertices + i as u32, splits[i].kept))
+            .collect();
+        out.reverse();
+        Progressive {
+            vertices,
+            base_vertices,
+            base: replay.resolved,
+            base_slots: replay.slots,
+            splits: out,
+            triangles,
+        }
+    }
+
+    /// The mesh at `level` splits: the vertices present and the triangles drawn.
+    pub fn mesh_at(&self, level: usize, encoding: Encoding) -> TriMesh {
+        let mut d = Decoder::new(self, encoding);
+        d.set_level(level);
+        let n = d.vertex_count();
+        let v = &self.vertices;
+        TriMesh {
+            positions: v.positions[..n].to_vec(),
+            indices: stripify::unstripify(d.strip()),
+            normals: v.normals.as_ref().map(|a| a[..n].to_vec()),
+            colors: v.colors.as_ref().map(|a| a[..n].to_vec()),
+            uvs: v.uvs.as_ref().map(|a| a[..n].to_vec()),
+        }
+    }
+
+    /// Mean strip slots updated per split: (Naive-PS, E-PS).
+    pub fn mean_updates(&self) -> (f64, f64) {
+        let n = self.splits.len().max(1) as f64;
+        let naive: usize = self.splits.iter().map(|s| s.naive.len()).sum();
+        let enc: usize = self.splits.iter().map(|s| s.encoded.len()).sum();
+        (naive as f64 / n, enc as f64 / n)
+    }
+
+    /// The records' size as the paper counts it: a 24-byte position, a 2-byte id and
+    /// 2 bytes per offset: (Naive-PS, E-PS) bytes.
+    pub fn paper_record_bytes(&self) -> (usize, usize) {
+        let naive: usize = self.splits.iter().map(|s| 26 + 2 * s.naive.len()).sum();
+        let enc: usize = self.splits.iter().map(|s| 26 + 2 * s.encoded.len()).sum();
+        (naive, enc)
+    }
+}
