@@ -13,6 +13,7 @@ pub mod config;
 pub mod error;
 pub mod fsutil;
 pub mod generate;
+pub mod geo;
 pub mod memory;
 pub mod mesh;
 pub mod outnames;

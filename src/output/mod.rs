@@ -17,6 +17,7 @@
 //! ```
 
 pub mod exr;
+pub mod geotiff;
 pub mod glb;
 pub mod heightmap;
 pub mod manifest;
@@ -247,6 +248,11 @@ pub fn write_terrain(
                     let rel = format!("heightmaps/{name}.png");
                     put(dir, &rel, &heightmap::png_bytes(&values, set.tile_size)?)?;
                     files.insert("png".to_string(), rel);
+                    for (kind, text) in georeference_files(set, t) {
+                        let rel = format!("heightmaps/{name}.{kind}");
+                        put(dir, &rel, text.as_bytes())?;
+                        files.insert(kind.to_string(), rel);
+                    }
                 }
                 if out.raw {
                     let rel = format!("heightmaps/{name}.raw");
@@ -295,6 +301,13 @@ pub fn write_terrain(
         }
     }
 
+    let dem = if out.geotiff {
+        put(dir, DEM_FILE, &dem_geotiff(set)?)?;
+        Some(DEM_FILE.to_string())
+    } else {
+        None
+    };
+
     let mut previews = Vec::new();
     if out.relief || out.wireframe {
         let base = preview::relief(set, out.preview_size);
@@ -315,6 +328,7 @@ pub fn write_terrain(
     let mut files: Vec<String> = per_tile.iter().flat_map(|m| m.values().cloned()).collect();
     files.extend(landscape.iter().cloned());
     files.extend(previews.iter().cloned());
+    files.extend(dem.iter().cloned());
     if out.manifest {
         let m = build_manifest(
             set,
@@ -335,6 +349,64 @@ pub fn write_terrain(
     report.files = files;
     report.write_s = t1.elapsed().as_secs_f64();
     Ok(report)
+}
+
+/// The Cloud-Optimized GeoTIFF of the whole grid.
+pub const DEM_FILE: &str = "dem.tif";
+
+/// Where the whole grid lies, for the GeoTIFF: the outer north-west corner and the spacing.
+pub fn grid_georef(set: &TileSet) -> geotiff::Georef {
+    geotiff::Georef {
+        west: set.corner[0],
+        north: set.corner[1] + set.samples[1] as f64 * set.cell_size[1],
+        pixel: set.cell_size,
+    }
+}
+
+/// `dem.tif`: the grid's heights (the EXR tiles' f32 values, north row first), NaN at holes.
+pub fn dem_geotiff(set: &TileSet) -> Result<Vec<u8>> {
+    let grid = set.assemble();
+    let values: Vec<f32> = grid.rows().into_iter().rev().flatten().copied().collect();
+    let crs = set
+        .crs
+        .as_ref()
+        .map(geotiff::GeoCrs::of)
+        .unwrap_or_default();
+    geotiff::encode_cog(
+        geotiff::Raster {
+            width: set.samples[0],
+            height: set.samples[1],
+            values: &values,
+        },
+        &grid_georef(set),
+        &crs,
+        geotiff::Values {
+            nan_nodata: set.holes() > 0,
+            offset: set.z_offset,
+        },
+    )
+}
+
+/// The world file (`pgw`) of tile `t`'s PNG heightmap (every pixel, padding included) and,
+/// when the CRS is known, its `.prj` (the CRS as WKT, for ESRI's tools) and `.png.aux.xml`
+/// (the same WKT where GDAL looks for it).
+fn georeference_files(set: &TileSet, t: usize) -> Vec<(&'static str, String)> {
+    let tile = &set.tiles[t];
+    let n = set.tile_size as f64;
+    let west = set.corner[0] + tile.origin[0] as f64 * set.cell_size[0];
+    let north = set.corner[1] + (tile.origin[1] as f64 + n) * set.cell_size[1];
+    let georef = geotiff::Georef {
+        west,
+        north,
+        pixel: set.cell_size,
+    };
+    let mut out = vec![("pgw", geotiff::world_file(&georef))];
+    if let Some(wkt) = set.crs.as_ref().and_then(crate::geo::wkt_of) {
+        // GDAL (and so QGIS) takes a PNG's CRS from its PAM file, not from a .prj.
+        out.push(("png.aux.xml", geotiff::pam_xml(&wkt)));
+        out.push(("prj", wkt));
+    }
+    out
 }
 
 #[allow(clippy::too_many_arguments)]
