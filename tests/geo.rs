@@ -214,3 +214,48 @@ fn geotiff_mtm_with_holes() {
         "EPSG:2949",
     );
 }
+
+/// Our WGS 84 corners of every real survey's bounding box within 1 mm of PROJ's (pyproj,
+/// reference values made once by tests/geo/make_reference.py, committed with their source),
+/// and back to the CRS within 1 mm.
+#[test]
+fn reprojection_matches_pyproj_within_a_millimetre() {
+    use terratile::geo::{crs_from_key, ToWgs84};
+    let r: Value = serde_json::from_slice(
+        &std::fs::read(repo().join("tests/geo/wgs84_reference.json")).unwrap(),
+    )
+    .unwrap();
+    let autzen_wkt = r#"PROJCS["NAD_1983_HARN_Lambert_Conformal_Conic",GEOGCS["GCS_North_American_1983_HARN",DATUM["NAD83_High_Accuracy_Regional_Network",SPHEROID["GRS_1980",6378137,298.257222101,AUTHORITY["EPSG","7019"]],AUTHORITY["EPSG","6152"]],PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433]],PROJECTION["Lambert_Conformal_Conic_2SP"],PARAMETER["standard_parallel_1",43],PARAMETER["standard_parallel_2",45.5],PARAMETER["latitude_of_origin",41.75],PARAMETER["central_meridian",-120.5],PARAMETER["false_easting",1312335.958005249],PARAMETER["false_northing",0],UNIT["foot",0.3048,AUTHORITY["EPSG","9002"]]]"#;
+    let surveys = r["surveys"].as_array().unwrap();
+    assert_eq!(surveys.len(), 5);
+    for s in surveys {
+        let crs = match s["crs"].as_str().unwrap() {
+            "WKT" => terratile::points::Crs {
+                wkt: Some(autzen_wkt.into()),
+                epsg: None,
+                geotiff: None,
+                unit: None,
+                vertical: None,
+            },
+            code => crs_from_key(code).unwrap(),
+        };
+        let t = ToWgs84::new(&crs).unwrap();
+        for c in s["corners"].as_array().unwrap() {
+            let (x, y) = (f(&c["xy"][0]), f(&c["xy"][1]));
+            let (lon, lat) = (f(&c["lonlat"][0]), f(&c["lonlat"][1]));
+            let [ol, ob] = t.forward(x, y).unwrap();
+            // Metres on the ground per degree, generously (1 mm ≈ 9e-9° of latitude).
+            let dn = (ob - lat) * 111_320.0;
+            let de = (ol - lon) * 111_320.0 * lat.to_radians().cos();
+            assert!(
+                dn.hypot(de) < 1e-3,
+                "{}: {x} {y}: {dn} m N, {de} m E",
+                s["name"]
+            );
+            let [bx, by] = t.inverse(ol, ob).unwrap();
+            let unit = crs.metres_per_unit();
+            let back = ((bx - x) * unit).hypot((by - y) * unit);
+            assert!(back < 1e-3, "{}: round trip {back} m", s["name"]);
+        }
+    }
+}

@@ -4,6 +4,8 @@
 #[allow(unused)]
 mod common;
 
+#[path = "regressions/geo.rs"]
+mod geo;
 #[path = "regressions/mesh_input.rs"]
 mod mesh_input;
 #[path = "regressions/messages_outputs.rs"]
