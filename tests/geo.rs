@@ -132,6 +132,18 @@ fn check_survey(file: &str, extra: &str, expected_crs: &str) {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let r: Value = serde_json::from_slice(&o.stdout).unwrap();
     let ctx = format!("{file}: {r:#}");
+    // The manifest's WGS 84 bounds hold the GeoTIFF's extent, reprojected.
+    let b: Vec<f64> = m["geographic"]["wgs84_bounds"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no wgs84_bounds: {}", m["geographic"]))
+        .iter()
+        .map(f)
+        .collect();
+    assert!(
+        b[0] < b[2] && b[1] < b[3] && b[0] >= -180.0 && b[3] <= 90.0,
+        "{b:?}"
+    );
+    assert_eq!(m["geographic"]["footprint"]["type"], "Polygon");
     // The CRS GDAL reads is the input's.
     assert_eq!(r["crs_equals"], true, "{ctx}");
     // Geotransform: the grid's outer north-west corner and its spacing.
@@ -189,6 +201,15 @@ fn check_survey(file: &str, extra: &str, expected_crs: &str) {
 #[test]
 fn geotiff_bc_albers_with_vertical_datum() {
     check_survey("lidar/bcts_3.laz", "", "EPSG:3005+5713");
+    let Some(input) = data_file("lidar/bcts_3.laz") else {
+        return;
+    };
+    let d = tempfile::tempdir().unwrap();
+    let out = run_geo(d.path(), &input, "");
+    let m: Value =
+        serde_json::from_slice(&std::fs::read(out.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["geographic"]["vertical_datum"]["epsg"], 5713);
+    assert_eq!(m["geographic"]["vertical_datum"]["name"], "CGVD28");
 }
 
 /// Oregon Lambert in international feet: an ESRI-style WKT without EPSG code.

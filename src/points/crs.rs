@@ -28,7 +28,7 @@ pub struct Crs {
 
 /// The vertical CRS of the heights as GeoTIFF keys (VerticalCSType, VerticalCitation,
 /// VerticalUnits) or a WKT `VERT_CS` state it.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
 pub struct VerticalCrs {
     /// EPSG code of the vertical CRS (5713: CGVD28 height).
     pub epsg: Option<u32>,
