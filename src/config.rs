@@ -64,6 +64,9 @@ pub struct InputConfig {
     /// Read at most this many points in all (the first ones, in file order).
     #[serde(default)]
     pub max_points: Option<u64>,
+    /// The CRS of the input, `"EPSG:n"`, for files that state none (theirs wins otherwise).
+    #[serde(default)]
+    pub crs: Option<String>,
 }
 
 /// Input format choice.
@@ -265,6 +268,10 @@ impl LoadedPipeline {
         let at_key = |e: Error| self.param_error(e);
         if c.input.max_points == Some(0) {
             return Err(self.key_error("input.max_points", "0: must be at least 1"));
+        }
+        if let Some(Err(e)) = c.input.crs.as_deref().map(crate::geo::crs_from_key) {
+            let shown = crate::error::one_line(c.input.crs.as_deref().unwrap_or_default());
+            return Err(self.key_error("input.crs", format!("\"{shown}\": {e}")));
         }
         c.denoise.validate().map_err(at_key)?;
         c.resample.validate().map_err(at_key)?;

@@ -486,6 +486,7 @@ pub fn scene_crs() -> Crs {
             name: "metre".into(),
             metres: 1.0,
         }),
+        vertical: None,
     }
 }
 

@@ -19,6 +19,7 @@
 pub mod assets;
 pub mod config;
 pub mod generate;
+pub mod geo;
 pub mod mesh;
 pub mod output;
 pub mod pipeline;

@@ -14,6 +14,7 @@ mod cli_mesh;
 mod cli_read;
 mod cli_terrain;
 mod cli_tiles;
+mod geo;
 mod intersect;
 mod mesh_io;
 mod outputs;

@@ -54,8 +54,85 @@ pub struct Manifest {
     pub unity: Option<UnityInfo>,
     /// Unreal landscape settings, under the `unreal` preset.
     pub unreal: Option<UnrealInfo>,
+    /// Where the grid lies on the globe (WGS 84), when the CRS is known and reprojectable.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geographic: Option<Geographic>,
     /// The tiles, row by row from the south, west to east.
     pub tiles: Vec<TileEntry>,
+}
+
+/// The grid on the globe.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Geographic {
+    /// WGS 84 longitude/latitude bounds of the grid's outer extent: [west, south, east, north],
+    /// degrees (of its four corners and edge midpoints).
+    pub wgs84_bounds: Option<[f64; 4]>,
+    /// The grid's outer extent as a GeoJSON Polygon (WGS 84, longitude first, counter-clockwise).
+    pub footprint: Option<serde_json::Value>,
+    /// The PROJ string the reprojection used.
+    pub proj_string: Option<String>,
+    /// Why there are no WGS 84 figures, when there are none.
+    pub unsupported: Option<String>,
+    /// The heights' vertical CRS when the input states it (`CGVD28`, EPSG 5713); null: not stated.
+    pub vertical_datum: Option<crate::points::VerticalCrs>,
+    /// Tile rows count from the south (row 0 is the southern row), columns from the west.
+    pub tile_rows: String,
+}
+
+/// The geographic block of a set: the WGS 84 corners through [`crate::geo::ToWgs84`].
+pub fn geographic(set: &SetSummary) -> Option<Geographic> {
+    let crs = set.crs.as_ref()?;
+    let [x0, y0] = set.corner;
+    let x1 = x0 + set.samples[0] as f64 * set.cell_size[0];
+    let y1 = y0 + set.samples[1] as f64 * set.cell_size[1];
+    let (xm, ym) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0);
+    let mut g = Geographic {
+        wgs84_bounds: None,
+        footprint: None,
+        proj_string: None,
+        unsupported: None,
+        vertical_datum: crs.vertical.clone(),
+        tile_rows: "row 0 is the southern row; rows count north, columns east".into(),
+    };
+    match crate::geo::ToWgs84::new(crs) {
+        Err(e) => g.unsupported = Some(e.to_string()),
+        Ok(t) => {
+            // Counter-clockwise from the south-west corner, edge midpoints included.
+            let ring = [
+                (x0, y0),
+                (xm, y0),
+                (x1, y0),
+                (x1, ym),
+                (x1, y1),
+                (xm, y1),
+                (x0, y1),
+                (x0, ym),
+            ];
+            let pts: Option<Vec<[f64; 2]>> = ring.iter().map(|&(x, y)| t.forward(x, y)).collect();
+            match pts {
+                None => {
+                    g.unsupported = Some("the grid's corners fall outside the projection".into())
+                }
+                Some(p) => {
+                    let fold = |f: fn(f64, f64) -> f64, k: usize, init: f64| {
+                        p.iter().map(|q| q[k]).fold(init, f)
+                    };
+                    g.wgs84_bounds = Some([
+                        fold(f64::min, 0, f64::INFINITY),
+                        fold(f64::min, 1, f64::INFINITY),
+                        fold(f64::max, 0, f64::NEG_INFINITY),
+                        fold(f64::max, 1, f64::NEG_INFINITY),
+                    ]);
+                    let mut closed = p.clone();
+                    closed.push(p[0]);
+                    g.footprint =
+                        Some(serde_json::json!({"type": "Polygon", "coordinates": [closed]}));
+                    g.proj_string = Some(t.proj_string.clone());
+                }
+            }
+        }
+    }
+    Some(g)
 }
 
 /// CRS facts.
@@ -352,6 +429,7 @@ pub fn build(
                 location_z_cm: enc.z_offset * unit_m * CM_PER_M + UNREAL_MID_VALUE / UNREAL_Z_DIVISOR * scale_z,
             }
         }),
+        geographic: geographic(set),
         tiles,
     }
 }

@@ -22,9 +22,13 @@
 //! meshes/tile_CCC_RRR.ply|.obj   binary PLY and OBJ with normals, z up, CRS units
 //! preview/relief.png             shaded relief
 //! preview/wireframe.png          the CLOD mesh over the relief
+//! heightmaps/tile_CCC_RRR.pgw|.prj|.png.aux.xml  the PNG's world file and CRS
+//! dem.tif                        the whole grid, Cloud-Optimized GeoTIFF (`geotiff = true`)
 //! ```
 
 pub mod exr;
+pub mod georef;
+pub mod geotiff;
 pub mod heightmap;
 pub mod manifest;
 pub mod preview;
@@ -73,7 +77,9 @@ pub fn write_terrain(
     let set = products.set;
     let summary = SetSummary::of(set, products.quadtree, products.meshes);
     let enc = HeightEncoding::for_set(&summary);
-    let encoders = TileEncoder::for_settings(out);
+    let mut encoders = TileEncoder::for_settings(out);
+    let has_crs = set.crs.as_ref().and_then(crate::geo::wkt_of).is_some();
+    encoders.retain(|e| has_crs || !e.needs_crs());
     let mut subdirs: Vec<&str> = encoders.iter().map(|e| e.dir()).collect();
     if out.wants_previews() {
         subdirs.push("preview");
@@ -104,6 +110,10 @@ pub fn write_terrain(
     let mut files: Vec<String> = per_tile.iter().flat_map(|m| m.values().cloned()).collect();
     files.extend(landscape.iter().cloned());
     files.extend(previews.iter().cloned());
+    if out.geotiff {
+        put(dir, georef::DEM_FILE, &georef::dem_geotiff(set)?)?;
+        files.push(georef::DEM_FILE.to_string());
+    }
     if out.manifest {
         let written = manifest::Written {
             tiles: per_tile,

@@ -37,6 +37,9 @@ pub struct OutputConfig {
     /// Tile mesh formats to write (default `["glb"]`; `[]` for none).
     #[serde(default = "default_meshes")]
     pub meshes: Vec<MeshFormat>,
+    /// Write `dem.tif`, the whole heightfield as one Cloud-Optimized GeoTIFF (default false).
+    #[serde(default)]
+    pub geotiff: bool,
     /// Longer side of the preview pictures in pixels (default 2048; small grids are
     /// enlarged at most 4×).
     #[serde(default = "default_preview_size")]
@@ -71,6 +74,7 @@ impl Default for OutputConfig {
             relief: true,
             wireframe: true,
             meshes: default_meshes(),
+            geotiff: false,
             preview_size: default_preview_size(),
         }
     }

@@ -20,6 +20,12 @@ pub enum TileEncoder {
     Raw,
     /// The tile's mesh in a mesh file format.
     Mesh(MeshFormat),
+    /// The PNG's world file (`.pgw`): where its pixels lie in the CRS.
+    WorldFile,
+    /// The PNG's `.prj`: the CRS as WKT (ESRI's tools read it).
+    Prj,
+    /// The PNG's GDAL PAM file (`.png.aux.xml`): the same WKT, where GDAL and QGIS look.
+    PngAux,
 }
 
 impl TileEncoder {
@@ -30,7 +36,12 @@ impl TileEncoder {
             v.push(TileEncoder::Exr(out.exr_compression));
         }
         if out.png {
-            v.push(TileEncoder::Png);
+            v.extend([
+                TileEncoder::Png,
+                TileEncoder::WorldFile,
+                TileEncoder::Prj,
+                TileEncoder::PngAux,
+            ]);
         }
         if out.raw {
             v.push(TileEncoder::Raw);
@@ -43,7 +54,11 @@ impl TileEncoder {
     pub fn dir(self) -> &'static str {
         match self {
             TileEncoder::Exr(_) => "tiles",
-            TileEncoder::Png | TileEncoder::Raw => "heightmaps",
+            TileEncoder::Png
+            | TileEncoder::Raw
+            | TileEncoder::WorldFile
+            | TileEncoder::Prj
+            | TileEncoder::PngAux => "heightmaps",
             TileEncoder::Mesh(_) => "meshes",
         }
     }
@@ -55,7 +70,15 @@ impl TileEncoder {
             TileEncoder::Png => "png",
             TileEncoder::Raw => "raw",
             TileEncoder::Mesh(f) => f.ext(),
+            TileEncoder::WorldFile => "pgw",
+            TileEncoder::Prj => "prj",
+            TileEncoder::PngAux => "png.aux.xml",
         }
+    }
+
+    /// True for the files that say the CRS (left out when the set has none).
+    pub fn needs_crs(self) -> bool {
+        matches!(self, TileEncoder::Prj | TileEncoder::PngAux)
     }
 
     /// The kind a tile's file is listed under in the manifest (`files`).
@@ -71,6 +94,22 @@ impl TileEncoder {
             TileEncoder::Png => heightmap::png_bytes(tile.values(), p.set.tile_size),
             TileEncoder::Raw => Ok(heightmap::raw_bytes(tile.values(), p.set.tile_size, false)),
             TileEncoder::Mesh(f) => f.encode(tile.mesh()?, &tile.name, tile.metres_per_unit),
+            TileEncoder::WorldFile => Ok(super::georef::world_file(p.set, tile.index).into_bytes()),
+            TileEncoder::Prj | TileEncoder::PngAux => {
+                let wkt = p
+                    .set
+                    .crs
+                    .as_ref()
+                    .and_then(crate::geo::wkt_of)
+                    .ok_or_else(|| {
+                        Error::Internal(format!("{}: a CRS file without a CRS", tile.name))
+                    })?;
+                Ok(if self == TileEncoder::Prj {
+                    wkt.into_bytes()
+                } else {
+                    super::geotiff::pam_xml(&wkt).into_bytes()
+                })
+            }
         }
     }
 }

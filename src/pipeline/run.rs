@@ -417,7 +417,13 @@ pub fn tile_stages(
     use crate::terrain::{quadtree, tiles};
     let mut reports = Vec::new();
     let t = Instant::now();
-    let set = tiles::tile(hf, &cfg.tiles)?;
+    let mut set = tiles::tile(hf, &cfg.tiles)?;
+    if let (None, Some(Ok(crs))) = (
+        &set.crs,
+        cfg.input.crs.as_deref().map(crate::geo::crs_from_key),
+    ) {
+        set.crs = Some(crs);
+    }
     reports.push(StageReport {
         stage: "tiles".into(),
         seconds: t.elapsed().as_secs_f64(),

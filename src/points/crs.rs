@@ -21,6 +21,21 @@ pub struct Crs {
     pub geotiff: Option<String>,
     /// Horizontal linear unit, when stated.
     pub unit: Option<LinearUnit>,
+    /// Vertical CRS (datum of the heights), when stated.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vertical: Option<VerticalCrs>,
+}
+
+/// The vertical CRS of the heights as GeoTIFF keys (VerticalCSType, VerticalCitation,
+/// VerticalUnits) or a WKT `VERT_CS` state it.
+#[derive(Debug, Clone, PartialEq, Serialize, serde::Deserialize)]
+pub struct VerticalCrs {
+    /// EPSG code of the vertical CRS (5713: CGVD28 height).
+    pub epsg: Option<u32>,
+    /// Its name (`CGVD28`).
+    pub name: Option<String>,
+    /// EPSG code of its unit (9001: metre).
+    pub unit_epsg: Option<u32>,
 }
 
 /// A linear unit with its length in metres.
@@ -71,6 +86,7 @@ impl Crs {
             epsg: None,
             geotiff: None,
             unit: None,
+            vertical: None,
         };
         if let Some(keys) = &keys {
             crs.geotiff = Some(
@@ -87,6 +103,22 @@ impl Crs {
             };
             crs.epsg = code(3072).or_else(|| code(2048));
             crs.unit = code(3076).and_then(unit_from_epsg);
+            let text = |id| {
+                keys.iter().find_map(|(k, v)| match v {
+                    KeyValue::Ascii(s) if *k == id => {
+                        Some(s.trim_end_matches(['|', '\0']).trim().to_string())
+                    }
+                    _ => None,
+                })
+            };
+            let vertical = VerticalCrs {
+                epsg: code(4096),
+                name: text(4097).filter(|s| !s.is_empty()),
+                unit_epsg: code(4099),
+            };
+            if vertical.epsg.is_some() || vertical.name.is_some() {
+                crs.vertical = Some(vertical);
+            }
             if crs.unit.is_none() && crs.epsg.is_some_and(is_utm) {
                 crs.unit = unit_from_epsg(9001);
             }
@@ -172,6 +204,7 @@ fn key_name(id: u16) -> String {
         3073 => "PCSCitation".into(),
         3076 => "ProjLinearUnits".into(),
         4096 => "VerticalCSType".into(),
+        4097 => "VerticalCitation".into(),
         4099 => "VerticalUnits".into(),
         other => format!("key{other}"),
     }

@@ -15,7 +15,7 @@ mod stats;
 mod xyz;
 
 pub use convert::{convert, Selection};
-pub use crs::{Crs, LinearUnit};
+pub use crs::{Crs, LinearUnit, VerticalCrs};
 pub use las_header::{LasHeader, Vlr};
 pub use las_read::raw_records;
 pub use las_write::{write_las, write_raw_las, write_selected_records, LasWriteOptions};

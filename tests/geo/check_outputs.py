@@ -1,0 +1,63 @@
+"""Reads terratile's georeferenced outputs with GDAL (through rasterio) and reports what it
+sees as JSON on stdout, for tests/geo.rs to compare with the manifest and the EXR tiles.
+
+usage: check_outputs.py OUT_DIR EXPECTED_CRS VALUES_FILE
+  EXPECTED_CRS: anything pyproj's CRS.from_user_input takes ("EPSG:3005+5713"), or
+                @FILE holding a WKT.
+  VALUES_FILE:  where the GeoTIFF's band 1 goes, as raw little-endian f32, north row first.
+"""
+import json
+import sys
+
+import rasterio
+from pyproj import CRS
+from rio_cogeo.cogeo import cog_validate
+
+out, expected, values_file = sys.argv[1], sys.argv[2], sys.argv[3]
+if expected.startswith("@"):
+    expected = open(expected[1:], encoding="utf-8").read()
+want = CRS.from_user_input(expected)
+# The PNGs' .prj files carry the horizontal CRS only.
+want_h = want.sub_crs_list[0] if want.is_compound else want
+manifest = json.load(open(f"{out}/manifest.json", encoding="utf-8"))
+report = {}
+
+with rasterio.open(f"{out}/dem.tif") as src:
+    report["size"] = [src.width, src.height]
+    report["dtype"] = src.dtypes[0]
+    report["transform"] = list(src.transform)[:6]
+    report["crs_equals"] = CRS.from_wkt(src.crs.to_wkt()).equals(want)
+    report["crs"] = src.crs.to_wkt()
+    report["nodata"] = None if src.nodata is None else repr(src.nodata)
+    report["offset"] = src.offsets[0]
+    report["overviews"] = src.overviews(1)
+    report["blocks"] = [list(b) for b in src.block_shapes]
+    report["compression"] = str(src.compression)
+    report["predictor"] = src.tags(ns="IMAGE_STRUCTURE").get("PREDICTOR")
+    band = src.read(1)
+    band.astype("<f4").tofile(values_file)
+valid, errors, warnings = cog_validate(f"{out}/dem.tif", quiet=True)
+report["cog_valid"] = valid
+report["cog_errors"] = errors
+report["cog_warnings"] = warnings
+
+tiles = []
+for t in manifest["tiles"]:
+    png = t["files"].get("png")
+    if png is None:
+        continue
+    with rasterio.open(f"{out}/{png}") as src:
+        n = src.height
+        # The centre of the south-west pixel: the tile's first sample.
+        x, y = src.transform * (0.5, n - 0.5)
+        tiles.append(
+            {
+                "png": png,
+                "sw_sample": [x, y],
+                "pixel": [src.transform.a, src.transform.e],
+                "crs_equals": src.crs is not None
+                and CRS.from_wkt(src.crs.to_wkt()).equals(want_h),
+            }
+        )
+report["tiles"] = tiles
+print(json.dumps(report))

@@ -1,0 +1,30 @@
+//! Georeferencing: bad CRS input (issue 17).
+
+use crate::common::*;
+
+/// `[input] crs` naming a code the EPSG table lacks: one line at the key, exit 2, nothing
+/// written (it used not to exist; an unknown code must not reach the encoders).
+#[test]
+fn input_crs_unknown_epsg_code_is_refused_at_its_key() {
+    let d = default_job();
+    let p = d.path().join("pipeline.toml");
+    let text = std::fs::read_to_string(&p).unwrap();
+    let text = text.replacen("[input]\n", "[input]\ncrs = \"EPSG:99999\"\n", 1);
+    std::fs::write(&p, text).unwrap();
+    terratile(d.path(), &["run", "--quiet"])
+        .input_error(&["pipeline.toml:", "input.crs", "EPSG:99999"])
+        .left_nothing("out");
+}
+
+/// `[input] crs` that is not `EPSG:n` at all.
+#[test]
+fn input_crs_not_an_epsg_code_is_refused_at_its_key() {
+    let d = default_job();
+    let p = d.path().join("pipeline.toml");
+    let text = std::fs::read_to_string(&p).unwrap();
+    let text = text.replacen("[input]\n", "[input]\ncrs = \"+proj=utm\\n\"\n", 1);
+    std::fs::write(&p, text).unwrap();
+    terratile(d.path(), &["run", "--quiet"])
+        .input_error(&["input.crs", "EPSG:n", "\\n"])
+        .left_nothing("out");
+}
