@@ -21,6 +21,7 @@ pub mod pipeline;
 pub mod points;
 pub mod progress;
 pub mod rng;
+pub mod shard;
 pub mod simplify;
 pub mod terrain;
 
