@@ -29,6 +29,7 @@ use ndarray::s;
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
 
+pub mod points;
 #[cfg(test)]
 mod tests;
 
@@ -425,6 +426,60 @@ pub struct Merged {
     pub fill: Option<FillReport>,
 }
 
+/// The bits of every node value, level by level.
+fn node_bits(v: &NodeValues) -> Vec<u32> {
+    let k = (v.size() - 1).trailing_zeros();
+    (1..=k)
+        .flat_map(|m| v.level(m).iter().map(|x| x.to_bits()).collect::<Vec<_>>())
+        .collect()
+}
+
+impl Merged {
+    /// Where `self` and `other` differ, bit for bit, in the set's geometry, the fill
+    /// figures, each tile's placement and heights, d2 and vertical error (None: nowhere).
+    pub fn difference(&self, other: &Merged) -> Option<String> {
+        let (sa, sb) = (&self.set, &other.set);
+        if (
+            sa.tile_size,
+            sa.grid,
+            sa.samples,
+            sa.corner,
+            sa.cell_size,
+            sa.z_offset,
+        ) != (
+            sb.tile_size,
+            sb.grid,
+            sb.samples,
+            sb.corner,
+            sb.cell_size,
+            sb.z_offset,
+        ) {
+            return Some("set geometry".into());
+        }
+        if self.fill != other.fill {
+            return Some(format!("fill report {:?} vs {:?}", self.fill, other.fill));
+        }
+        let heights = |t: &Tile| t.heights.iter().map(|h| h.to_bits()).collect::<Vec<_>>();
+        for (k, (x, y)) in sa.tiles.iter().zip(&sb.tiles).enumerate() {
+            if (x.col, x.row, x.origin, x.valid, x.holes)
+                != (y.col, y.row, y.origin, y.valid, y.holes)
+            {
+                return Some(format!("tile {k} placement"));
+            }
+            if heights(x) != heights(y) {
+                return Some(format!("tile {k} heights"));
+            }
+            if node_bits(&self.quadtree.d2[k]) != node_bits(&other.quadtree.d2[k]) {
+                return Some(format!("tile {k} d2"));
+            }
+            if node_bits(&self.vertical_error[k]) != node_bits(&other.vertical_error[k]) {
+                return Some(format!("tile {k} vertical error"));
+            }
+        }
+        None
+    }
+}
+
 /// Merges the outputs of every shard of `layout`. `grid` gives the whole grid's
 /// georeference (its heights are not read).
 pub fn merge(
@@ -510,12 +565,29 @@ pub fn run_all(
     tiles: &TileParams,
     quadtree: &QuadtreeParams,
 ) -> Result<Merged> {
+    run_with(layout, grid, fill, tiles, quadtree, |_, [ci, cj]| {
+        Ok(crop(grid, ci, cj))
+    })
+}
+
+/// Runs every shard of `layout` in this process, each shard's input (the unfilled cells it
+/// names, columns and rows) made by `input`, and merges them. `geo` gives the whole grid's
+/// georeference.
+pub fn run_with(
+    layout: &ShardLayout,
+    geo: &Heightfield,
+    fill: Option<&FillParams>,
+    tiles: &TileParams,
+    quadtree: &QuadtreeParams,
+    input: impl Fn(&Shard, [Range<usize>; 2]) -> Result<Heightfield>,
+) -> Result<Merged> {
     let prepared: Vec<Prepared> = (0..layout.count())
         .map(|i| {
             let shard = layout.shard(i);
             let (ci, cj) = (shard.input(layout, 0, fill), shard.input(layout, 1, fill));
-            let input = crop(grid, ci.clone(), cj.clone());
-            prepare(layout, &shard, &input, [ci.start, cj.start], fill)
+            let offset = [ci.start, cj.start];
+            let cells = input(&shard, [ci, cj])?;
+            prepare(layout, &shard, &cells, offset, fill)
         })
         .collect::<Result<_>>()?;
     let cells: Vec<(usize, f32)> = prepared.iter().flat_map(|p| p.coarse(layout)).collect();
@@ -528,5 +600,5 @@ pub fn run_all(
         .into_iter()
         .map(|p| finish(layout, p, &coarse, tiles, quadtree))
         .collect::<Result<Vec<_>>>()?;
-    merge(layout, grid, tiles, quadtree, outputs)
+    merge(layout, geo, tiles, quadtree, outputs)
 }

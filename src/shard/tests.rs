@@ -22,41 +22,8 @@ fn whole(
     }
 }
 
-fn bits(v: &NodeValues) -> Vec<u32> {
-    let k = (v.size() - 1).trailing_zeros();
-    (1..=k)
-        .flat_map(|m| v.level(m).iter().map(|x| x.to_bits()).collect::<Vec<_>>())
-        .collect()
-}
-
-/// Where `a` and `b` differ (None: bit-identical tiles, d2, vertical error and figures).
 fn difference(a: &Merged, b: &Merged) -> Option<String> {
-    let (sa, sb) = (&a.set, &b.set);
-    if (sa.tile_size, sa.grid, sa.samples, sa.corner, sa.cell_size)
-        != (sb.tile_size, sb.grid, sb.samples, sb.corner, sb.cell_size)
-    {
-        return Some("set geometry".into());
-    }
-    if a.fill != b.fill {
-        return Some(format!("fill report {:?} vs {:?}", a.fill, b.fill));
-    }
-    for (k, (x, y)) in sa.tiles.iter().zip(&sb.tiles).enumerate() {
-        if (x.col, x.row, x.origin, x.valid, x.holes) != (y.col, y.row, y.origin, y.valid, y.holes)
-        {
-            return Some(format!("tile {k} placement"));
-        }
-        let hb = |t: &Tile| t.heights.iter().map(|h| h.to_bits()).collect::<Vec<_>>();
-        if hb(x) != hb(y) {
-            return Some(format!("tile {k} heights"));
-        }
-        if bits(&a.quadtree.d2[k]) != bits(&b.quadtree.d2[k]) {
-            return Some(format!("tile {k} d2"));
-        }
-        if bits(&a.vertical_error[k]) != bits(&b.vertical_error[k]) {
-            return Some(format!("tile {k} vertical error"));
-        }
-    }
-    None
+    a.difference(b)
 }
 
 /// `holey` plus square voids wider than the fill radius centred on tile borders, so that
@@ -225,7 +192,7 @@ fn d2_needs_the_merge() {
             finish(&layout, p, &[], &tp, &qp).unwrap()
         })
         .collect();
-    assert_ne!(bits(&outs[0].d2[0]), bits(&want.quadtree.d2[0]));
+    assert_ne!(node_bits(&outs[0].d2[0]), node_bits(&want.quadtree.d2[0]));
     let merged = merge(&layout, &hf, &tp, &qp, outs).unwrap();
     assert_eq!(difference(&merged, &want), None);
 }
@@ -312,5 +279,245 @@ proptest! {
         let layout = ShardLayout::new([cols, rows], &tp, [bx, by]).unwrap();
         let got = run_all(&layout, &hf, Some(&fill), &tp, &qp).unwrap();
         prop_assert_eq!(difference(&got, &want), None);
+    }
+}
+
+mod from_points {
+    use super::*;
+    use crate::shard::points::{run_points, Stages};
+    use crate::terrain::denoise::DenoiseParams;
+    use crate::terrain::resample::ResampleParams;
+
+    fn stages(denoise: Option<DenoiseParams>, resample: ResampleParams) -> Stages {
+        Stages {
+            denoise,
+            metres_per_unit: 1.0,
+            resample,
+            fill: Some(FillParams::default()),
+            tiles: params(65).0,
+            quadtree: QuadtreeParams::default(),
+        }
+    }
+
+    /// The in-memory run: `grid_stages` (denoise, resample) and the whole grid half.
+    fn in_memory(x: &[f64], y: &[f64], z: &[f64], st: &Stages) -> (Option<Vec<bool>>, u32, Merged) {
+        let (keep, q) = match &st.denoise {
+            Some(p) => {
+                let d =
+                    crate::terrain::denoise::denoise_xyz(x, y, z, p, st.metres_per_unit).unwrap();
+                (Some(d.keep), d.settings.height_steps)
+            }
+            None => (None, 1),
+        };
+        let r =
+            crate::terrain::resample::resample_xyz(x, y, z, keep.as_deref(), &st.resample, None)
+                .unwrap();
+        let m = whole(&r.grid, st.fill.as_ref(), &st.tiles, &st.quadtree);
+        (keep, q, m)
+    }
+
+    fn check(
+        x: &[f64],
+        y: &[f64],
+        z: &[f64],
+        st: &Stages,
+        groups: u64,
+        block: [usize; 2],
+    ) -> Option<String> {
+        let (keep, q, want) = in_memory(x, y, z, st);
+        let got = run_points(x, y, z, None, st, groups, block).unwrap();
+        if got.keep != keep {
+            let n = keep
+                .as_ref()
+                .zip(got.keep.as_ref())
+                .map_or(0, |(a, b)| a.iter().zip(b).filter(|(p, q)| p != q).count());
+            return Some(format!("keep flags differ at {n} points"));
+        }
+        if got.height_steps != q {
+            return Some(format!("voxel height steps {} vs {q}", got.height_steps));
+        }
+        difference(&got.merged, &want)
+    }
+
+    #[test]
+    fn a_generated_survey_shards_the_same() {
+        let scene = crate::generate::generate(&crate::generate::GenerateParams {
+            seed: 4,
+            points: 60_000,
+            ..Default::default()
+        })
+        .unwrap();
+        let c = &scene.cloud;
+        let st = stages(Some(DenoiseParams::default()), ResampleParams::default());
+        for (groups, block) in [(1, [1, 1]), (2, [2, 1]), (5, [1, 3]), (1000, [9, 9])] {
+            assert_eq!(
+                check(&c.x, &c.y, &c.z, &st, groups, block),
+                None,
+                "{groups} {block:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn taller_voxels_are_chosen_the_same() {
+        // min_points so high that a third of the points fail at q = 1: the voxel height
+        // adapts, from the shards' summed counts.
+        let scene = crate::generate::generate(&crate::generate::GenerateParams {
+            seed: 8,
+            points: 40_000,
+            ..Default::default()
+        })
+        .unwrap();
+        let c = &scene.cloud;
+        let p = DenoiseParams {
+            min_points: Some(60),
+            ..Default::default()
+        };
+        let (_, q, _) = in_memory(
+            &c.x,
+            &c.y,
+            &c.z,
+            &stages(Some(p.clone()), Default::default()),
+        );
+        assert!(q > 1, "q = {q}");
+        let st = stages(Some(p), ResampleParams::default());
+        assert_eq!(check(&c.x, &c.y, &c.z, &st, 2, [1, 1]), None);
+    }
+
+    /// The keep flags of the points `of` when the window of voxel columns [0, 4)² is denoised
+    /// reading `halo` columns around it, and as the whole run gives them.
+    fn window_flags(
+        pts: &[[f64; 3]],
+        p: &DenoiseParams,
+        halo: u64,
+        of: std::ops::Range<usize>,
+    ) -> (Vec<bool>, Vec<bool>) {
+        use crate::terrain::denoise::{denoise_xyz, shard_denoise, ColumnWindow, Frame};
+        let col = |k: usize| pts.iter().map(|q| q[k]).collect::<Vec<f64>>();
+        let (x, y, z) = (col(0), col(1), col(2));
+        let whole = denoise_xyz(&x, &y, &z, p, 1.0).unwrap().keep;
+        let (bounds, points) = crate::terrain::bounds_of(&x, &y, &z, None);
+        let frame = Frame { bounds, points };
+        let s = frame.settings(p, 1.0).unwrap();
+        let own = ColumnWindow { x: 0..4, y: 0..4 };
+        let idx: Vec<usize> = (0..x.len())
+            .filter(|&i| {
+                let (a, b) = frame.column(&s, x[i], y[i]);
+                a < 4 + halo && b < 4 + halo
+            })
+            .collect();
+        let pick = |v: &[f64]| idx.iter().map(|&i| v[i]).collect::<Vec<_>>();
+        let d = shard_denoise(&pick(&x), &pick(&y), &pick(&z), &frame, p, 1.0, &own, 1).unwrap();
+        let mut keep = vec![false; x.len()];
+        for (&i, &k) in idx.iter().zip(&d.keep) {
+            keep[i] = k;
+        }
+        (keep[of.clone()].to_vec(), whole[of].to_vec())
+    }
+
+    /// Unit voxels, 3 points to a block, low layers detached by 4 units (low-layer columns of
+    /// 4 × 4 voxel columns, slabs of 2 layers).
+    fn unit_voxels(low_layers: bool) -> DenoiseParams {
+        DenoiseParams {
+            voxel_size: Some(1.0),
+            voxel_height: Some(1.0),
+            min_points: Some(3),
+            low_layers,
+            low_gap: Some(4.0),
+            ..Default::default()
+        }
+    }
+
+    /// `n` copies of the centre of voxel (i, j, k).
+    fn voxel(i: u32, j: u32, k: u32, n: usize) -> Vec<[f64; 3]> {
+        vec![[i as f64 + 0.5, j as f64 + 0.5, k as f64 + 0.5]; n]
+    }
+
+    #[test]
+    fn count_halo_is_tight() {
+        // A point in the window's last column passes the 3×3×3 count only with the two
+        // points in the next column: a halo of one column sees them, none does not.
+        let mut pts = vec![[0.0, 0.0, 0.0]]; // anchors the lattice at the origin
+        pts.extend(voxel(3, 1, 5, 1));
+        pts.extend(voxel(4, 1, 5, 2));
+        let p = unit_voxels(false);
+        let (got, want) = window_flags(&pts, &p, 1, 1..2);
+        assert_eq!((got, want.clone()), (vec![true], vec![true]));
+        assert_ne!(window_flags(&pts, &p, 0, 1..2).0, want);
+    }
+
+    #[test]
+    fn low_layer_halo_is_tight() {
+        // Low-layer column (0, 0) holds a low patch of 3 points 20 layers under 20 ground
+        // points: 13 % of its window, kept. Its neighbour low-layer column (1, 0) adds ten
+        // ground points in its last voxel column (7), one per voxel three layers apart, each
+        // passing the count only with two points in column 8: with them the patch is 3 / 33
+        // of the window, under 10 %, and removed. A halo of one low-layer column and one
+        // voxel column sees column 8; one low-layer column alone does not.
+        let mut pts = vec![[0.0, 0.0, 0.0]];
+        pts.extend(voxel(2, 2, 0, 3)); // the patch: points 1..4
+        pts.extend(voxel(1, 1, 20, 20));
+        for k in 0..10 {
+            pts.extend(voxel(7, 1, 20 + 3 * k, 1));
+            pts.extend(voxel(8, 1, 20 + 3 * k, 2));
+        }
+        let p = unit_voxels(true);
+        let (got, want) = window_flags(&pts, &p, 5, 1..4);
+        assert_eq!((got, want.clone()), (vec![false; 3], vec![false; 3]));
+        assert_eq!(window_flags(&pts, &p, 4, 1..4).0, vec![true; 3]);
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(16))]
+        #[test]
+        fn random_surveys_shard_the_same(
+            seed in 0u64..1000,
+            n in 3000usize..9000,
+            width in 40u32..120,
+            on_lattice in any::<bool>(),
+            fixed_voxels in any::<bool>(),
+            cell in any::<bool>(),
+            groups in 1u64..4,
+            bx in 1usize..3,
+            by in 1usize..3,
+        ) {
+            let mut rng = crate::rng::SplitMix64::new(seed);
+            let (w, h) = (width as f64, 0.8 * width as f64);
+            // A hole of a fifth of the width at a random place, outliers above and below.
+            let (hx, hy, hr) = (rng.unit() * w, rng.unit() * h, 0.1 * w);
+            let (mut x, mut y, mut z) = (Vec::new(), Vec::new(), Vec::new());
+            while x.len() < n {
+                let (mut px, mut py) = (rng.unit() * w, rng.unit() * h);
+                if on_lattice {
+                    // Exactly on 0.5-unit lines: voxel and cell boundaries with the fixed sizes.
+                    px = (px * 2.0).floor() / 2.0;
+                    py = (py * 2.0).floor() / 2.0;
+                }
+                if (px - hx).hypot(py - hy) < hr {
+                    continue;
+                }
+                let mut pz = 100.0 + 0.05 * px + (py * 0.2).sin();
+                if rng.unit() < 0.003 {
+                    pz += if rng.unit() < 0.5 { 60.0 } else { -30.0 };
+                }
+                x.push(px + 500_000.0);
+                y.push(py + 4_000_000.0);
+                z.push(pz);
+            }
+            let denoise = DenoiseParams {
+                voxel_size: fixed_voxels.then_some(1.5),
+                voxel_height: fixed_voxels.then_some(0.5),
+                low_gap: Some(6.0),
+                ..Default::default()
+            };
+            let resample = ResampleParams {
+                cell_size: cell.then_some(1.0),
+                ..Default::default()
+            };
+            let st = stages(Some(denoise), resample);
+            let (keep, _, _) = in_memory(&x, &y, &z, &st);
+            prop_assume!(keep.is_some());
+            prop_assert_eq!(check(&x, &y, &z, &st, groups, [bx, by]), None);
+        }
     }
 }
