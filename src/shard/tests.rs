@@ -22,6 +22,16 @@ fn whole(
     }
 }
 
+/// A generated survey of `points` points.
+fn survey(seed: u64, points: u64) -> crate::generate::Scene {
+    crate::generate::generate(&crate::generate::GenerateParams {
+        seed,
+        points,
+        ..Default::default()
+    })
+    .unwrap()
+}
+
 fn difference(a: &Merged, b: &Merged) -> Option<String> {
     a.difference(b)
 }
@@ -228,12 +238,7 @@ fn bad_layouts_are_refused() {
 fn the_resampled_survey_shards_the_same() {
     // A generated survey through the in-memory denoise and resample, then the grid half
     // whole and sharded.
-    let scene = crate::generate::generate(&crate::generate::GenerateParams {
-        seed: 11,
-        points: 120_000,
-        ..Default::default()
-    })
-    .unwrap();
+    let scene = survey(11, 120_000);
     let g = crate::terrain::grid_stages(
         &scene.cloud,
         Some(&Default::default()),
@@ -341,12 +346,7 @@ mod from_points {
 
     #[test]
     fn a_generated_survey_shards_the_same() {
-        let scene = crate::generate::generate(&crate::generate::GenerateParams {
-            seed: 4,
-            points: 60_000,
-            ..Default::default()
-        })
-        .unwrap();
+        let scene = survey(4, 60_000);
         let c = &scene.cloud;
         let st = stages(Some(DenoiseParams::default()), ResampleParams::default());
         for (groups, block) in [(1, [1, 1]), (2, [2, 1]), (5, [1, 3]), (1000, [9, 9])] {
@@ -362,12 +362,7 @@ mod from_points {
     fn taller_voxels_are_chosen_the_same() {
         // min_points so high that a third of the points fail at q = 1: the voxel height
         // adapts, from the shards' summed counts.
-        let scene = crate::generate::generate(&crate::generate::GenerateParams {
-            seed: 8,
-            points: 40_000,
-            ..Default::default()
-        })
-        .unwrap();
+        let scene = survey(8, 40_000);
         let c = &scene.cloud;
         let p = DenoiseParams {
             min_points: Some(60),

@@ -541,17 +541,17 @@ fn denoise_into(
         });
     }
     let (bounds, _) = super::bounds_of(x, y, z, None);
+    let mut st = setup(x, y, z, &bounds, n, params, metres_per_unit)?;
     let Setup {
         settings,
         lat,
         sorted,
-    } = setup(x, y, z, &bounds, n, params, metres_per_unit)?;
+    } = &mut st;
 
     // The count test, at the chosen (or adapted) voxel height; flags follow the sorted keys.
     let mut dense = vec![false; n];
-    let mut settings = settings;
     let (sparse, voxels) = if params.voxel_height.is_some() {
-        let (failing, _, voxels) = count_pass(&sorted, &lat, &settings, 1, None, &mut dense, None);
+        let (failing, _, voxels) = count_pass(sorted, lat, settings, 1, None, &mut dense, None);
         (failing, voxels)
     } else {
         // Points isolated even in voxels MAX_HEIGHT_STEPS·s tall are noise at any height;
@@ -562,9 +562,9 @@ fn denoise_into(
         let mut q = 1;
         loop {
             let (mut failing, mut lost, mut voxels) = count_pass(
-                &sorted,
-                &lat,
-                &settings,
+                sorted,
+                lat,
+                settings,
                 q,
                 coarse.as_deref(),
                 &mut dense,
@@ -572,20 +572,12 @@ fn denoise_into(
             );
             if failing > budget && coarse.is_none() && q < MAX_HEIGHT_STEPS {
                 let mut c = vec![false; n];
-                count_pass(
-                    &sorted,
-                    &lat,
-                    &settings,
-                    MAX_HEIGHT_STEPS,
-                    None,
-                    &mut c,
-                    None,
-                );
+                count_pass(sorted, lat, settings, MAX_HEIGHT_STEPS, None, &mut c, None);
                 coarse = Some(c);
                 (failing, lost, voxels) = count_pass(
-                    &sorted,
-                    &lat,
-                    &settings,
+                    sorted,
+                    lat,
+                    settings,
                     q,
                     coarse.as_deref(),
                     &mut dense,
@@ -603,18 +595,7 @@ fn denoise_into(
         }
     };
 
-    finish(
-        Setup {
-            settings,
-            lat,
-            sorted,
-        },
-        dense,
-        sparse,
-        voxels,
-        None,
-        scratch,
-    )
+    finish(st, dense, sparse, voxels, None, scratch)
 }
 
 /// What the count passes work on: the settings, the lattice and the points sorted by column.
@@ -1242,32 +1223,22 @@ pub fn shard_denoise(
     owned: &ColumnWindow,
     q: u32,
 ) -> Result<Denoised> {
-    let (
-        Setup {
-            mut settings,
-            lat,
-            sorted,
-        },
-        own,
-    ) = shard_setup(x, y, z, frame, params, metres_per_unit, owned)?;
+    let (mut st, own) = shard_setup(x, y, z, frame, params, metres_per_unit, owned)?;
     let mut dense = vec![false; x.len()];
-    let (sparse, _, voxels) = count_pass(&sorted, &lat, &settings, q, None, &mut dense, Some(&own));
-    if params.voxel_height.is_none() {
-        settings.height_steps = q;
-        settings.voxel_height *= q as f64;
-    }
-    finish(
-        Setup {
-            settings,
-            lat,
-            sorted,
-        },
-        dense,
-        sparse,
-        voxels,
+    let (sparse, _, voxels) = count_pass(
+        &st.sorted,
+        &st.lat,
+        &st.settings,
+        q,
+        None,
+        &mut dense,
         Some(&own),
-        &mut Vec::new(),
-    )
+    );
+    if params.voxel_height.is_none() {
+        st.settings.height_steps = q;
+        st.settings.voxel_height *= q as f64;
+    }
+    finish(st, dense, sparse, voxels, Some(&own), &mut Vec::new())
 }
 
 #[cfg(test)]
