@@ -239,15 +239,11 @@ fn the_resampled_survey_shards_the_same() {
     // A generated survey through the in-memory denoise and resample, then the grid half
     // whole and sharded.
     let scene = survey(11, 120_000);
-    let g = crate::terrain::grid_stages(
-        &scene.cloud,
-        Some(&Default::default()),
-        &Default::default(),
-        None,
-        &crate::progress::NoProgress,
-    )
-    .unwrap();
-    let hf = g.resampled.grid;
+    let c = &scene.cloud;
+    let d = crate::terrain::denoise(c, &Default::default(), 1.0).unwrap();
+    let hf = crate::terrain::resample(c, Some(&d.keep), &Default::default())
+        .unwrap()
+        .grid;
     let (tp, qp) = params(65);
     let fill = FillParams::default();
     let want = whole(&hf, Some(&fill), &tp, &qp);
