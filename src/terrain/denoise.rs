@@ -550,8 +550,12 @@ fn denoise_into(
 
     // The count test, at the chosen (or adapted) voxel height; flags follow the sorted keys.
     let mut dense = vec![false; n];
+    let s = *settings;
+    let pass = |q: u32, coarse: Option<&[bool]>, flags: &mut [bool]| {
+        count_pass(sorted, lat, &s, q, coarse, flags, None)
+    };
     let (sparse, voxels) = if params.voxel_height.is_some() {
-        let (failing, _, voxels) = count_pass(sorted, lat, settings, 1, None, &mut dense, None);
+        let (failing, _, voxels) = pass(1, None, &mut dense);
         (failing, voxels)
     } else {
         // Points isolated even in voxels MAX_HEIGHT_STEPS·s tall are noise at any height;
@@ -560,39 +564,24 @@ fn denoise_into(
         let budget = (HEIGHT_LOSS * n as f64).floor() as usize;
         let mut coarse: Option<Vec<bool>> = None;
         let mut q = 1;
-        loop {
-            let (mut failing, mut lost, mut voxels) = count_pass(
-                sorted,
-                lat,
-                settings,
-                q,
-                coarse.as_deref(),
-                &mut dense,
-                None,
-            );
+        let (failing, voxels) = loop {
+            let (mut failing, mut lost, mut voxels) = pass(q, coarse.as_deref(), &mut dense);
             if failing > budget && coarse.is_none() && q < MAX_HEIGHT_STEPS {
                 let mut c = vec![false; n];
-                count_pass(sorted, lat, settings, MAX_HEIGHT_STEPS, None, &mut c, None);
+                pass(MAX_HEIGHT_STEPS, None, &mut c);
                 coarse = Some(c);
-                (failing, lost, voxels) = count_pass(
-                    sorted,
-                    lat,
-                    settings,
-                    q,
-                    coarse.as_deref(),
-                    &mut dense,
-                    None,
-                );
+                (failing, lost, voxels) = pass(q, coarse.as_deref(), &mut dense);
             } else if coarse.is_none() {
                 lost = failing;
             }
             if lost <= budget || q == MAX_HEIGHT_STEPS {
-                settings.height_steps = q;
-                settings.voxel_height *= q as f64;
                 break (failing, voxels);
             }
             q += 1;
-        }
+        };
+        settings.height_steps = q;
+        settings.voxel_height *= q as f64;
+        (failing, voxels)
     };
 
     finish(st, dense, sparse, voxels, None, scratch)
