@@ -6,9 +6,9 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Mutex;
-use terratile::error::{one_line, Error, Result};
 use terratile::points::{self, ClassFilter, Format, ReadOptions};
-use terratile::progress::Progress;
+use terratile::Progress;
+use terratile::{one_line, Error, Result};
 
 /// `print!` that survives a reader going away: `terratile … | head -1` closes the pipe, and
 /// `print!` would panic on the broken pipe. Here the process ends quietly with success, as a
@@ -54,7 +54,7 @@ struct Cli {
     #[arg(long, short, global = true)]
     quiet: bool,
     /// Memory budget, e.g. 8GiB (default: half of physical memory).
-    #[arg(long, global = true, value_name = "SIZE", value_parser = terratile::memory::parse_size)]
+    #[arg(long, global = true, value_name = "SIZE", value_parser = terratile::parse_size)]
     max_memory: Option<u64>,
     #[command(subcommand)]
     command: Command,
@@ -434,7 +434,7 @@ impl Progress for Bars {
             ProgressStyle::with_template("{msg:40} [{elapsed_precise}] {wide_bar} {percent:>3}%")
                 .unwrap_or_else(|_| ProgressStyle::default_bar());
         bar.set_style(style);
-        bar.set_message(terratile::progress::bar_label(label, 40));
+        bar.set_message(terratile::bar_label(label, 40));
         if let Ok(mut b) = self.bar.lock() {
             *b = Some(bar);
         }
@@ -466,13 +466,13 @@ fn print_json<T: serde::Serialize>(v: &T) -> Result<()> {
 /// SIGINT/SIGTERM.
 fn configure(max_memory: Option<u64>, threads: Option<usize>) -> Result<()> {
     if let Some(m) = max_memory {
-        terratile::memory::set_budget(m);
+        terratile::set_budget(m);
     }
     if let Some(n) = threads {
         if n == 0 {
             return Err(Error::Usage("--threads must be at least 1".into()));
         }
-        let max = terratile::memory::max_threads();
+        let max = terratile::max_threads();
         if n > max {
             return Err(Error::Usage(format!(
                 "--threads {n}: at most {max} (eight per core of this machine, at least 64)"
@@ -484,7 +484,7 @@ fn configure(max_memory: Option<u64>, threads: Option<usize>) -> Result<()> {
             .map_err(|e| Error::Internal(e.to_string()))?;
     }
     // SIGINT/SIGTERM remove this process's staging and temporary files, then exit 130/143.
-    terratile::fsutil::clean_up_on_signals()
+    terratile::clean_up_on_signals()
 }
 
 /// One memory figure of `bench table1`: a fresh process runs `bench table1-memory` for one
@@ -561,7 +561,7 @@ fn run(cli: Cli) -> Result<()> {
                 (None, None) => points::Selection::All,
             };
             // `.NAME.tmp-PID` files that killed runs left beside the output.
-            terratile::fsutil::remove_stale_temps(&output);
+            terratile::remove_stale_temps(&output);
             progress.start(&format!("converting {}", input.display()), 0);
             let n = points::convert(&input, &output, sel);
             progress.finish();
@@ -715,7 +715,7 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
     let error = (!a.no_error).then(|| terratile::mesh::HausdorffParams {
         samples: a.samples.unwrap_or(0),
     });
-    terratile::fsutil::remove_stale_temps(&a.output);
+    terratile::remove_stale_temps(&a.output);
     let read = terratile::mesh::io::ReadOptions { strict: a.strict };
     let r = terratile::simplify::simplify_file_with(
         &a.input,

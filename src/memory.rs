@@ -69,12 +69,17 @@ pub fn default_budget() -> u64 {
     }
 }
 
-/// Physical memory in bytes (`MemTotal` of `/proc/meminfo`).
-pub fn physical_memory() -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let line = s.lines().find(|l| l.starts_with("MemTotal:"))?;
+/// The figure `key` (e.g. `MemTotal:`) of a `/proc` file that gives sizes in kB, in bytes.
+pub(crate) fn proc_kb(file: &str, key: &str) -> Option<u64> {
+    let s = std::fs::read_to_string(file).ok()?;
+    let line = s.lines().find(|l| l.starts_with(key))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb * 1024)
+}
+
+/// Physical memory in bytes (`MemTotal` of `/proc/meminfo`).
+pub fn physical_memory() -> Option<u64> {
+    proc_kb("/proc/meminfo", "MemTotal:")
 }
 
 /// The soft address-space limit in bytes (`Max address space` of `/proc/self/limits`).

@@ -1,7 +1,7 @@
 //! Issue 5: the Delaunay baseline as a pipeline stage (`[baseline]`), its validity on real
 //! data, `bench table1` (JSON, plot, skipped counts) and its bad inputs.
 
-mod common;
+use crate::common;
 
 use common::{terratile, Run};
 use std::path::Path;

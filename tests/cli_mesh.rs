@@ -1,7 +1,7 @@
 //! The mesh commands (`simplify`, `compare`) and `[[assets]]` through the real binary, and
 //! every bad input issue 6 lists: a one-line error, exit code 2, no output.
 
-mod common;
+use crate::common;
 
 use common::{terratile, Run};
 use std::path::Path;

@@ -2,7 +2,7 @@
 //! bad input the foundation issue lists — each a one-line error naming the file and where,
 //! exit code 2, no panic and no output.
 
-mod common;
+use crate::common;
 
 use common::{terratile, Run};
 use std::path::{Path, PathBuf};

@@ -2,7 +2,7 @@
 //! removed-noise file, `bench terrain`, and every bad input issue 3 lists — each one clear
 //! line naming the stage (or key), parameter and value, exit code 2, and no output.
 
-mod common;
+use crate::common;
 
 use common::{terratile, Run};
 use std::path::Path;

@@ -2,7 +2,7 @@
 //! range, a tolerance ≤ 0 — each a one-line error naming the pipeline key, exit code 2, and
 //! no output directory.
 
-mod common;
+use crate::common;
 
 use common::{default_job, terratile};
 use std::path::Path;

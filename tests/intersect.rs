@@ -1,7 +1,7 @@
 //! The self-intersection checker (BVH + exact predicates) against its O(n²) brute-force
 //! twin on every shared mesh, and `compare --check-folds` end to end.
 
-mod common;
+use crate::common;
 
 use terratile::mesh::intersect::{self_intersections, self_intersections_brute};
 use terratile::mesh::{io, TriMesh};

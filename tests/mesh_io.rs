@@ -1,9 +1,8 @@
 //! Every mesh in the shared data loads with the counts SOURCES.md gives, and survives OBJ and
 //! PLY round trips with everything it carries.
 
-mod common;
-#[path = "mesh_corpus/mod.rs"]
-mod mesh_corpus;
+use crate::common;
+use crate::mesh_corpus;
 
 use proptest::prelude::*;
 use std::path::Path;
@@ -371,7 +370,7 @@ proptest! {
 
 /// Mutations for the long run: byte damage plus numbers that make counts and indices
 /// huge, negative or not numbers at all.
-fn mutate(bytes: &mut Vec<u8>, rng: &mut terratile::rng::SplitMix64) {
+fn mutate(bytes: &mut Vec<u8>, rng: &mut terratile::SplitMix64) {
     const WORDS: &[&[u8]] = &[
         b"4294967295",
         b"1000000000000000000",
@@ -432,7 +431,7 @@ fn mutate(bytes: &mut Vec<u8>, rng: &mut terratile::rng::SplitMix64) {
 /// The long run: at least 1,000,000 mutated cases per mesh parser (PLY ASCII, PLY binary,
 /// OBJ, glb), each seed's mutants in parallel; counts panics and cases slower than a second
 /// (hangs), and prints the figures. Run it under a memory cap:
-/// `prlimit --as=8589934592 cargo test --release --test mesh_io -- --ignored --nocapture million`.
+/// `prlimit --as=8589934592 cargo test --release --test tests -- --ignored --nocapture mesh_io::million`.
 #[test]
 #[ignore = "long: about a minute per parser"]
 fn a_million_mutants_per_parser() {
@@ -471,7 +470,7 @@ fn a_million_mutants_per_parser() {
         let first = std::sync::Mutex::new(Vec::<String>::new());
         let t = std::time::Instant::now();
         (0..cases).into_par_iter().for_each(|i| {
-            let mut rng = terratile::rng::SplitMix64::new(i ^ 0x5eed_0000_0000);
+            let mut rng = terratile::SplitMix64::new(i ^ 0x5eed_0000_0000);
             // Half the cases damage the parser's well-formed seed (the first: a whole mesh,
             // so damage reaches the data paths), half the corpus files.
             let pick = if i % 2 == 0 {

@@ -3,9 +3,9 @@
 //! decode within half a step, the .glb meshes load, and the outputs are byte-identical for
 //! any thread count.
 
-mod common;
-mod tiles_support;
+use crate::common;
 
+use crate::tiles_support::*;
 use exr::prelude::*;
 use serde_json::Value;
 use std::collections::BTreeMap;
@@ -17,15 +17,6 @@ use terratile::terrain::quadtree::{build, QuadtreeParams};
 use terratile::terrain::tiles::{tile, Preset, TileParams, TileSet};
 use terratile::terrain::Heightfield;
 use terratile::NoProgress;
-use tiles_support::*;
-
-/// Tiles of `size` samples, no preset.
-fn sized(size: usize) -> TileParams {
-    TileParams {
-        size: Some(size),
-        ..Default::default()
-    }
-}
 
 /// What [`write_all`] wrote: the files and the tile meshes' surface triangles.
 struct Written {

@@ -3,26 +3,13 @@
 //! every node and across tile borders, meshes are conforming inside each tile and along every
 //! shared border, and view-independent meshes are within the tolerance of every sample.
 
-mod common;
-mod tiles_support;
+use crate::common;
 
+use crate::tiles_support::*;
 use proptest::prelude::*;
 use terratile::terrain::extract::{self, Criterion, ExtractParams, Refiner, TileTriangulation};
 use terratile::terrain::quadtree::{self, build, NodeValues, QuadtreeParams};
-use terratile::terrain::tiles::{tile, TileParams, TileSet};
-use terratile::terrain::Heightfield;
-use tiles_support::*;
-
-fn tiles_of(hf: &Heightfield, size: usize) -> TileSet {
-    tile(
-        hf,
-        &TileParams {
-            size: Some(size),
-            ..Default::default()
-        },
-    )
-    .unwrap()
-}
+use terratile::terrain::tiles::TileSet;
 
 /// d2 of every node of every tile equals the brute force, and non-centre samples hold 0.
 fn check_d2_against_brute_force(set: &TileSet, c: f64) {

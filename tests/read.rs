@@ -1,7 +1,7 @@
 //! Readers against las-rs: every real tile, every LAS version and point format, LAZ, class
 //! filter and cap, thread-count independence, and the generator's round trip.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use terratile::points::{self, ClassFilter, Format, PointCloud, ReadOptions};
@@ -224,7 +224,7 @@ fn write_with_las_rs(path: &Path, version: (u8, u8), format: u8, compressed: boo
         5
     };
     let max_class = if format >= 6 { 255 } else { 31 };
-    let mut rng = terratile::rng::SplitMix64::new(format as u64 * 31 + version.1 as u64);
+    let mut rng = terratile::SplitMix64::new(format as u64 * 31 + version.1 as u64);
     for i in 0..n {
         let nret = 1 + rng.below(max_ret) as u8;
         let class = loop {

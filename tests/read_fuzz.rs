@@ -1,7 +1,7 @@
 //! Corrupted files never panic the readers: random byte damage to the header, VLRs and
 //! first records of LAS and LAZ files gives either points or an error.
 
-mod common;
+use crate::common;
 
 use proptest::prelude::*;
 use terratile::points::{self, ReadOptions};
@@ -57,13 +57,7 @@ proptest! {
     }
 }
 
-#[allow(dead_code)]
-mod corpus {
-    include!(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/corpus/points.rs"
-    ));
-}
+use crate::point_corpus as corpus;
 
 /// The seed inputs of every point-side parser: a LAS 1.4 file with an EVLR, a LAS 1.2 and a
 /// LAZ in point format 3, XYZ text, and the pipeline TOML of the repository.
@@ -98,7 +92,7 @@ const INTERESTING: [u64; 10] = [
 /// One mutant of `seed`, drawn from `r`: 1–8 edits (random bytes, interesting little-endian
 /// integers of 1, 2, 4 or 8 bytes, mostly in the first 400 bytes where the LAS header and VLRs
 /// live), sometimes an insertion or deletion (text), sometimes a truncation.
-fn mutate(seed: &[u8], r: &mut terratile::rng::SplitMix64) -> Vec<u8> {
+fn mutate(seed: &[u8], r: &mut terratile::SplitMix64) -> Vec<u8> {
     let mut b = seed.to_vec();
     let edits = 1 + r.below(8);
     for _ in 0..edits {
@@ -165,7 +159,7 @@ proptest! {
     fn mutated_point_inputs_and_pipelines_never_panic(which in 0usize..5, seed in any::<u64>()) {
         let seeds = seeds();
         let (name, bytes) = &seeds[which];
-        let mut r = terratile::rng::SplitMix64::new(seed);
+        let mut r = terratile::SplitMix64::new(seed);
         let m = mutate(bytes, &mut r);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join(name);
@@ -212,7 +206,7 @@ fn issue_14_corpus_gives_errors() {
 /// (allocation failure) ends the process, so finishing is the proof of none; run it under a
 /// memory cap:
 ///
-/// `prlimit --as=8589934592 cargo test --release --test read_fuzz million -- --ignored --nocapture`
+/// `prlimit --as=8589934592 cargo test --release --test tests read_fuzz::million -- --ignored --nocapture`
 #[test]
 #[ignore]
 fn million_mutants_per_parser() {
@@ -229,7 +223,7 @@ fn million_mutants_per_parser() {
             continue;
         }
         let path = dir.path().join(name);
-        let mut r = terratile::rng::SplitMix64::new(0x5EED + k as u64);
+        let mut r = terratile::SplitMix64::new(0x5EED + k as u64);
         let (mut panics, mut unnamed, mut slow, mut ok, mut errors) =
             (0u64, 0u64, 0u64, 0u64, 0u64);
         let mut slowest = 0f64;

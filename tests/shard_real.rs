@@ -4,7 +4,7 @@
 //! equal to the in-memory stages (keep flags, tile heights, d2, vertical error, fill
 //! figures). autzen_full (10.6 M points) is `#[ignore]`d: run it with `--ignored`.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use terratile::points::{self, ReadOptions};

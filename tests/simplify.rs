@@ -1,7 +1,7 @@
 //! The clustering simplifiers on the shared meshes, the paper's comparison on its own model,
 //! and property tests of the output's invariants.
 
-mod common;
+use crate::common;
 
 use proptest::prelude::*;
 use terratile::mesh::{hausdorff, io, Adjacency, HausdorffParams, TriMesh};
@@ -331,7 +331,7 @@ proptest! {
 }
 
 /// The table of docs/notes/mesh.md: four meshes, 33 % and 10 %, every method and representative.
-/// Run: `cargo test --release --test simplify -- --ignored --nocapture clustering_table`.
+/// Run: `cargo test --release --test tests -- --ignored --nocapture clustering_table`.
 #[test]
 #[ignore]
 fn clustering_table() {
@@ -474,7 +474,7 @@ fn meshopt_with_update(m: &TriMesh, target: usize) -> TriMesh {
 /// The quadric edge collapse against meshoptimizer on six meshes at four ratios: symmetric
 /// max and Metro mean (area-sampled mean distance, both directions) in % of the bbox
 /// diagonal, and the criteria counted against meshoptimizer's best.
-/// Run: `cargo test --release --test simplify -- --ignored --nocapture qem_table`.
+/// Run: `cargo test --release --test tests -- --ignored --nocapture qem_table`.
 #[test]
 #[ignore]
 fn qem_table() {

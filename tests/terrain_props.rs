@@ -12,7 +12,7 @@ use terratile::terrain::{
 /// A random cloud: a tilted, bumpy surface with gaps and a few outliers.
 fn cloud() -> impl Strategy<Value = (Vec<f64>, Vec<f64>, Vec<f64>)> {
     (20usize..1500, any::<u64>()).prop_map(|(n, seed)| {
-        let mut rng = terratile::rng::SplitMix64::new(seed);
+        let mut rng = terratile::SplitMix64::new(seed);
         let (w, h) = (rng.range(5.0, 300.0), rng.range(5.0, 300.0));
         let (ox, oy) = (rng.range(-1e6, 1e6), rng.range(-1e6, 1e6));
         let mut x = Vec::with_capacity(n);

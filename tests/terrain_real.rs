@@ -3,11 +3,10 @@
 //! byte-identical results for 1, 2 and 8 threads, and the vertical accuracy of the grid and
 //! of the Delaunay surface at held-out points. Run with `--nocapture` to see the tables.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use terratile::points::{self, PointCloud, ReadOptions};
-use terratile::rng::SplitMix64;
 use terratile::terrain::accuracy::{holdout, ErrorStats};
 use terratile::terrain::delaunay::{self, TinMethod};
 use terratile::terrain::reference;
@@ -15,6 +14,7 @@ use terratile::terrain::{
     denoise, fill, resample, DenoiseParams, FillParams, Heightfield, ResampleParams,
 };
 use terratile::NoProgress;
+use terratile::SplitMix64;
 
 fn name(p: &Path) -> String {
     p.file_name().unwrap().to_string_lossy().into_owned()
@@ -405,7 +405,7 @@ fn check_accuracy(r: &AccuracyRow) {
 }
 
 /// The same on autzen_full (10.65 M points; about a minute): `cargo test --release --test
-/// terrain_real -- --ignored accuracy_on_autzen_full --nocapture`.
+/// tests -- --ignored terrain_real::accuracy_on_autzen_full --nocapture`.
 #[test]
 #[ignore = "10.65 M points, about a minute; run with --ignored"]
 fn accuracy_on_autzen_full() {

@@ -4,25 +4,18 @@
 //! baseline's report and the benchmarks read.
 
 use crate::config::LoadedPipeline;
-use crate::error::Error;
-use crate::error::Result;
-use crate::memory::{estimate_run, Estimate};
+use crate::error::{Error, Result};
+use crate::memory::{estimate_run, proc_kb, Estimate};
 use crate::points::PointCloud;
 
 /// Peak resident set size of this process in bytes (`VmHWM`), if /proc says.
 pub fn peak_rss() -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
+    proc_kb("/proc/self/status", "VmHWM:")
 }
 
 /// Current resident set size in bytes (`VmRSS`).
 pub fn current_rss() -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with("VmRSS:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
+    proc_kb("/proc/self/status", "VmRSS:")
 }
 
 /// Resets the peak resident set size to the current one (Linux `clear_refs` 5); false if

@@ -415,6 +415,7 @@ impl Lattice {
     }
 
     /// The uncompressed (column i, column j, layer) of a point.
+    #[cfg(any(test, feature = "testing"))]
     pub(crate) fn raw_cell(&self, x: f64, y: f64, z: f64) -> (u64, u64, u32) {
         (
             self.raw_index(x, 0),

@@ -10,6 +10,7 @@ pub mod extract;
 pub mod fill;
 pub mod heightfield;
 pub mod quadtree;
+#[cfg(any(test, feature = "testing"))]
 pub mod reference;
 pub mod resample;
 pub mod tiles;

@@ -1,5 +1,4 @@
 //! Shared helpers of the integration tests.
-#![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 
@@ -180,7 +179,16 @@ pub fn walk(dir: &Path) -> Vec<PathBuf> {
 
 /// Runs `terratile ARGS` in `dir` (quietly, without progress bars).
 pub fn terratile(dir: &Path, args: &[&str]) -> Run {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_terratile"))
+    run_with(
+        std::process::Command::new(env!("CARGO_BIN_EXE_terratile")),
+        dir,
+        args,
+    )
+}
+
+/// Runs `cmd ARGS` (the terratile binary, or a wrapper around it) in `dir`.
+pub fn run_with(mut cmd: std::process::Command, dir: &Path, args: &[&str]) -> Run {
+    let out = cmd
         .args(args)
         .current_dir(dir)
         .env_remove("RUST_BACKTRACE")

@@ -1,7 +1,6 @@
 //! Bad and odd mesh inputs, generated (small, no copies of anyone's files): the cases of
 //! issue 14 that crashed, spun or were refused while peers read them. The regression tests
 //! run each through the binary; the fuzz tests use them as seeds.
-#![allow(dead_code)]
 
 /// What reading a corpus file must give.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

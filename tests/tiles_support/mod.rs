@@ -1,17 +1,29 @@
 //! Test inputs for the tile stages: heightfields from real points (a plain per-cell mean and a
 //! naive hole dilation, test-only: the real resampler and filler are the terrain stages'),
 //! synthetic heightfields, and slow, obvious checkers of meshes.
-#![allow(dead_code)]
 
 use std::collections::{HashMap, HashSet};
 use std::path::Path;
 use terratile::points::{self, PointCloud, ReadOptions};
-use terratile::rng::SplitMix64;
 use terratile::terrain::extract::TileTriangulation;
 use terratile::terrain::heightfield::choose_z_offset;
-use terratile::terrain::tiles::TileSet;
+use terratile::terrain::tiles::{tile, TileParams, TileSet};
 use terratile::terrain::{CellState, Heightfield};
 use terratile::NoProgress;
+use terratile::SplitMix64;
+
+/// Tiles of `size` samples, no preset.
+pub fn sized(size: usize) -> TileParams {
+    TileParams {
+        size: Some(size),
+        ..Default::default()
+    }
+}
+
+/// `hf` cut into tiles of `size` samples (the one tiling helper of the tests).
+pub fn tiles_of(hf: &Heightfield, size: usize) -> TileSet {
+    tile(hf, &sized(size)).unwrap()
+}
 
 /// Reads a point file with default options.
 pub fn read_points(path: &Path) -> PointCloud {

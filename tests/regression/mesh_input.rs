@@ -3,12 +3,11 @@
 //! Every command runs under an 8 GiB address-space cap (`prlimit --as`) when `prlimit` is
 //! there, as the acceptance asks.
 
-use super::common::{self, Run};
+use crate::common::{self, Run};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-#[path = "../mesh_corpus/mod.rs"]
-mod corpus;
+use crate::mesh_corpus as corpus;
 
 use corpus::Expect;
 
@@ -19,20 +18,14 @@ fn capped(dir: &Path, args: &[&str]) -> Run {
         .arg("--version")
         .output()
         .is_ok_and(|o| o.status.success());
-    let mut cmd = if has_prlimit {
+    let cmd = if has_prlimit {
         let mut c = std::process::Command::new("prlimit");
         c.arg("--as=8589934592").arg(bin);
         c
     } else {
         std::process::Command::new(bin)
     };
-    let out = cmd
-        .args(args)
-        .current_dir(dir)
-        .env_remove("RUST_BACKTRACE")
-        .output()
-        .expect("the terratile binary runs");
-    Run::from_output(dir, args, out)
+    common::run_with(cmd, dir, args)
 }
 
 fn write_case(dir: &Path, name: &str) {

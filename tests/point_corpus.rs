@@ -1,6 +1,5 @@
-// Generators of the bad point-cloud inputs of issue 14 (small files built in memory, never
-// copies of the shared data), for the regression tests and the mutation fuzzers. Included
-// with `include!` so that each test binary gets its own copy.
+//! Generators of the bad point-cloud inputs of issue 14 (small files built in memory, never
+//! copies of the shared data), for the regression tests and the mutation fuzzers.
 
 /// A hand-built LAS 1.4 file, point format 0: `points` records, then one EVLR of 15 bytes.
 /// `evlr_len` and `evlr_start` override the EVLR's length field and the header's offset to
@@ -62,7 +61,11 @@ pub fn las_format3(n: usize, outliers: usize, compressed: bool) -> Vec<u8> {
     let side = (n as f64).sqrt().ceil() as usize;
     for i in 0..n + outliers {
         let (x, y) = ((i % side) as f64, ((i / side) % side) as f64);
-        let z = if i >= n { 500.0 + 97.0 * (i - n) as f64 } else { 0.05 * x + 0.02 * y };
+        let z = if i >= n {
+            500.0 + 97.0 * (i - n) as f64
+        } else {
+            0.05 * x + 0.02 * y
+        };
         let p = las::Point {
             x,
             y,

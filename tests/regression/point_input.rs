@@ -2,16 +2,10 @@
 //! each bad input must give one line naming the file and the place, exit 2, no panic, no
 //! abort, no hang and no allocation its bytes cannot justify.
 
-use super::common::{self, terratile, Run};
+use crate::common::{self, terratile, Run};
 use std::path::Path;
 
-#[allow(dead_code)]
-mod corpus {
-    include!(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/corpus/points.rs"
-    ));
-}
+use crate::point_corpus as corpus;
 
 fn write(dir: &Path, name: &str, bytes: impl AsRef<[u8]>) {
     std::fs::write(dir.join(name), bytes).unwrap();

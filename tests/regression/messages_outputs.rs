@@ -98,7 +98,7 @@ fn clap_errors_are_one_line_exit_2() {
 /// showed the start of the path and never the file name.
 #[test]
 fn progress_label_shows_the_file_name() {
-    use terratile::progress::bar_label;
+    use terratile::bar_label;
     let l = bar_label("reading /work/wt/shared/data/lidar/autzen_trim.las", 40);
     assert_eq!(l, "reading …/autzen_trim.las");
     assert_eq!(bar_label("denoise", 40), "denoise");

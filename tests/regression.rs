@@ -1,0 +1,7 @@
+//! Regression tests: one named test per defect fixed, each commented with what broke.
+//! Grouped by area in `tests/regression/`; the test name says the defect.
+
+mod mesh_input;
+mod messages_outputs;
+mod output_dir;
+mod point_input;
