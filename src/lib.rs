@@ -24,6 +24,7 @@ pub mod mesh;
 pub mod output;
 pub mod pipeline;
 pub mod points;
+pub mod shard;
 pub mod simplify;
 pub mod terrain;
 

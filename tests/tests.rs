@@ -21,6 +21,7 @@ mod outputs;
 mod quadtree;
 mod read;
 mod read_fuzz;
+mod shard_real;
 mod simplify;
 mod strips;
 mod terrain_props;

@@ -284,19 +284,54 @@ pub(crate) struct Lattice {
 /// and their compressed numbers.
 type Squeeze = (Vec<u64>, Vec<u32>);
 
+/// The uncompressed voxel column index of coordinate `v` on a lattice from `origin` with
+/// `inv` = 1 / voxel edge and `raw` columns (the last one takes the points on the far edge).
+#[inline(always)]
+fn raw_index(v: f64, origin: f64, inv: f64, raw: u64) -> u64 {
+    (((v - origin) * inv) as u64).min(raw - 1)
+}
+
+/// Uncompressed voxel columns along x and y of the lattice of `s` over `b`.
+fn raw_columns(b: &Bounds, s: &DenoiseSettings) -> [f64; 2] {
+    let [w, h, _] = b.size();
+    [
+        (w / s.voxel_size).floor() + 1.0,
+        (h / s.voxel_size).floor() + 1.0,
+    ]
+}
+
+/// Voxel columns per low-layer column of the settings `s`.
+fn group_ratio(s: &DenoiseSettings) -> u32 {
+    (s.low_column / s.voxel_size).round().clamp(1.0, 1e9) as u32
+}
+
 /// Above this many voxel columns per point (and 2^20 in all) the lattice is compressed.
 const SQUEEZE_COLUMNS_PER_POINT: u64 = 4;
 
 impl Lattice {
     /// The lattice of `s` over `b`, compressed when needed for the points `x`, `y`.
     pub(crate) fn new(b: &Bounds, s: &DenoiseSettings, x: &[f64], y: &[f64]) -> Result<Lattice> {
+        Lattice::squeezed_above(
+            b,
+            s,
+            x,
+            y,
+            (x.len() as u64 * SQUEEZE_COLUMNS_PER_POINT).max(1 << 20),
+        )
+    }
+
+    /// [`Lattice::new`], compressed whenever the box holds more than `limit` columns (a
+    /// shard's points occupy a small part of the whole run's lattice: 0 squeezes always).
+    fn squeezed_above(
+        b: &Bounds,
+        s: &DenoiseSettings,
+        x: &[f64],
+        y: &[f64],
+        limit: u64,
+    ) -> Result<Lattice> {
         let [w, h, d] = b.size();
-        let cells = |ext: f64, size: f64| (ext / size).floor() + 1.0;
-        let (fx, fy, ncz) = (
-            cells(w, s.voxel_size),
-            cells(h, s.voxel_size),
-            cells(d, s.voxel_height),
-        );
+        let [fx, fy] = raw_columns(b, s);
+        let ncz = (d / s.voxel_height).floor() + 1.0;
         if ncz > u32::MAX as f64 / 2.0 {
             return Err(Error::param(
                 "denoise",
@@ -313,7 +348,7 @@ impl Lattice {
                 format!("too small for an extent of {w} × {h}: more than 2^64 voxel columns"),
             ));
         }
-        let ratio = (s.low_column / s.voxel_size).round().clamp(1.0, 1e9) as u32;
+        let ratio = group_ratio(s);
         let slab = s.low_gap.map_or(1, |g| {
             ((g / 2.0) / s.voxel_height).ceil().clamp(1.0, 1e9) as u32
         });
@@ -327,7 +362,6 @@ impl Lattice {
             slab,
             squeeze: None,
         };
-        let limit = (x.len() as u64 * SQUEEZE_COLUMNS_PER_POINT).max(1 << 20);
         if fx * fy > limit as f64 {
             let axis = |v: &[f64], a: usize| {
                 let mut groups: Vec<u64> = v
@@ -377,7 +411,7 @@ impl Lattice {
     /// The uncompressed column index of coordinate `v` along axis `a` (0 x, 1 y).
     #[inline(always)]
     fn raw_index(&self, v: f64, a: usize) -> u64 {
-        (((v - self.origin[a]) * self.inv[a]) as u64).min(self.raw[a] - 1)
+        raw_index(v, self.origin[a], self.inv[a], self.raw[a])
     }
 
     /// The uncompressed (column i, column j, layer) of a point.
@@ -507,22 +541,22 @@ fn denoise_into(
             message: "no points to filter".into(),
         });
     }
-    if n > u32::MAX as usize {
-        return Err(Error::Data {
-            stage: "denoise",
-            message: format!("{n} points: at most 2^32 − 1 per run"),
-        });
-    }
     let (bounds, _) = super::bounds_of(x, y, z, None);
-    let settings = params.resolve(&bounds, n, metres_per_unit)?;
-    let lat = Lattice::new(&bounds, &settings, x, y)?;
-    let sorted = sort_by_column(x, y, z, &lat);
+    let mut st = setup(x, y, z, &bounds, n, params, metres_per_unit)?;
+    let Setup {
+        settings,
+        lat,
+        sorted,
+    } = &mut st;
 
     // The count test, at the chosen (or adapted) voxel height; flags follow the sorted keys.
     let mut dense = vec![false; n];
-    let mut settings = settings;
+    let s = *settings;
+    let pass = |q: u32, coarse: Option<&[bool]>, flags: &mut [bool]| {
+        count_pass(sorted, lat, &s, q, coarse, flags, None)
+    };
     let (sparse, voxels) = if params.voxel_height.is_some() {
-        let (failing, _, voxels) = count_pass(&sorted, &lat, &settings, 1, None, &mut dense);
+        let (failing, _, voxels) = pass(1, None, &mut dense);
         (failing, voxels)
     } else {
         // Points isolated even in voxels MAX_HEIGHT_STEPS·s tall are noise at any height;
@@ -531,27 +565,89 @@ fn denoise_into(
         let budget = (HEIGHT_LOSS * n as f64).floor() as usize;
         let mut coarse: Option<Vec<bool>> = None;
         let mut q = 1;
-        loop {
-            let (mut failing, mut lost, mut voxels) =
-                count_pass(&sorted, &lat, &settings, q, coarse.as_deref(), &mut dense);
+        let (failing, voxels) = loop {
+            let (mut failing, mut lost, mut voxels) = pass(q, coarse.as_deref(), &mut dense);
             if failing > budget && coarse.is_none() && q < MAX_HEIGHT_STEPS {
                 let mut c = vec![false; n];
-                count_pass(&sorted, &lat, &settings, MAX_HEIGHT_STEPS, None, &mut c);
+                pass(MAX_HEIGHT_STEPS, None, &mut c);
                 coarse = Some(c);
-                (failing, lost, voxels) =
-                    count_pass(&sorted, &lat, &settings, q, coarse.as_deref(), &mut dense);
+                (failing, lost, voxels) = pass(q, coarse.as_deref(), &mut dense);
             } else if coarse.is_none() {
                 lost = failing;
             }
             if lost <= budget || q == MAX_HEIGHT_STEPS {
-                settings.height_steps = q;
-                settings.voxel_height *= q as f64;
                 break (failing, voxels);
             }
             q += 1;
-        }
+        };
+        settings.height_steps = q;
+        settings.voxel_height *= q as f64;
+        (failing, voxels)
     };
 
+    finish(st, dense, sparse, voxels, None, scratch)
+}
+
+/// What the count passes work on: the settings, the lattice and the points sorted by column.
+struct Setup {
+    settings: DenoiseSettings,
+    lat: Lattice,
+    sorted: ColumnSort,
+}
+
+/// The settings, lattice and sorted points of `x`, `y`, `z` for a run over `bounds` holding
+/// `points` points in all (a shard's points are part of them).
+#[allow(clippy::too_many_arguments)]
+fn setup(
+    x: &[f64],
+    y: &[f64],
+    z: &[f64],
+    bounds: &Bounds,
+    points: usize,
+    params: &DenoiseParams,
+    metres_per_unit: f64,
+) -> Result<Setup> {
+    let n = x.len();
+    if n > u32::MAX as usize {
+        return Err(Error::Data {
+            stage: "denoise",
+            message: format!("{n} points: at most 2^32 − 1 per run"),
+        });
+    }
+    let settings = params.resolve(bounds, points, metres_per_unit)?;
+    let lat = if points > n {
+        // A shard: the whole run's lattice, its empty space squeezed out (which changes no
+        // count and no floor) so that its bookkeeping is bounded by its own points.
+        Lattice::squeezed_above(bounds, &settings, x, y, 0)?
+    } else {
+        Lattice::new(bounds, &settings, x, y)?
+    };
+    let sorted = sort_by_column(x, y, z, &lat);
+    Ok(Setup {
+        settings,
+        lat,
+        sorted,
+    })
+}
+
+/// The low-layer rule and the keep flags, after the count test left `dense` (one flag per
+/// sorted key; `sparse` points failed it, in `voxels` occupied voxels). With `owned` (one
+/// flag per column: a shard's own columns), only points of owned columns are kept and
+/// counted; the others only lend their counts and profiles.
+fn finish(
+    setup: Setup,
+    dense: Vec<bool>,
+    sparse: usize,
+    voxels: usize,
+    owned: Option<&[bool]>,
+    scratch: &mut Vec<u64>,
+) -> Result<Denoised> {
+    let Setup {
+        settings,
+        lat,
+        sorted,
+    } = setup;
+    let n = dense.len();
     // The low-layer floors, from the points that passed the count (scattered noise would
     // otherwise fill the very gaps that detach a low layer).
     let floors = if settings.low_gap.is_some() {
@@ -569,6 +665,9 @@ fn denoise_into(
         .into_par_iter()
         .with_min_len(256)
         .map(|c| {
+            if owned.is_some_and(|o| !o[c]) {
+                return 0;
+            }
             // Points below the floor's first layer are a detached low layer.
             let floor = if floors.is_empty() {
                 0
@@ -592,9 +691,16 @@ fn denoise_into(
         .sum();
     let keep: Vec<bool> = keep.into_iter().map(AtomicBool::into_inner).collect();
     drop((dense, floors));
+    let own_points = match owned {
+        None => n,
+        Some(o) => (0..lat.columns())
+            .filter(|&c| o[c])
+            .map(|c| (sorted.starts[c + 1] - sorted.starts[c]) as usize)
+            .sum(),
+    };
     *scratch = sorted.keys;
-    let kept = n - sparse - low;
-    if kept == 0 {
+    let kept = own_points - sparse - low;
+    if kept == 0 && owned.is_none() {
         return Err(Error::Data {
             stage: "denoise",
             message: format!(
@@ -624,6 +730,7 @@ fn count_pass(
     q: u32,
     coarse: Option<&[bool]>,
     flags: &mut [bool],
+    owned: Option<&[bool]>,
 ) -> (usize, usize, usize) {
     let m = s.min_points as usize;
     column_slices(flags, &t.starts)
@@ -704,6 +811,10 @@ fn count_pass(
                     }
                 }
                 a = b;
+            }
+            // A shard counts its own columns only; its halo's flags are still set.
+            if owned.is_some_and(|o| !o[c]) {
+                return (0, 0, 0);
             }
             (failing, lost, voxels)
         })
@@ -921,6 +1032,203 @@ pub(crate) fn floor_of(profile: &[(u32, u32)], fraction: f64) -> u32 {
         }
     }
     floor
+}
+
+/// The global figures noise removal of a shard needs, known before any point is read
+/// against its neighbours: the bounds and number of all points of the run. The voxel
+/// lattice is anchored at the bounds' minimum corner and the data-derived defaults come
+/// from the mean spacing over them, so every shard sees the lattice of the whole run.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Frame {
+    /// Bounds of all points.
+    pub bounds: Bounds,
+    /// Number of all points.
+    pub points: usize,
+}
+
+/// Voxel columns a shard owns: uncompressed column indices of the global lattice along x
+/// and y, half-open.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ColumnWindow {
+    /// Columns along x.
+    pub x: std::ops::Range<u64>,
+    /// Columns along y.
+    pub y: std::ops::Range<u64>,
+}
+
+impl Frame {
+    /// The settings of the whole run (data-derived defaults from all points).
+    pub fn settings(
+        &self,
+        params: &DenoiseParams,
+        metres_per_unit: f64,
+    ) -> Result<DenoiseSettings> {
+        params.resolve(&self.bounds, self.points, metres_per_unit)
+    }
+
+    /// Uncompressed voxel columns of the lattice along x and y.
+    pub fn columns(&self, s: &DenoiseSettings) -> [u64; 2] {
+        raw_columns(&self.bounds, s).map(|c| c as u64)
+    }
+
+    /// The uncompressed voxel column (i, j) of a point: the expression the lattice uses.
+    pub fn column(&self, s: &DenoiseSettings, x: f64, y: f64) -> (u64, u64) {
+        let [cx, cy] = self.columns(s);
+        let inv = 1.0 / s.voxel_size;
+        (
+            raw_index(x, self.bounds.min[0], inv, cx),
+            raw_index(y, self.bounds.min[1], inv, cy),
+        )
+    }
+
+    /// Voxel columns per low-layer column (owned windows aligned to it keep every
+    /// low-layer window whole).
+    pub fn group(&self, s: &DenoiseSettings) -> u64 {
+        group_ratio(s) as u64
+    }
+
+    /// Voxel columns a shard reads beyond its own on every side: one low-layer column and
+    /// one voxel column when the low-layer rule is on (a floor reads the profiles of the 8
+    /// neighbour low-layer columns, built from count flags that read one voxel column
+    /// further), one voxel column for the 3×3×3 count, none for the voxel alone.
+    pub fn halo(&self, s: &DenoiseSettings) -> u64 {
+        match (s.low_gap.is_some(), s.neighbourhood) {
+            (true, _) => self.group(s) + 1,
+            (false, true) => 1,
+            (false, false) => 0,
+        }
+    }
+}
+
+/// A shard's points set up against the global lattice, with its owned columns flagged.
+fn shard_setup(
+    x: &[f64],
+    y: &[f64],
+    z: &[f64],
+    frame: &Frame,
+    params: &DenoiseParams,
+    metres_per_unit: f64,
+    owned: &ColumnWindow,
+) -> Result<(Setup, Vec<bool>)> {
+    let setup = setup(
+        x,
+        y,
+        z,
+        &frame.bounds,
+        frame.points,
+        params,
+        metres_per_unit,
+    )?;
+    let mut own = vec![false; setup.lat.columns()];
+    for (&x, &y) in x.iter().zip(y) {
+        let (i, j) = (setup.lat.raw_index(x, 0), setup.lat.raw_index(y, 1));
+        if owned.x.contains(&i) && owned.y.contains(&j) {
+            own[setup.lat.column(x, y) as usize] = true;
+        }
+    }
+    Ok((setup, own))
+}
+
+/// The count test of a shard (its own points and its halo's) at every voxel height the
+/// automatic choice may try, q = 1…[`MAX_HEIGHT_STEPS`] (only q = 1 when `voxel_height` is
+/// given): per q, (points failing, points failing but passing at the tallest voxels,
+/// occupied voxels), over the shard's own columns. Summed over all shards, they are what
+/// the in-memory run counts; [`choose_steps`] picks q from the sums.
+pub fn shard_counts(
+    x: &[f64],
+    y: &[f64],
+    z: &[f64],
+    frame: &Frame,
+    params: &DenoiseParams,
+    metres_per_unit: f64,
+    owned: &ColumnWindow,
+) -> Result<Vec<[usize; 3]>> {
+    let (
+        Setup {
+            settings,
+            lat,
+            sorted,
+        },
+        own,
+    ) = shard_setup(x, y, z, frame, params, metres_per_unit, owned)?;
+    let n = x.len();
+    let mut dense = vec![false; n];
+    if params.voxel_height.is_some() {
+        let (f, l, v) = count_pass(&sorted, &lat, &settings, 1, None, &mut dense, Some(&own));
+        return Ok(vec![[f, l, v]]);
+    }
+    let mut coarse = vec![false; n];
+    count_pass(
+        &sorted,
+        &lat,
+        &settings,
+        MAX_HEIGHT_STEPS,
+        None,
+        &mut coarse,
+        None,
+    );
+    Ok((1..=MAX_HEIGHT_STEPS)
+        .map(|q| {
+            let (f, l, v) = count_pass(
+                &sorted,
+                &lat,
+                &settings,
+                q,
+                Some(&coarse),
+                &mut dense,
+                Some(&own),
+            );
+            [f, l, v]
+        })
+        .collect())
+}
+
+/// The voxel height steps q the in-memory run picks, from the counts of [`shard_counts`]
+/// summed over all shards of a run of `points` points: the first q at which the points
+/// failing (not counting those isolated even in the tallest voxels) are within the budget.
+pub fn choose_steps(params: &DenoiseParams, counts: &[[usize; 3]], points: usize) -> u32 {
+    if params.voxel_height.is_some() {
+        return 1;
+    }
+    let budget = (HEIGHT_LOSS * points as f64).floor() as usize;
+    // At q = 1 the in-memory run first compares all failing points, then (over the budget)
+    // the ones the tallest voxels keep; lost ≤ failing, so the second test decides both.
+    counts
+        .iter()
+        .position(|c| c[1] <= budget)
+        .map_or(MAX_HEIGHT_STEPS, |k| k as u32 + 1)
+}
+
+/// Noise removal of a shard at voxel height steps `q` (from [`choose_steps`]): the keep flags
+/// of the shard's points (true only for kept points of its own columns) and the figures
+/// over its own columns. The flags of its own points are those the in-memory run gives them.
+#[allow(clippy::too_many_arguments)]
+pub fn shard_denoise(
+    x: &[f64],
+    y: &[f64],
+    z: &[f64],
+    frame: &Frame,
+    params: &DenoiseParams,
+    metres_per_unit: f64,
+    owned: &ColumnWindow,
+    q: u32,
+) -> Result<Denoised> {
+    let (mut st, own) = shard_setup(x, y, z, frame, params, metres_per_unit, owned)?;
+    let mut dense = vec![false; x.len()];
+    let (sparse, _, voxels) = count_pass(
+        &st.sorted,
+        &st.lat,
+        &st.settings,
+        q,
+        None,
+        &mut dense,
+        Some(&own),
+    );
+    if params.voxel_height.is_none() {
+        st.settings.height_steps = q;
+        st.settings.voxel_height *= q as f64;
+    }
+    finish(st, dense, sparse, voxels, Some(&own), &mut Vec::new())
 }
 
 #[cfg(test)]

@@ -424,18 +424,14 @@ pub(crate) fn push_pull(hf: &mut Heightfield) {
         let next = push_level(v, h, w);
         pyramid.push(next);
     }
-    // Pull: fill each level's unknown cells from the completed level above, top down.
-    let mut above = match pyramid.pop() {
-        Some(top) => top,
-        None => return,
-    };
-    while let Some(mut level) = pyramid.pop() {
-        pull_level(&mut level.0, level.2, &above.0, above.1, above.2);
-        above = level;
-    }
     if let Some(h0) = hf.heights.as_slice_mut() {
-        pull_level(h0, cols, &above.0, above.1, above.2);
+        pull_down(h0, cols, pyramid);
     }
+    mark_fallback(hf);
+}
+
+/// Empty cells that now have a height were filled by the fallback.
+pub(crate) fn mark_fallback(hf: &mut Heightfield) {
     Zip::from(&mut hf.state)
         .and(&hf.heights)
         .par_for_each(|s, h| {
@@ -445,8 +441,23 @@ pub(crate) fn push_pull(hf: &mut Heightfield) {
         });
 }
 
+/// The pull half of [`push_pull`]: fills each level's unknown cells from the completed level
+/// above, top down (`pyramid` from level 1 up, its last level complete), then those of
+/// `level0` (`w` wide).
+pub(crate) fn pull_down(level0: &mut [f32], w: usize, mut pyramid: Vec<(Vec<f32>, usize, usize)>) {
+    let mut above = match pyramid.pop() {
+        Some(top) => top,
+        None => return,
+    };
+    while let Some(mut level) = pyramid.pop() {
+        pull_level(&mut level.0, level.2, &above.0, above.1, above.2);
+        above = level;
+    }
+    pull_level(level0, w, &above.0, above.1, above.2);
+}
+
 /// One level up: each cell the mean of the known (non-NaN) cells of its 2×2 block.
-fn push_level(v: &[f32], h: usize, w: usize) -> (Vec<f32>, usize, usize) {
+pub(crate) fn push_level(v: &[f32], h: usize, w: usize) -> (Vec<f32>, usize, usize) {
     let (nh, nw) = (h.div_ceil(2), w.div_ceil(2));
     let mut up = vec![f32::NAN; nh * nw];
     up.par_chunks_mut(nw).enumerate().for_each(|(j, out)| {

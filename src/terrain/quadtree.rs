@@ -351,7 +351,6 @@ where
     F: Fn(&[f32], usize, usize, usize, bool, &mut [f32]) + Sync,
 {
     let n = set.tile_size;
-    let levels = set.levels();
     let mut out: Vec<NodeValues> = set.tiles.iter().map(|_| NodeValues::zeros(n)).collect();
     // Levels 1 and 2 in one pass over the heights (they are nearly all the work, and memory
     // bound): level 1 has no children, and level 2 reads level-1 rows still in cache.
@@ -365,45 +364,90 @@ where
             let (l1, rest) = m.levels.split_at_mut(1);
             fused_levels_1_2(&raw, h, n, k, tile.holes == 0, &mut l1[0], &mut rest[0]);
         });
-    reconcile(set, &mut out, 1);
-    reconcile(set, &mut out, 2);
-    for level in 3..=levels {
+    reconcile(set.grid, n, &mut out, 1);
+    reconcile(set.grid, n, &mut out, 2);
+    let heights = |t: usize| (set.tiles[t].height_slice(), set.tiles[t].holes == 0);
+    close_levels(set.grid, n, k, 3, &mut out, heights, &raw);
+    out
+}
+
+/// Levels `from`… of the propagation: each node takes max(own, `k` × the nodes one level
+/// lower that it contains or borders), its own value written first by `raw` from the tile's
+/// heights (`heights(t)`: the tile's samples and whether they are NaN-free); then mirror
+/// groups take their maximum.
+fn close_levels<'h, F, H>(
+    grid: [usize; 2],
+    n: usize,
+    k: f32,
+    from: u32,
+    out: &mut [NodeValues],
+    heights: H,
+    raw: &F,
+) where
+    F: Fn(&[f32], usize, usize, usize, bool, &mut [f32]) + Sync,
+    H: Fn(usize) -> (&'h [f32], bool) + Sync,
+{
+    let levels = (n - 1).trailing_zeros();
+    for level in from..=levels {
         let r = 1usize << (level - 1);
         let nodes = (n - 1) / (2 * r);
-        out.par_iter_mut()
-            .zip(set.tiles.par_iter())
-            .for_each(|(m, tile)| {
-                let h = tile.height_slice();
-                let (lower, rest) = m.levels.split_at_mut(level as usize - 1);
-                // Level m − 1 has 2 × nodes per side: children of (a, b) are (2a.., 2b..).
-                let low: &[f32] = &lower[level as usize - 2];
-                let ln = 2 * nodes;
-                rest[0]
-                    .par_chunks_mut(nodes)
-                    .enumerate()
-                    .for_each(|(b, row)| {
-                        let y = |k: usize| &low[k * ln..(k + 1) * ln];
-                        let below = (b > 0).then(|| y(2 * b - 1));
-                        let above = (b + 1 < nodes).then(|| y(2 * b + 2));
-                        parent_row(
-                            &raw,
-                            h,
-                            n,
-                            r,
-                            b,
-                            k,
-                            tile.holes == 0,
-                            below,
-                            y(2 * b),
-                            y(2 * b + 1),
-                            above,
-                            row,
-                        );
-                    });
-            });
-        reconcile(set, &mut out, r);
+        out.par_iter_mut().enumerate().for_each(|(t, m)| {
+            let (h, nan_free) = heights(t);
+            let (lower, rest) = m.levels.split_at_mut(level as usize - 1);
+            // Level m − 1 has 2 × nodes per side: children of (a, b) are (2a.., 2b..).
+            let low: &[f32] = &lower[level as usize - 2];
+            let ln = 2 * nodes;
+            rest[0]
+                .par_chunks_mut(nodes)
+                .enumerate()
+                .for_each(|(b, row)| {
+                    let y = |k: usize| &low[k * ln..(k + 1) * ln];
+                    let below = (b > 0).then(|| y(2 * b - 1));
+                    let above = (b + 1 < nodes).then(|| y(2 * b + 2));
+                    parent_row(
+                        raw,
+                        h,
+                        n,
+                        r,
+                        b,
+                        k,
+                        nan_free,
+                        below,
+                        y(2 * b),
+                        y(2 * b + 1),
+                        above,
+                        row,
+                    );
+                });
+        });
+        reconcile(grid, n, out, r);
     }
-    out
+}
+
+/// Finishes the propagation of node values computed on parts of a tile grid (shards of
+/// whole tiles, each propagated and reconciled on its own by [`build`] or
+/// [`vertical_error`]): `values` holds every tile of the `grid`, row by row from the south,
+/// and `k` is the propagation factor they were computed with (K for d2, 1 for the vertical
+/// error). Propagation is a max-plus closure, monotone and idempotent, and the shards'
+/// values lie between the raw values and the global result, so propagating them once more,
+/// each node's own value taken from `values` instead of from the heights, gives exactly the
+/// values [`build`] computes on the whole grid: the same maxima of the same f32 products.
+pub fn merge(grid: [usize; 2], k: f32, values: &mut [NodeValues]) {
+    let Some(n) = values.first().map(|v| v.size) else {
+        return;
+    };
+    debug_assert_eq!(values.len(), grid[0] * grid[1]);
+    reconcile(grid, n, values, 1);
+    // The own value is the shard's, already in place: nothing to compute from heights.
+    close_levels(
+        grid,
+        n,
+        k,
+        2,
+        values,
+        |_| (&[][..], true),
+        &|_, _, _, _, _, _| {},
+    );
 }
 
 /// Level-2 rows computed per block, each block a sequential band over the heights.
@@ -508,9 +552,9 @@ fn parent_row<F>(
 }
 
 /// Gives every group of mirror nodes of half edge `r` across tile borders their maximum.
-fn reconcile(set: &TileSet, m: &mut [NodeValues], r: usize) {
-    let n = set.tile_size;
-    let [gx, gy] = set.grid;
+fn reconcile(grid: [usize; 2], n: usize, m: &mut [NodeValues], r: usize) {
+    let [gx, gy] = grid;
+    let index = |col: usize, row: usize| row * gx + col;
     if gx * gy == 1 {
         return;
     }
@@ -531,7 +575,7 @@ fn reconcile(set: &TileSet, m: &mut [NodeValues], r: usize) {
     // four-node groups around tile corners.
     for row in 0..gy {
         for col in 0..gx - 1 {
-            let (ia, ib) = (set.index(col, row), set.index(col + 1, row));
+            let (ia, ib) = (index(col, row), index(col + 1, row));
             for cj in (r..n).step_by(2 * r) {
                 let v = m[ia].get(hi, cj).max(m[ib].get(lo, cj));
                 m[ia].set(hi, cj, v);
@@ -541,7 +585,7 @@ fn reconcile(set: &TileSet, m: &mut [NodeValues], r: usize) {
     }
     for row in 0..gy - 1 {
         for col in 0..gx {
-            let (ia, ib) = (set.index(col, row), set.index(col, row + 1));
+            let (ia, ib) = (index(col, row), index(col, row + 1));
             for ci in (r..n).step_by(2 * r) {
                 let v = m[ia].get(ci, hi).max(m[ib].get(ci, lo));
                 m[ia].set(ci, hi, v);

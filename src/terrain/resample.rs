@@ -242,7 +242,6 @@ fn resample_into(
     scratch: &mut Vec<u64>,
 ) -> Result<Resampled> {
     params.validate()?;
-    let kept = |i: usize| keep.is_none_or(|k| k[i]);
     let (bounds, points) = super::bounds_of(x, y, z, keep);
     if points == 0 {
         return Err(Error::Data {
@@ -251,8 +250,43 @@ fn resample_into(
         });
     }
     let spec = GridSpec::new(params, &bounds, points)?;
-    let (cols, rows) = (spec.cols, spec.rows);
-    let method = params.method;
+    let window = [0..spec.cols, 0..spec.rows];
+    let grid = bin(x, y, z, keep, &spec, window, params.method, crs, scratch);
+    Ok(Resampled { grid, spec, points })
+}
+
+/// The cells `window` (columns, rows) of the grid `spec`, from the points of `x`, `y`, `z`
+/// whose `keep` flag is set (all when `None`): a shard's part of the whole run's grid,
+/// holding exactly the heights the whole grid holds there when the points are those of
+/// the window, in input order. Its corner is that of the window's first cell.
+pub fn resample_window(
+    [x, y, z]: [&[f64]; 3],
+    keep: Option<&[bool]>,
+    spec: &GridSpec,
+    window: [std::ops::Range<usize>; 2],
+    method: CellMethod,
+    crs: Option<Crs>,
+) -> Heightfield {
+    bin(x, y, z, keep, spec, window, method, crs, &mut Vec::new())
+}
+
+/// Bins the kept points into the cells `window` of `spec` (points outside it are skipped).
+#[allow(clippy::too_many_arguments)]
+fn bin(
+    x: &[f64],
+    y: &[f64],
+    z: &[f64],
+    keep: Option<&[bool]>,
+    spec: &GridSpec,
+    window: [std::ops::Range<usize>; 2],
+    method: CellMethod,
+    crs: Option<Crs>,
+    scratch: &mut Vec<u64>,
+) -> Heightfield {
+    let kept = |i: usize| keep.is_none_or(|k| k[i]);
+    let spec = *spec;
+    let [i0, j0] = [window[0].start, window[1].start];
+    let (cols, rows) = (window[0].len(), window[1].len());
     let n = x.len();
     // Bands of rows, one task each: a task scans all points and takes those in its rows, in
     // file order, into its own rows of the grid. No scratch but one f64 per cell, no atomics,
@@ -265,7 +299,13 @@ fn resample_into(
     let cell_of = |i: usize| {
         if kept(i) {
             let (ci, cj) = spec.cell(x[i], y[i]);
-            (cj * cols + ci) as u32
+            // Outside the window (wrapping below its start), like a removed point.
+            let (ci, cj) = (ci.wrapping_sub(i0), cj.wrapping_sub(j0));
+            if ci < cols && cj < rows {
+                (cj * cols + ci) as u32
+            } else {
+                u32::MAX
+            }
         } else {
             u32::MAX
         }
@@ -350,16 +390,28 @@ fn resample_into(
                 s[k] = CellState::Measured;
             }
         });
-    let grid = Heightfield {
+    Heightfield {
         heights,
         counts,
         state,
-        corner: spec.corner,
+        // The whole grid's corner itself for a window at its start (no `+ 0.0`, which
+        // would turn a −0 corner into +0).
+        corner: [
+            if i0 == 0 {
+                spec.corner[0]
+            } else {
+                spec.corner[0] + i0 as f64 * spec.cell_size[0]
+            },
+            if j0 == 0 {
+                spec.corner[1]
+            } else {
+                spec.corner[1] + j0 as f64 * spec.cell_size[1]
+            },
+        ],
         cell_size: spec.cell_size,
         z_offset: spec.z_offset,
         crs,
-    };
-    Ok(Resampled { grid, spec, points })
+    }
 }
 
 #[cfg(test)]

@@ -206,7 +206,7 @@ impl TileSet {
 }
 
 /// Tiles needed to cover `n` samples with tiles of `size` samples sharing one sample.
-fn tiles_for(n: usize, size: usize) -> usize {
+pub(crate) fn tiles_for(n: usize, size: usize) -> usize {
     ((n.saturating_sub(1)) + (size - 2)) / (size - 1)
 }
 
