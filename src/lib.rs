@@ -9,6 +9,7 @@
 
 pub mod assets;
 pub mod bench;
+pub mod classify;
 pub mod config;
 pub mod error;
 pub mod fsutil;

@@ -64,3 +64,63 @@ fn isprs_scores() {
     assert!(kappa >= 0.835, "mean kappa {kappa}");
     assert!(total <= 0.05, "mean total error {total}");
 }
+
+/// `terratile classify` writes the input's records in order with only the class changed,
+/// and refuses bad requests with one line, exit 2 and no output.
+#[test]
+fn classify_cli() {
+    let dir = common::default_job();
+    let d = dir.path();
+    let las = "fixtures/survey-0-0.las";
+    if !d.join(las).exists() {
+        let names: Vec<_> = common::walk(&d.join("fixtures"));
+        panic!("fixture names changed: {names:?}");
+    }
+    let r = common::terratile(d, &["classify", las, "out.las", "--json"]);
+    r.ok();
+    let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+    assert!(v["ground"].as_u64().unwrap() > 0, "{v}");
+    let a = read(&d.join(las));
+    let b = read(&d.join("out.las"));
+    assert_eq!((a.x.len(), &a.x, &a.y, &a.z), (b.x.len(), &b.x, &b.y, &b.z));
+    assert_eq!(a.intensity, b.intensity);
+    assert_eq!(a.return_number, b.return_number);
+    let ground = b.classification.iter().filter(|&&c| c == 2).count();
+    assert_eq!(ground as u64, v["ground"].as_u64().unwrap());
+    assert!(b.classification.iter().all(|&c| c == 1 || c == 2));
+    // Same file in and out; an existing output; a compressed name; XYZ input with an
+    // output; a slope of 0 and NaN; scoring a file without class 2.
+    common::terratile(d, &["classify", las, las]).input_error(&["the input file"]);
+    common::terratile(d, &["classify", las, "out.las"]).input_error(&["already exists"]);
+    common::terratile(d, &["classify", las, "x.laz"])
+        .input_error(&["uncompressed LAS"])
+        .left_nothing("x.laz");
+    let xyz = common::walk(&d.join("fixtures"))
+        .into_iter()
+        .find(|p| p.extension().is_some_and(|e| e == "xyz"))
+        .unwrap();
+    let xyz = xyz.to_string_lossy().into_owned();
+    common::terratile(d, &["classify", &xyz, "x.las"])
+        .input_error(&["no classification field"])
+        .left_nothing("x.las");
+    for s in ["--slope=0", "--slope=NaN", "--slope=-1"] {
+        common::terratile(d, &["classify", las, "x.las", s])
+            .input_error(&["slope"])
+            .left_nothing("x.las");
+    }
+    common::terratile(d, &["classify", "out.las", "--score"]).ok();
+    std::fs::write(d.join("flat.xyz"), "0 0 1\n1 0 1\n0 1 1\n").unwrap();
+    common::terratile(d, &["classify", "flat.xyz", "--score"]).input_error(&["no class 2"]);
+}
+
+/// A survey that is all objects: no ground can be found, a clear error.
+#[test]
+fn no_ground_found() {
+    let x: Vec<f64> = vec![0.0; 10];
+    let y: Vec<f64> = vec![0.0; 10];
+    let z: Vec<f64> = vec![f64::NAN; 10];
+    let r = classify(&x, &y, &z, None, &GroundParams::default(), 1.0);
+    assert!(r.is_err());
+    let e = classify(&[], &[], &[], None, &GroundParams::default(), 1.0).unwrap_err();
+    assert!(e.to_string().contains("no points"), "{e}");
+}
