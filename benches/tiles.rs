@@ -14,15 +14,13 @@ mod common;
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
 use std::path::Path;
+use terratile::mesh::io::MeshFormat;
 use terratile::output::exr::{encode_tile, ExrCompression};
-use terratile::output::MeshFormat;
 use terratile::points::{self, ReadOptions};
 use terratile::terrain::extract::{self, ExtractParams, Refiner};
-use terratile::terrain::fill::FillParams;
 use terratile::terrain::quadtree::{self, build, QuadtreeParams};
-use terratile::terrain::resample::ResampleParams;
 use terratile::terrain::tiles::{tile, TileParams, TileSet};
-use terratile::terrain::{self, CellState, Heightfield};
+use terratile::terrain::{CellState, Heightfield};
 use terratile::NoProgress;
 
 /// A rough 4097² terrain (waves and noise), deterministic.
@@ -62,14 +60,10 @@ fn real_set(rel: &str, size: usize) -> Option<TileSet> {
         return None;
     }
     let c = points::read(&path, &ReadOptions::default(), &NoProgress).ok()?;
-    let g = terrain::grid_stages(
-        &c,
-        None,
-        &ResampleParams::default(),
-        Some(&FillParams::default()),
-        &NoProgress,
-    )
-    .ok()?;
+    // The pipeline's grid stages without noise removal.
+    let mut cfg = terratile::config::Pipeline::default();
+    cfg.denoise.enabled = false;
+    let g = terratile::pipeline::grid_stages(&c, &cfg, &NoProgress).ok()?;
     tile(
         &g.resampled.grid,
         &TileParams {
@@ -179,7 +173,7 @@ fn mesh_encoding(c: &mut Criterion) {
         .collect();
     let mut g = c.benchmark_group("mesh_encoding");
     g.sample_size(10);
-    for f in [MeshFormat::Ply, MeshFormat::Obj, MeshFormat::Glb] {
+    for f in [MeshFormat::PlyBinaryLe, MeshFormat::Obj, MeshFormat::Glb] {
         let bytes: usize = meshes
             .iter()
             .map(|m| f.encode(m, "tile", 1.0).expect("encode").len())

@@ -112,7 +112,7 @@ pub struct AssetReport {
 
 impl Placement {
     /// Checks the values; `key` names the table in messages (e.g. `assets[0].place`).
-    pub fn validate(&self, key: &str) -> std::result::Result<(), (String, String)> {
+    pub fn validate(&self, key: &str) -> Result<()> {
         for (name, v) in [
             ("x", self.x),
             ("y", self.y),
@@ -120,14 +120,14 @@ impl Placement {
             ("z_offset", self.z_offset),
         ] {
             if !v.is_finite() {
-                return Err((
+                return Err(Error::key(
                     format!("{key}.{name}"),
                     format!("{v} is not a finite number"),
                 ));
             }
         }
         if !(self.scale.is_finite() && self.scale > 0.0) {
-            return Err((
+            return Err(Error::key(
                 format!("{key}.scale"),
                 format!("{} must be a positive number", self.scale),
             ));
@@ -228,12 +228,9 @@ pub fn run_asset(
 }
 
 /// Checks every entry before any work: placement values, simplification targets, output
-/// formats, input files present. Errors are `(dotted key, message)` for the config layer to
-/// locate in the pipeline file.
-pub fn validate(
-    assets: &[AssetConfig],
-    base_dir: &Path,
-) -> std::result::Result<(), (String, String)> {
+/// formats, input files present. Errors are [`Error::Key`]s, for the pipeline file's loader to
+/// locate.
+pub fn validate(assets: &[AssetConfig], base_dir: &Path) -> Result<()> {
     for (i, a) in assets.iter().enumerate() {
         let key = format!("assets[{i}]");
         a.place.validate(&format!("{key}.place"))?;
@@ -245,23 +242,23 @@ pub fn validate(
                         value,
                         message,
                         ..
-                    } => (
+                    } => Error::key(
                         format!(
                             "{key}.simplify.{}",
                             param.split('.').next().unwrap_or(param)
                         ),
                         format!("{value}: {message}"),
                     ),
-                    other => (format!("{key}.simplify"), other.to_string()),
+                    other => Error::key(format!("{key}.simplify"), other.to_string()),
                 });
             }
         }
         if let Err(e) = mesh::io::MeshFormat::for_output(&a.output) {
-            return Err((format!("{key}.output"), e.to_string()));
+            return Err(Error::key(format!("{key}.output"), e.to_string()));
         }
         let input = base_dir.join(&a.input);
         if !input.is_file() {
-            return Err((
+            return Err(Error::key(
                 format!("{key}.input"),
                 format!("{} does not exist", input.display()),
             ));
@@ -271,9 +268,9 @@ pub fn validate(
                 .components()
                 .any(|c| matches!(c, std::path::Component::ParentDir))
         {
-            return Err((
+            return Err(Error::key(
                 format!("{key}.output"),
-                "must be a relative path inside the output directory".into(),
+                "must be a relative path inside the output directory",
             ));
         }
     }

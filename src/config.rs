@@ -9,15 +9,16 @@ use crate::terrain::{DenoiseParams, FillParams, ResampleParams};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// A whole pipeline file.
-#[derive(Debug, Clone, Deserialize, Serialize)]
+/// A whole pipeline file. `Default` is the pipeline with every table at its default and no
+/// input (what the benchmarks run on a cloud they read themselves).
+#[derive(Debug, Clone, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Pipeline {
     /// `[input]`: which point clouds to read and how.
     pub input: InputConfig,
     /// `[output]`: where results go.
     #[serde(default)]
-    pub output: OutputConfig,
+    pub output: crate::output::OutputConfig,
     /// `[tiles]`: how the heightfield is cut into tiles.
     #[serde(default)]
     pub tiles: crate::terrain::tiles::TileParams,
@@ -45,7 +46,7 @@ pub struct Pipeline {
 }
 
 /// `[input]`
-#[derive(Debug, Clone, Deserialize, Serialize)]
+#[derive(Debug, Clone, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct InputConfig {
     /// Files or glob patterns (`fixtures/*.las`), relative to the pipeline file's directory.
@@ -78,76 +79,6 @@ pub enum FormatChoice {
     Laz,
     /// XYZ/CSV text.
     Xyz,
-}
-
-/// `[output]`
-#[derive(Debug, Clone, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct OutputConfig {
-    /// Output directory, relative to the pipeline file's directory (default `out`).
-    #[serde(default = "default_out")]
-    pub dir: PathBuf,
-    /// Write one OpenEXR file per tile: height, d2 (and mask) channels (default true).
-    #[serde(default = "yes")]
-    pub exr: bool,
-    /// EXR compression: `none` (default), `rle`, `zips`, `zip` or `piz`; all lossless.
-    #[serde(default)]
-    pub exr_compression: crate::output::exr::ExrCompression,
-    /// Write `manifest.json` (default true).
-    #[serde(default = "yes")]
-    pub manifest: bool,
-    /// Write a 16-bit PNG heightmap per tile (default true).
-    #[serde(default = "yes")]
-    pub png: bool,
-    /// Write a 16-bit RAW heightmap per tile, Unity's layout (default true).
-    #[serde(default = "yes")]
-    pub raw: bool,
-    /// Write the shaded-relief preview `preview/relief.png` (default true).
-    #[serde(default = "yes")]
-    pub relief: bool,
-    /// Write `preview/wireframe.png`, the CLOD mesh over the relief (default true).
-    #[serde(default = "yes")]
-    pub wireframe: bool,
-    /// Tile mesh formats to write (default `["glb"]`; `[]` for none).
-    #[serde(default = "default_meshes")]
-    pub meshes: Vec<crate::output::MeshFormat>,
-    /// Longer side of the preview pictures in pixels (default 2048; small grids are
-    /// enlarged at most 4×).
-    #[serde(default = "default_preview_size")]
-    pub preview_size: usize,
-}
-
-fn default_out() -> PathBuf {
-    PathBuf::from("out")
-}
-
-fn yes() -> bool {
-    true
-}
-
-fn default_meshes() -> Vec<crate::output::MeshFormat> {
-    crate::output::MeshFormat::DEFAULT.to_vec()
-}
-
-fn default_preview_size() -> usize {
-    2048
-}
-
-impl Default for OutputConfig {
-    fn default() -> Self {
-        OutputConfig {
-            dir: default_out(),
-            exr: true,
-            exr_compression: Default::default(),
-            manifest: true,
-            png: true,
-            raw: true,
-            relief: true,
-            wireframe: true,
-            meshes: default_meshes(),
-            preview_size: default_preview_size(),
-        }
-    }
 }
 
 impl InputConfig {
@@ -222,6 +153,7 @@ impl LoadedPipeline {
                 value,
                 message,
             } => self.key_error(&format!("{stage}.{param}"), format!("{value}: {message}")),
+            Error::Key { key, message } => self.key_error(&key, message),
             Error::Data { stage, message } => {
                 Error::Usage(format!("{}: {stage}: {message}", self.path.display()))
             }
@@ -244,7 +176,7 @@ impl LoadedPipeline {
             let full = base.join(pat);
             let is_glob = pat.contains(['*', '?', '[']);
             if !is_glob {
-                if let Some(why) = crate::points::not_a_regular_file(&full) {
+                if let Some(why) = crate::fsutil::not_a_regular_file(&full) {
                     return Err(
                         self.key_error("input.paths", format!("input {} {why}", full.display()))
                     );
@@ -275,34 +207,16 @@ impl LoadedPipeline {
     }
 }
 
-/// Deserialises an optional fixed-length array (`size = [w, h]`), refusing a wrong number of
-/// elements: serde's own array support stops after N and silently drops the rest.
-pub(crate) fn exact_array<'de, D, T, const N: usize>(d: D) -> Result<Option<[T; N]>, D::Error>
-where
-    D: serde::Deserializer<'de>,
-    T: Deserialize<'de>,
-{
-    use serde::de::Error as _;
-    let Some(v) = Option::<Vec<T>>::deserialize(d)? else {
-        return Ok(None);
-    };
-    let n = v.len();
-    v.try_into().map(Some).map_err(|_| {
-        D::Error::invalid_length(n, &format!("an array of exactly {N} elements").as_str())
-    })
-}
-
-/// Reads and checks a pipeline file.
+/// Reads and parses a pipeline file (the values are checked by the run's plan,
+/// `pipeline::Plan`, before any work).
 pub fn load(path: &Path) -> Result<LoadedPipeline> {
     let text = read_pipeline_text(path)?;
     let config = parse(path, &text)?;
-    let loaded = LoadedPipeline {
+    Ok(LoadedPipeline {
         config,
         path: path.to_path_buf(),
         text,
-    };
-    loaded.check_stages()?;
-    Ok(loaded)
+    })
 }
 
 /// Largest pipeline file read: 1 MiB (a real one is a few kilobytes).
@@ -311,7 +225,7 @@ pub const MAX_PIPELINE_BYTES: u64 = 1 << 20;
 /// The text of a pipeline file: a regular file of at most [`MAX_PIPELINE_BYTES`], UTF-8.
 fn read_pipeline_text(path: &Path) -> Result<String> {
     use std::io::Read;
-    if let Some(why) = crate::points::not_a_regular_file(path) {
+    if let Some(why) = crate::fsutil::not_a_regular_file(path) {
         return Err(Error::Usage(format!(
             "{}: pipeline file {why}",
             path.display()
@@ -358,7 +272,7 @@ impl LoadedPipeline {
         c.tiles.validate().map_err(at_key)?;
         c.quadtree.validate().map_err(at_key)?;
         c.extract.validate().map_err(at_key)?;
-        crate::output::validate(&c.output).map_err(at_key)?;
+        c.output.validate().map_err(at_key)?;
         c.baseline.validate().map_err(at_key)
     }
 }

@@ -64,6 +64,16 @@ pub enum Error {
         /// Why it is rejected.
         message: String,
     },
+    /// A setting at a dotted key of the pipeline file (`assets[0].output`) is wrong: checks
+    /// that know the key but not the file return this, and the pipeline file's loader
+    /// locates it (`LoadedPipeline::param_error`).
+    #[error("{key}: {message}")]
+    Key {
+        /// Dotted key path, e.g. `assets[1].simplify.ratio`.
+        key: String,
+        /// What is wrong with it.
+        message: String,
+    },
     /// The data cannot go through a stage (e.g. every point removed as noise).
     #[error("{stage}: {message}")]
     Data {
@@ -112,6 +122,14 @@ impl Error {
         Error::Io {
             path: path.to_path_buf(),
             source,
+        }
+    }
+
+    /// A [`Error::Key`] error: the setting at `key` is wrong.
+    pub fn key(key: impl Into<String>, message: impl Into<String>) -> Error {
+        Error::Key {
+            key: key.into(),
+            message: message.into(),
         }
     }
 

@@ -602,6 +602,67 @@ impl Drop for OutputLock {
     }
 }
 
+/// Why `path` cannot be read as a file ("does not exist", "is a directory", "is a FIFO
+/// …"), or `None` for a regular file (symbolic links followed). Reading a FIFO or a device
+/// would block or never end, and mapping one fails with an obscure system error.
+pub fn not_a_regular_file(path: &Path) -> Option<String> {
+    let meta = match std::fs::metadata(path) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Some("does not exist".into()),
+        Err(e) => return Some(format!("cannot be read: {e}")),
+    };
+    let t = meta.file_type();
+    if t.is_file() {
+        return None;
+    }
+    let kind = if t.is_dir() {
+        "a directory"
+    } else {
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::FileTypeExt;
+            if t.is_fifo() {
+                "a FIFO (named pipe)"
+            } else if t.is_char_device() || t.is_block_device() {
+                "a device"
+            } else if t.is_socket() {
+                "a socket"
+            } else {
+                "something other than a file"
+            }
+        }
+        #[cfg(not(unix))]
+        {
+            "something other than a file"
+        }
+    };
+    Some(format!("is {kind}, not a regular file"))
+}
+
+/// A read-only memory map of `path` (the one place terratile uses `unsafe`).
+pub fn map_file(path: &Path) -> Result<memmap2::Mmap> {
+    // A missing file keeps the system's own message; anything else that is not a regular
+    // file is refused before it is opened (opening a FIFO blocks).
+    if std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
+        if let Some(why) = not_a_regular_file(path) {
+            return Err(Error::Usage(format!("{}: {why}", path.display())));
+        }
+    }
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    if len == 0 {
+        return Err(Error::format(path, 0, "empty file"));
+    }
+    #[allow(unsafe_code)]
+    // SAFETY: the map is read-only and private to this process. If another process truncates
+    // the file while we read it, accesses past the new end raise SIGBUS; that is the accepted
+    // contract of every memory-mapped reader (PDAL, LAStools) and documented in the README.
+    let map = unsafe { memmap2::MmapOptions::new().map(&file) }.map_err(|e| Error::io(path, e))?;
+    #[cfg(unix)]
+    let _ = map.advise(memmap2::Advice::Sequential);
+    Ok(map)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

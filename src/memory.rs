@@ -173,7 +173,7 @@ impl Estimate {
 
     /// Ok when the total is within `budget`; else a message with the estimate, the budget
     /// and the key to change.
-    pub fn check(&self, budget: u64) -> std::result::Result<(), (String, String)> {
+    pub fn check(&self, budget: u64) -> Result<()> {
         let total = self.total();
         if total <= budget {
             return Ok(());
@@ -183,8 +183,8 @@ impl Estimate {
             key: "input.max_points",
             bytes: total,
         });
-        Err((
-            p.key.to_string(),
+        Err(Error::key(
+            p.key,
             format!(
                 "the run needs about {} ({} of it for the {}), more than the memory budget of {}: \
                  change {} or raise --max-memory",
@@ -259,79 +259,6 @@ pub fn check_alloc(bytes: u64, what: impl FnOnce() -> String) -> Result<()> {
     Ok(())
 }
 
-/// [`estimate_run`] for `pipeline` on the points it read (`cloud`): the voxel lattice noise
-/// removal will build and the grid resampling will make (over all the points' bounds, which
-/// holds the denoised points' bounds). A stage parameter that cannot work on these points is
-/// reported at its key.
-pub fn estimate_pipeline(
-    pipeline: &crate::config::LoadedPipeline,
-    cloud: &crate::points::PointCloud,
-) -> Result<Estimate> {
-    let cfg = &pipeline.config;
-    let n = cloud.len();
-    let denoise = if cfg.denoise.enabled {
-        let mpu = cloud.crs().map_or(1.0, |c| c.metres_per_unit());
-        Some(
-            crate::terrain::denoise::lattice_size(cloud, &cfg.denoise, mpu)
-                .map_err(|e| pipeline.param_error(e))?,
-        )
-    } else {
-        None
-    };
-    let spec = crate::terrain::resample::GridSpec::new(&cfg.resample, &cloud.bounds(), n)
-        .map_err(|e| pipeline.param_error(e))?;
-    let grid_key = if cfg.resample.size.is_some() {
-        "resample.size"
-    } else {
-        "resample.cell_size"
-    };
-    Ok(estimate_run(
-        n as u64,
-        !cloud.classification.is_empty(),
-        0,
-        denoise,
-        (spec.cols as u64).saturating_mul(spec.rows as u64),
-        grid_key,
-        rayon::current_num_threads() as u64,
-    ))
-}
-
-/// The error for a run whose inputs gave no points: which file is empty, or which filter
-/// removed everything, at its key.
-pub fn empty_input(
-    pipeline: &crate::config::LoadedPipeline,
-    cloud: &crate::points::PointCloud,
-) -> Error {
-    let input = &pipeline.config.input;
-    let in_files: u64 = cloud.sources.iter().map(|s| s.points_in_file).sum();
-    let names = || {
-        cloud
-            .sources
-            .iter()
-            .map(|s| s.path.display().to_string())
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    if in_files == 0 {
-        return pipeline.key_error(
-            "input.paths",
-            format!("the input holds no points ({}: 0 points)", names()),
-        );
-    }
-    let key = if input.keep_classes.is_some() {
-        "input.keep_classes"
-    } else {
-        "input.drop_classes"
-    };
-    pipeline.key_error(
-        key,
-        format!(
-            "the class filter keeps none of the {in_files} points in {}",
-            names()
-        ),
-    )
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -351,7 +278,9 @@ mod tests {
     #[test]
     fn estimate_names_the_largest_part() {
         let e = estimate_run(2500, false, 0, None, 46000 * 46000, "resample.size", 2);
-        let (key, msg) = e.check(8 << 30).unwrap_err();
+        let Error::Key { key, message: msg } = e.check(8 << 30).unwrap_err() else {
+            panic!("not a key error");
+        };
         assert_eq!(key, "resample.size");
         assert!(msg.contains("grid and tiles"), "{msg}");
         let small = estimate_run(2500, false, 0, Some((300, 300)), 2500, "resample.size", 2);

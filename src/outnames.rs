@@ -5,6 +5,10 @@
 //! case, as on the file systems of macOS and Windows.
 
 use crate::config::Pipeline;
+use crate::error::{Error, Result};
+
+/// The removed-noise file written with `denoise.write_removed = true`.
+pub const NOISE_FILE: &str = "noise.las";
 
 /// A name the run writes whatever the data: (dotted key that turns it on, path).
 fn fixed(cfg: &Pipeline) -> Vec<(&'static str, &'static str)> {
@@ -20,7 +24,7 @@ fn fixed(cfg: &Pipeline) -> Vec<(&'static str, &'static str)> {
         v.push(("output.wireframe", "preview/wireframe.png"));
     }
     if cfg.denoise.enabled && cfg.denoise.write_removed {
-        v.push(("denoise.write_removed", crate::pipeline::NOISE_FILE));
+        v.push(("denoise.write_removed", NOISE_FILE));
     }
     v
 }
@@ -84,7 +88,7 @@ fn parts(name: &str) -> Vec<String> {
 
 /// Checks every freely named output (baseline mesh and report, asset outputs) against every
 /// other output. The error is (dotted key, message).
-pub fn check(cfg: &Pipeline) -> Result<(), (String, String)> {
+pub fn check(cfg: &Pipeline) -> Result<()> {
     let mut free: Vec<(String, String)> = Vec::new();
     if cfg.baseline.enabled {
         if !cfg.baseline.mesh.is_empty() {
@@ -105,7 +109,12 @@ pub fn check(cfg: &Pipeline) -> Result<(), (String, String)> {
     let dirs = tile_dirs(cfg);
     for (key, name) in free {
         let p = parts(&name);
-        let err = |msg: String| Err((key.clone(), format!("`{name}` {msg}; choose another name")));
+        let err = |msg: String| {
+            Err(Error::key(
+                key.clone(),
+                format!("`{name}` {msg}; choose another name"),
+            ))
+        };
         if p.is_empty() {
             return err("names no file inside the output directory".into());
         }
@@ -148,6 +157,14 @@ pub fn check(cfg: &Pipeline) -> Result<(), (String, String)> {
 mod tests {
     use super::*;
 
+    /// The key and message of a check's error.
+    fn key_of(e: Error) -> (String, String) {
+        match e {
+            Error::Key { key, message } => (key, message),
+            other => panic!("not a key error: {other}"),
+        }
+    }
+
     fn cfg(extra: &str) -> Pipeline {
         let text = format!("[input]\npaths = [\"a.las\"]\n{extra}");
         crate::config::parse(std::path::Path::new("p.toml"), &text).unwrap()
@@ -167,11 +184,14 @@ mod tests {
             asset("meshes/tile_000_000.ply")
         )))
         .unwrap_err();
+        let e = key_of(e);
         assert_eq!(e.0, "assets[0].output");
         assert!(e.1.contains("output.meshes"), "{e:?}");
         let e = check(&cfg(&asset("Tiles/tile_12_3.EXR"))).unwrap_err();
+        let e = key_of(e);
         assert!(e.1.contains("output.exr"), "{e:?}");
         let e = check(&cfg("[baseline]\nenabled = true\nreport = \"tiles\"\n")).unwrap_err();
+        let e = key_of(e);
         assert_eq!(e.0, "baseline.report");
         assert!(e.1.contains("directory of the EXR tiles"), "{e:?}");
         // Not a tile's name, or the switch is off: allowed.
@@ -186,11 +206,14 @@ mod tests {
     #[test]
     fn fixed_names_and_each_other() {
         let e = check(&cfg(&asset("manifest.json/a.obj"))).unwrap_err();
+        let e = key_of(e);
         assert!(e.1.contains("output.manifest"), "{e:?}");
         let e = check(&cfg(&asset("preview/relief.png"))).unwrap_err();
+        let e = key_of(e);
         assert!(e.1.contains("output.relief"), "{e:?}");
         let two = format!("{}{}", asset("a/rock.ply"), asset("./A/rock.ply"));
         let e = check(&cfg(&two)).unwrap_err();
+        let e = key_of(e);
         assert_eq!(e.0, "assets[1].output");
         assert!(e.1.contains("assets[0].output"), "{e:?}");
         let e = check(&cfg(&format!(
@@ -198,6 +221,7 @@ mod tests {
             asset("x/rock.ply")
         )))
         .unwrap_err();
+        let e = key_of(e);
         assert!(e.1.contains("baseline.report"), "{e:?}");
         check(&cfg(&format!(
             "{}{}",

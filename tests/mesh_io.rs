@@ -252,7 +252,7 @@ fn seed_files() -> Vec<(&'static str, Vec<u8>)> {
     // glb as the tile writer makes it (positions, normals, indices).
     files.push((
         "m.glb",
-        terratile::output::glb::glb_bytes(&m, "m", 1.0).unwrap(),
+        terratile::mesh::io::glb_bytes(&m, "m", 1.0).unwrap(),
     ));
     // And the lenient paths: each corpus file (dropped attributes, short faces, line
     // continuations, header counts, glb ranges).

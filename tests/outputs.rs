@@ -10,9 +10,9 @@ use exr::prelude::*;
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::path::Path;
-use terratile::config::OutputConfig;
-use terratile::output::{self, write_terrain};
-use terratile::terrain::extract::ExtractParams;
+use terratile::mesh::io::MeshFormat;
+use terratile::output::{write_terrain, OutputConfig, TerrainProducts};
+use terratile::terrain::extract::{extract_meshes, ExtractParams};
 use terratile::terrain::quadtree::{build, QuadtreeParams};
 use terratile::terrain::tiles::{tile, Preset, TileParams, TileSet};
 use terratile::terrain::Heightfield;
@@ -27,16 +27,33 @@ fn sized(size: usize) -> TileParams {
     }
 }
 
+/// What [`write_all`] wrote: the files and the tile meshes' surface triangles.
+struct Written {
+    files: Vec<String>,
+    triangles: usize,
+}
+
+/// Tiles, quadtree, meshes (when `out` wants them) and every output, as the pipeline runs
+/// them.
 fn write_all(
     hf: &Heightfield,
     params: &TileParams,
     out: &OutputConfig,
     dir: &Path,
-) -> (TileSet, output::TerrainWrite) {
+) -> (TileSet, Written) {
     let set = tile(hf, params).unwrap();
     let qt = build(&set, &QuadtreeParams::default()).unwrap();
-    let w = write_terrain(dir, &set, &qt, &ExtractParams::default(), out, &NoProgress).unwrap();
-    (set, w)
+    let meshes = out
+        .wants_meshes()
+        .then(|| extract_meshes(&set, &qt, &ExtractParams::default()).unwrap());
+    let products = TerrainProducts {
+        set: &set,
+        quadtree: &qt,
+        meshes: meshes.as_ref(),
+    };
+    let files = write_terrain(dir, &products, out, &NoProgress).unwrap();
+    let triangles = meshes.map_or(0, |m| m.triangles);
+    (set, Written { files, triangles })
 }
 
 /// Reads an EXR channel with the exr crate, as rows south first.
@@ -91,11 +108,7 @@ fn real_tiles_round_trip_through_every_output() {
     let dir = tempfile::tempdir().unwrap();
     let out = OutputConfig {
         preview_size: 600,
-        meshes: vec![
-            output::MeshFormat::Ply,
-            output::MeshFormat::Obj,
-            output::MeshFormat::Glb,
-        ],
+        meshes: vec![MeshFormat::PlyBinaryLe, MeshFormat::Obj, MeshFormat::Glb],
         ..Default::default()
     };
     let (set, w) = write_all(&hf, &sized(65), &out, dir.path());
@@ -238,16 +251,9 @@ fn holes_are_masked_and_kept_through_reassembly() {
     assert!(m["meshes"].is_null());
     // Asking for meshes now is an error.
     let qt = build(&set, &QuadtreeParams::default()).unwrap();
-    let e = write_terrain(
-        dir.path(),
-        &set,
-        &qt,
-        &ExtractParams::default(),
-        &OutputConfig::default(),
-        &NoProgress,
-    )
-    .unwrap_err()
-    .to_string();
+    let e = extract_meshes(&set, &qt, &ExtractParams::default())
+        .unwrap_err()
+        .to_string();
     assert!(
         e.contains("masked hole samples; meshes need a filled heightfield"),
         "{e}"

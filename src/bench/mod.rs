@@ -11,7 +11,7 @@ pub use read::{copy_file_bytes, read, read_with_las_rs, ReadBench};
 pub use table1::{
     paper_counts, table1, table1_memory, MemoryProbe, Table1, Table1Row, PAPER, PAPER_DELAUNAY_S,
 };
-pub use terrain::{current_rss, peak_rss, reset_peak_rss, terrain, TerrainBench};
+pub use terrain::{terrain, TerrainBench};
 
 /// Median of a non-empty list of seconds.
 pub fn median(mut v: Vec<f64>) -> f64 {

@@ -6,19 +6,18 @@
 //! at 2 % held-out points, beside the paper's figures (Pentium IV: 34,379 points 0.094 s …
 //! 3,408,187 points 63.7 s; Delaunay "more than 12 hours").
 
-use super::{current_rss, median, peak_rss, reset_peak_rss};
-use crate::config::OutputConfig;
+use super::median;
+use crate::config::Pipeline;
 use crate::error::{Error, Result};
-use crate::output::write_terrain;
+use crate::output::OutputConfig;
+use crate::pipeline::{
+    current_rss, grid_stages, peak_rss, reset_peak_rss, stage_seconds, tile_stages,
+};
 use crate::points::{self, PointCloud, ReadOptions};
 use crate::progress::NoProgress;
 use crate::rng::SplitMix64;
 use crate::terrain::accuracy::{holdout, ErrorStats};
 use crate::terrain::delaunay::{self, TinMethod};
-use crate::terrain::extract::ExtractParams;
-use crate::terrain::grid_stages;
-use crate::terrain::quadtree::{self, QuadtreeParams};
-use crate::terrain::tiles::{self, TileParams};
 use crate::terrain::{denoise, fill, resample, DenoiseParams, FillParams, ResampleParams};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -106,59 +105,44 @@ pub fn paper_counts() -> Vec<u64> {
     PAPER.iter().map(|p| p.0).collect()
 }
 
-/// What the grid pipeline writes in `bench table1`: the tiled EXR files (heights and d2),
-/// the 16-bit PNG and RAW heightmaps and the manifest, the outputs a game engine takes in;
-/// neither previews nor tile meshes (the TIN it is compared with is not written either).
-fn table1_outputs(dir: &Path) -> OutputConfig {
-    OutputConfig {
-        dir: dir.to_path_buf(),
-        exr: true,
-        manifest: true,
-        png: true,
-        raw: true,
-        relief: false,
-        wireframe: false,
-        meshes: Vec::new(),
-        ..OutputConfig::default()
+/// The pipeline `bench table1` runs: every table at its default, writing the tiled EXR files
+/// (heights and d2), the 16-bit PNG and RAW heightmaps and the manifest, the outputs a game
+/// engine takes in; neither previews nor tile meshes (the TIN it is compared with is not
+/// written either).
+fn table1_pipeline(dir: &Path) -> Pipeline {
+    Pipeline {
+        output: OutputConfig {
+            dir: dir.to_path_buf(),
+            exr: true,
+            manifest: true,
+            png: true,
+            raw: true,
+            relief: false,
+            wireframe: false,
+            meshes: Vec::new(),
+            ..OutputConfig::default()
+        },
+        ..Pipeline::default()
     }
 }
 
 /// Seconds spent by the grid pipeline end to end on `cloud` (denoise, resample, fill, tiles,
 /// quadtree, writing the outputs into `dir`, which must exist), and its grid size.
 fn grid_pipeline(cloud: &PointCloud, dir: &Path) -> Result<([f64; 6], usize)> {
-    // As the pipeline runs them.
-    let g = grid_stages(
-        cloud,
-        Some(&DenoiseParams::default()),
-        &ResampleParams::default(),
-        Some(&FillParams::default()),
-        &NoProgress,
-    )?;
+    let cfg = table1_pipeline(dir);
+    let g = grid_stages(cloud, &cfg, &NoProgress)?;
     drop(g.denoised);
     let r = g.resampled;
-    let t3 = Instant::now();
-    let set = tiles::tile(&r.grid, &TileParams::default())?;
-    let t4 = Instant::now();
-    let qt = quadtree::build(&set, &QuadtreeParams::default())?;
-    let t5 = Instant::now();
-    write_terrain(
-        dir,
-        &set,
-        &qt,
-        &ExtractParams::default(),
-        &table1_outputs(dir),
-        &NoProgress,
-    )?;
-    let t6 = Instant::now();
-    let s = |a: Instant, b: Instant| (b - a).as_secs_f64();
+    let t = tile_stages(&cfg, &r.grid, dir, &NoProgress)?;
+    let s = |stage: &str| stage_seconds(&t.reports, stage);
     Ok((
         [
             g.seconds[0],
             g.seconds[1],
             g.seconds[2],
-            s(t3, t4),
-            s(t4, t5),
-            s(t5, t6),
+            s("tiles"),
+            s("quadtree"),
+            s("write"),
         ],
         r.spec.cols * r.spec.rows,
     ))

@@ -6,14 +6,17 @@
 //! written tiles; mesh extraction at the default tolerance is timed beside it.
 
 use super::median;
+use crate::config::Pipeline;
 use crate::error::{Error, Result};
+use crate::output::OutputConfig;
+use crate::pipeline::{
+    grid_stages, peak_rss, reset_peak_rss, stage_seconds, tile_stages, TileStages,
+};
 use crate::points::{self, PointCloud, ReadOptions};
 use crate::progress::NoProgress;
 use crate::terrain::delaunay::{self, TinMethod};
-use crate::terrain::extract::ExtractParams;
-use crate::terrain::quadtree::{self, QuadtreeParams};
-use crate::terrain::tiles::{self, TileParams};
-use crate::terrain::{grid_stages, DenoiseParams, FillParams, Heightfield, ResampleParams};
+use crate::terrain::extract::extract_meshes;
+use crate::terrain::Heightfield;
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
@@ -96,28 +99,6 @@ pub struct TerrainBench {
     pub threads: usize,
 }
 
-/// Peak resident set size of this process in bytes (`VmHWM`), if /proc says.
-pub fn peak_rss() -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
-}
-
-/// Current resident set size in bytes (`VmRSS`).
-pub fn current_rss() -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with("VmRSS:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
-}
-
-/// Resets the peak resident set size to the current one (Linux `clear_refs` 5); false if
-/// the kernel does not allow it, in which case peaks are over the whole process so far.
-pub fn reset_peak_rss() -> bool {
-    std::fs::write("/proc/self/clear_refs", "5").is_ok()
-}
-
 /// One run of the grid stages.
 struct GridRun {
     cloud: PointCloud,
@@ -154,42 +135,47 @@ fn dir_bytes(dir: &Path) -> u64 {
         .unwrap_or(0)
 }
 
-/// Cuts, measures and writes `hf` as the default pipeline does (EXR with the default
-/// compression, manifest, PNG and RAW heightmaps) into a fresh directory under the system's
-/// temporary directory (removed afterwards, untimed), then extracts the meshes.
+/// The pipeline's stages with every table at its default, writing what the default
+/// pipeline writes but previews and meshes (EXR with the default compression, manifest,
+/// PNG and RAW heightmaps).
+fn bench_pipeline() -> Pipeline {
+    Pipeline {
+        output: OutputConfig {
+            relief: false,
+            wireframe: false,
+            meshes: Vec::new(),
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+}
+
+/// Runs the pipeline's tile stages on `hf` into a fresh directory under the system's
+/// temporary directory (removed afterwards, untimed), then extracts the meshes beside them.
 fn tile_run(hf: &Heightfield, run: usize) -> Result<TileRun> {
-    use crate::config::OutputConfig;
     let dir = std::env::temp_dir().join(format!("terratile-bench-{}-{run}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
-    let out = OutputConfig {
-        relief: false,
-        wireframe: false,
-        meshes: Vec::new(),
-        ..Default::default()
-    };
-    let extract = ExtractParams::default();
-    let t0 = Instant::now();
-    let set = tiles::tile(hf, &TileParams::default())?;
-    let t1 = Instant::now();
-    let qt = quadtree::build(&set, &QuadtreeParams::default())?;
-    let t2 = Instant::now();
-    let written = crate::output::write_terrain(&dir, &set, &qt, &extract, &out, &NoProgress);
-    let t3 = Instant::now();
+    let cfg = bench_pipeline();
+    let written = tile_stages(&cfg, hf, &dir, &NoProgress);
     let bytes = dir_bytes(&dir);
     let _ = std::fs::remove_dir_all(&dir);
-    written?;
+    let TileStages {
+        reports,
+        set,
+        quadtree,
+        ..
+    } = written?;
     let t4 = Instant::now();
     let triangles = if set.holes() == 0 {
-        let tris = crate::output::extract_meshes(&set, &qt, &extract)?;
-        tris.iter().map(|t| t.surface_triangles).sum()
+        extract_meshes(&set, &quadtree, &cfg.extract)?.triangles
     } else {
         0
     };
-    let t5 = Instant::now();
-    let s = |a: Instant, b: Instant| (b - a).as_secs_f64();
+    let extract_s = t4.elapsed().as_secs_f64();
+    let s = |stage: &str| stage_seconds(&reports, stage);
     Ok(TileRun {
-        t: [s(t0, t1), s(t1, t2), s(t2, t3), s(t4, t5)],
+        t: [s("tiles"), s("quadtree"), s("write"), extract_s],
         tiling: [set.tile_size, set.grid[0], set.grid[1]],
         bytes,
         triangles,
@@ -200,14 +186,7 @@ fn grid_run(path: &Path) -> Result<GridRun> {
     let t0 = Instant::now();
     let cloud = points::read(path, &ReadOptions::default(), &NoProgress)?;
     let t1 = Instant::now();
-    // As the pipeline runs them.
-    let g = grid_stages(
-        &cloud,
-        Some(&DenoiseParams::default()),
-        &ResampleParams::default(),
-        Some(&FillParams::default()),
-        &NoProgress,
-    )?;
+    let g = grid_stages(&cloud, &bench_pipeline(), &NoProgress)?;
     let Some(d) = g.denoised else {
         return Err(Error::Internal(
             "denoise was asked for and did not run".into(),

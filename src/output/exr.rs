@@ -13,8 +13,7 @@
 //! caller parallelises over tiles, and the bytes do not depend on the thread count.
 
 use crate::error::{Error, Result};
-use crate::terrain::quadtree::Quadtree;
-use crate::terrain::tiles::TileSet;
+use crate::terrain::{Quadtree, TileSet};
 use exr::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;

@@ -10,9 +10,11 @@
 //! north first, little-endian.
 
 use crate::error::{Error, Result};
-use crate::terrain::tiles::TileSet;
+use crate::output::SetSummary;
+use crate::terrain::TileSet;
 use image::codecs::png::{CompressionType, FilterType, PngEncoder};
 use image::{ExtendedColorType, ImageEncoder};
+use ndarray::Array2;
 use serde::Serialize;
 
 /// How 16-bit values map to world heights.
@@ -31,11 +33,11 @@ pub const MAX_VALUE: f64 = u16::MAX as f64;
 
 impl HeightEncoding {
     /// The encoding spanning the set's z range with all 16 bits.
-    pub fn for_set(set: &TileSet) -> HeightEncoding {
+    pub fn for_set(set: &SetSummary) -> HeightEncoding {
         // Padding repeats valid samples, so a tile has a NaN anywhere only if its valid
         // extent counts a hole.
         let holes = set.tiles.iter().any(|t| t.holes > 0);
-        let (lo, hi) = set.z_range().unwrap_or((set.z_offset, set.z_offset));
+        let (lo, hi) = set.z_range.unwrap_or((set.z_offset, set.z_offset));
         let first = if holes { 1.0 } else { 0.0 };
         let steps = MAX_VALUE - first;
         let z_scale = if hi > lo { (hi - lo) / steps } else { 1.0 };
@@ -69,9 +71,10 @@ pub fn tile_values(set: &TileSet, enc: &HeightEncoding, t: usize) -> Vec<u16> {
     encode_heights(set.z_offset, enc, set.tiles[t].heights.iter().copied())
 }
 
-/// Values of the whole grid (`samples[0]` × `samples[1]`), south row first.
-pub fn landscape_values(set: &TileSet, enc: &HeightEncoding) -> Vec<u16> {
-    encode_heights(set.z_offset, enc, set.assemble().iter().copied())
+/// Values of the whole grid (`heights`, assembled from the tiles, heights relative to
+/// `z_offset`), south row first.
+pub fn landscape_values(heights: &Array2<f32>, z_offset: f64, enc: &HeightEncoding) -> Vec<u16> {
+    encode_heights(z_offset, enc, heights.iter().copied())
 }
 
 /// `enc.encode(z_offset + h)` for every stored height h, with the constants hoisted (one
@@ -152,11 +155,16 @@ mod tests {
         tiles_of(&hf, 65)
     }
 
+    fn summary(s: &TileSet) -> SetSummary {
+        let qt = crate::terrain::quadtree::build(s, &Default::default()).unwrap();
+        SetSummary::of(s, &qt, None)
+    }
+
     #[test]
     fn encoding_spans_the_range_within_half_a_step() {
         for hole in [false, true] {
             let s = set(hole);
-            let e = HeightEncoding::for_set(&s);
+            let e = HeightEncoding::for_set(&summary(&s));
             let (lo, hi) = s.z_range().unwrap();
             assert_eq!(e.nodata.is_some(), hole);
             assert_eq!(e.encode(lo), if hole { 1 } else { 0 });
@@ -176,7 +184,7 @@ mod tests {
     #[test]
     fn png_reads_back_north_up_and_raw_is_little_endian() {
         let s = set(false);
-        let e = HeightEncoding::for_set(&s);
+        let e = HeightEncoding::for_set(&summary(&s));
         let v = tile_values(&s, &e, 0);
         let png = png_bytes(&v, 65).unwrap();
         let img = image::load_from_memory(&png).unwrap().into_luma16();

@@ -7,9 +7,22 @@
 //! first, and copy its `valid` columns × rows to `grid_offset` in a `samples` grid; world
 //! z = `grid.z_offset` + height.
 
-use crate::output::heightmap::HeightEncoding;
+use super::heightmap::{self, HeightEncoding};
+use super::{OutputConfig, SetSummary};
 use crate::points::Crs;
+use crate::terrain::Preset;
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// Centimetres per metre: Unreal's landscape figures are in centimetres.
+const CM_PER_M: f64 = 100.0;
+
+/// Unreal's landscape height: height(cm) = location_z + (value − UNREAL_MID_VALUE) · scale_z
+/// / UNREAL_Z_DIVISOR, for a 16-bit value.
+const UNREAL_MID_VALUE: f64 = 32768.0;
+
+/// See [`UNREAL_MID_VALUE`].
+const UNREAL_Z_DIVISOR: f64 = 128.0;
 
 /// Manifest format version.
 pub const MANIFEST_VERSION: u32 = 1;
@@ -218,5 +231,127 @@ impl HeightmapInfo {
                 .into(),
             landscape,
         }
+    }
+}
+
+/// The files the encoders wrote, by kind: what the manifest lists besides the set.
+#[derive(Debug, Clone, Default)]
+pub struct Written {
+    /// Per tile, in the set's order: its files by kind (`exr`, `png`, …), relative paths.
+    pub tiles: Vec<BTreeMap<String, String>>,
+    /// The whole-landscape heightmaps (unreal preset).
+    pub landscape: Vec<String>,
+    /// The preview pictures.
+    pub previews: Vec<String>,
+}
+
+/// The manifest of `set` as written with `out` (heightmaps in `enc`), listing `written`.
+pub fn build(
+    set: &SetSummary,
+    out: &OutputConfig,
+    enc: &HeightEncoding,
+    written: Written,
+) -> Manifest {
+    let first = set.sample_xy(0.0, 0.0);
+    let z_range = set.z_range;
+    let unit_m = set.metres_per_unit();
+    let Written {
+        tiles: per_tile,
+        landscape,
+        previews,
+    } = written;
+    let tiles = set
+        .tiles
+        .iter()
+        .zip(per_tile)
+        .map(|(tile, files)| TileEntry {
+            col: tile.col,
+            row: tile.row,
+            grid_offset: tile.origin,
+            valid: tile.valid,
+            origin: set.sample_xy(tile.origin[0] as f64, tile.origin[1] as f64),
+            z_range: tile
+                .z_range
+                .map(|[lo, hi]| [set.z_offset + lo as f64, set.z_offset + hi as f64]),
+            holes: tile.holes,
+            triangles: tile.triangles,
+            files,
+        })
+        .collect();
+    Manifest {
+        format: "terratile-tiles".into(),
+        version: MANIFEST_VERSION,
+        generator: concat!("terratile ", env!("CARGO_PKG_VERSION")).into(),
+        crs: set.crs.as_ref().map(ManifestCrs::of),
+        grid: GridInfo {
+            samples: set.samples,
+            source_samples: set.source_samples,
+            cell_size: set.cell_size,
+            corner: set.corner,
+            first_sample: first,
+            z_offset: set.z_offset,
+            z_range: z_range.map(|(a, b)| [a, b]),
+            holes: set.holes,
+        },
+        tiling: TilingInfo {
+            tile_size: set.tile_size,
+            grid: set.grid,
+            step: set.tile_size - 1,
+            preset: format!("{:?}", set.preset).to_lowercase(),
+            exr_compression: out.exr.then(|| out.exr_compression.name().to_string()),
+            exr_channels: vec![
+                "height: f32, world z − grid.z_offset, NaN at holes".into(),
+                "d2: f32, Röttger's d2 at node centres (0 elsewhere)".into(),
+                "mask: f32, 1 data / 0 hole (only in tiles with holes)".into(),
+            ],
+            exr_row_order: "north-first".into(),
+        },
+        quadtree: QuadtreeInfo {
+            c: set.quadtree_ck[0],
+            k: set.quadtree_ck[1],
+            levels: set.levels,
+            d2: "height units per sample spacing: (1/d)·max|Δh| over the 4 edge midpoints and both diagonals, d in samples; \
+                 stored at the node's centre sample; divide by the spacing for Röttger's dimensionless d2"
+                .into(),
+            borders: "propagated with K across tiles; nodes touching a shared border hold the maximum of their mirror group, \
+                      so a tile's own d2 decides its neighbours' subdivision along the border"
+                .into(),
+        },
+        heightmaps: HeightmapInfo::of(enc, landscape),
+        meshes: set
+            .meshes
+            .as_ref()
+            .filter(|_| !out.meshes.is_empty())
+            .map(|m| MeshInfo {
+                formats: out.meshes.iter().map(|f| f.ext().to_string()).collect(),
+                origin: [first[0], first[1], set.z_offset],
+                axes: "glb: x east, y up, z south (glTF); others: x east, y north, z up".into(),
+                units: format!(
+                    "glb: metres (glTF); ply, obj: CRS units ({unit_m} m each), like the EXR tiles; \
+                     origin: CRS units"
+                ),
+                criterion: m.criterion.clone(),
+                skirt_depth: m.skirt_depth,
+            }),
+        previews,
+        unity: (set.preset == Preset::Unity).then(|| UnityInfo {
+            heightmap_resolution: set.tile_size,
+            terrain_size: [
+                (set.tile_size - 1) as f64 * set.cell_size[0] * unit_m,
+                heightmap::MAX_VALUE * enc.z_scale * unit_m,
+                (set.tile_size - 1) as f64 * set.cell_size[1] * unit_m,
+            ],
+            position_y: enc.z_offset * unit_m,
+        }),
+        unreal: (set.preset == Preset::Unreal).then(|| {
+            // Unreal: height(cm) = location_z + (value − 32768) · scale_z / 128.
+            let scale_z = CM_PER_M * UNREAL_Z_DIVISOR * enc.z_scale * unit_m;
+            UnrealInfo {
+                resolution: set.samples,
+                scale_cm: [set.cell_size[0] * unit_m * CM_PER_M, set.cell_size[1] * unit_m * CM_PER_M, scale_z],
+                location_z_cm: enc.z_offset * unit_m * CM_PER_M + UNREAL_MID_VALUE / UNREAL_Z_DIVISOR * scale_z,
+            }
+        }),
+        tiles,
     }
 }

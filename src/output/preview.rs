@@ -7,8 +7,8 @@
 //! (beyond that the picture only gets blurrier). North is up. Holes are drawn flat blue-grey.
 
 use crate::error::{Error, Result};
-use crate::terrain::extract::TileTriangulation;
-use crate::terrain::tiles::TileSet;
+use crate::output::SetSummary;
+use crate::terrain::TileTriangulation;
 use image::codecs::png::{CompressionType, FilterType, PngEncoder};
 use image::{ExtendedColorType, ImageEncoder};
 use ndarray::Array2;
@@ -155,9 +155,9 @@ fn tint_range(z: &Array2<f32>) -> Option<(f32, f32)> {
     Some((lo, hi))
 }
 
-/// The shaded relief of the whole set, the longer side `max_size` pixels (at most 4× the grid).
-pub fn relief(set: &TileSet, max_size: usize) -> Picture {
-    let z = set.assemble();
+/// The shaded relief of the whole set (`z`: its heights, assembled from the tiles), the
+/// longer side `max_size` pixels (at most 4× the grid).
+pub fn relief(set: &SetSummary, z: &Array2<f32>, max_size: usize) -> Picture {
     let [cols, rows] = set.samples;
     // Pixels per world unit: the longer side gets max_size pixels, a sample at most 4.
     let [cx, cy] = set.cell_size;
@@ -199,7 +199,7 @@ pub fn relief(set: &TileSet, max_size: usize) -> Picture {
             };
         }
     });
-    let (lo, hi) = tint_range(&z).unwrap_or((0.0, 1.0));
+    let (lo, hi) = tint_range(z).unwrap_or((0.0, 1.0));
     let span = (hi - lo).max(f32::EPSILON);
     let mut rgb = vec![0u8; width * height * 3];
     rgb.par_chunks_mut(width * 3)
@@ -294,7 +294,7 @@ impl Coverage {
 const FULL_INK_PX: f64 = 6.0;
 
 /// `base` with the surface edges of `tris` drawn over it, and the tiles' borders.
-pub fn wireframe(set: &TileSet, base: &Picture, tris: &[TileTriangulation]) -> Picture {
+pub fn wireframe(set: &SetSummary, base: &Picture, tris: &[TileTriangulation]) -> Picture {
     // Shared edges are drawn from both triangles: coverage is a maximum, so that is harmless.
     let mut mesh = Coverage::new(base.width, base.height);
     for t in tris {

@@ -460,7 +460,7 @@ pub struct RasterDiff {
 
 /// What the baseline computed (times in seconds, errors in metres). Times, their ratio and
 /// memory differ from run to run: they are not serialised (the report file is a
-/// deterministic output); the run summary carries them as [`crate::pipeline::BaselineMeasurements`].
+/// deterministic output); the run summary carries them (the pipeline's `BaselineMeasurements`).
 #[derive(Debug, Clone, PartialEq, Default, Serialize)]
 pub struct BaselineReport {
     /// The method used (`auto` resolved).
@@ -479,7 +479,8 @@ pub struct BaselineReport {
     /// Seconds to build the triangulation.
     #[serde(skip)]
     pub build_s: f64,
-    /// Seconds of the grid stages of the same run (denoise + resample + fill).
+    /// Seconds of the grid pipeline of the same run: every stage from denoise to the written
+    /// tiles (the read excluded).
     #[serde(skip)]
     pub grid_s: f64,
     /// build_s / grid_s.
@@ -510,7 +511,8 @@ pub struct BaselineReport {
 
 /// Runs the baseline on the points of `cloud` kept by noise removal (`keep`), against the
 /// run's filled `grid` (made with `resample` and `fill`, which the accuracy comparison
-/// repeats without the held-out points). `grid_s` is the grid stages' time. Returns the
+/// repeats without the held-out points). `grid_s` is the grid pipeline's time (every stage from
+/// denoise to the written tiles). Returns the
 /// report and the TIN (for the mesh output).
 pub fn baseline(
     cloud: &crate::points::PointCloud,

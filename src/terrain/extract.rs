@@ -51,7 +51,7 @@ pub struct ExtractParams {
     pub tolerance: f64,
     /// View-dependent mode: the viewpoint in world coordinates `[x, y, z]`; when given, the
     /// Röttger criterion is used instead of the tolerance.
-    #[serde(default, deserialize_with = "crate::config::exact_array")]
+    #[serde(default, deserialize_with = "crate::terrain::exact_array")]
     pub viewpoint: Option<[f64; 3]>,
     /// Röttger's desired global resolution c of the view-dependent criterion (default 25).
     #[serde(default = "default_c")]
@@ -253,6 +253,67 @@ pub struct TileTriangulation {
     pub triangles: Vec<[u32; 3]>,
     /// The first `surface_triangles` triangles are the terrain; the rest are skirts.
     pub surface_triangles: usize,
+}
+
+/// What the extraction stage leaves: every tile's triangulation, and how they were made
+/// (the encoders write both, the manifest the latter).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TileMeshes {
+    /// One triangulation per tile, in `TileSet::tiles` order (skirts included when asked).
+    pub tiles: Vec<TileTriangulation>,
+    /// Surface triangles over all tiles (skirts not counted).
+    pub triangles: usize,
+    /// The refinement criterion in words (tolerance or viewpoint, with its constants).
+    pub criterion: String,
+    /// Skirt depth in the set's height units (0: no skirts).
+    pub skirt_depth: f64,
+}
+
+impl TileMeshes {
+    /// Tile `t`'s mesh as a [`TriMesh`] (see [`to_trimesh`]).
+    pub fn trimesh(&self, set: &TileSet, t: usize) -> TriMesh {
+        to_trimesh(set, &self.tiles[t])
+    }
+}
+
+/// The extraction stage: triangulates every tile of `set` as `params` say (with skirts when
+/// asked). Fails if the set has holes (a mesh needs a filled heightfield).
+pub fn extract_meshes(set: &TileSet, qt: &Quadtree, params: &ExtractParams) -> Result<TileMeshes> {
+    let criterion = params.criterion(set, qt)?;
+    // Refuse holes before spending time on the error tree.
+    check_no_holes(set)?;
+    let err = error_tree(set, &criterion);
+    let refiner = Refiner::new(set, qt, err.as_deref(), criterion)?;
+    let mut tiles = extract(set, &refiner)?;
+    let skirt_depth = params.skirt_depth_units(set);
+    let depth = skirt_depth as f32;
+    if depth > 0.0 {
+        tiles.par_iter_mut().for_each(|t| add_skirts(t, depth));
+    }
+    Ok(TileMeshes {
+        triangles: tiles.iter().map(|t| t.surface_triangles).sum(),
+        tiles,
+        criterion: criterion_text(params, &criterion),
+        skirt_depth,
+    })
+}
+
+/// `criterion` in words, for the manifest.
+fn criterion_text(params: &ExtractParams, criterion: &Criterion) -> String {
+    match *criterion {
+        Criterion::Tolerance { max_error } => format!(
+            "view-independent: every sample within {} m ({max_error} height units) of the mesh",
+            params.tolerance
+        ),
+        Criterion::View {
+            eye,
+            min_resolution_c,
+            desired_resolution_c,
+            ..
+        } => format!(
+            "view-dependent (Röttger): viewpoint {eye:?}, C = {min_resolution_c}, c = {desired_resolution_c}"
+        ),
+    }
 }
 
 /// The error for a set with masked holes: a mesh needs a filled heightfield.

@@ -20,6 +20,10 @@ pub use denoise::{denoise, DenoiseParams, Denoised};
 pub use fill::{fill, Fallback, FillParams, FillReport};
 pub use heightfield::{CellState, Heightfield};
 pub use resample::{resample, CellMethod, ResampleParams, Resampled};
+// The products the encoders in `output` take (types only; the stages stay in their modules).
+pub use extract::{TileMeshes, TileTriangulation};
+pub use quadtree::Quadtree;
+pub use tiles::{Preset, Tile, TileSet};
 
 use crate::points::Bounds;
 use rayon::prelude::*;
@@ -53,6 +57,26 @@ pub(crate) fn bounds_of(x: &[f64], y: &[f64], z: &[f64], keep: Option<&[bool]>) 
 }
 
 /// Small heightfields and tile sets for the unit tests of the terrain and output modules.
+/// Deserialises an optional fixed-length array (`size = [w, h]`), refusing a wrong number of
+/// elements: serde's own array support stops after N and silently drops the rest.
+pub(crate) fn exact_array<'de, D, T, const N: usize>(
+    d: D,
+) -> std::result::Result<Option<[T; N]>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: serde::Deserialize<'de>,
+{
+    use serde::de::Error as _;
+    use serde::Deserialize as _;
+    let Some(v) = Option::<Vec<T>>::deserialize(d)? else {
+        return Ok(None);
+    };
+    let n = v.len();
+    v.try_into().map(Some).map_err(|_| {
+        D::Error::invalid_length(n, &format!("an array of exactly {N} elements").as_str())
+    })
+}
+
 #[cfg(test)]
 pub(crate) mod testutil {
     use super::tiles::{tile, TileParams, TileSet};
@@ -78,69 +102,4 @@ pub(crate) mod testutil {
         };
         tile(hf, &params).unwrap()
     }
-}
-
-/// What [`grid_stages`] leaves: each stage's result and its wall time.
-#[derive(Debug)]
-pub struct GridStages {
-    /// Noise removal's result (`None` when it was off).
-    pub denoised: Option<Denoised>,
-    /// The resampled grid, filled in place when filling was on.
-    pub resampled: Resampled,
-    /// Hole filling's report (`None` when it was off).
-    pub filled: Option<FillReport>,
-    /// Seconds spent in denoise, resample and fill (0 for a stage that was off).
-    pub seconds: [f64; 3],
-}
-
-/// Denoise (when `denoise` is given), resample and fill (when `fill` is given) `cloud`, the way
-/// the pipeline and the benchmarks run them: resampling keeps its per-cell sums in noise
-/// removal's sorted-key buffer, already mapped, instead of faulting in a fresh one.
-pub fn grid_stages(
-    cloud: &crate::points::PointCloud,
-    denoise: Option<&DenoiseParams>,
-    resample: &ResampleParams,
-    fill: Option<&FillParams>,
-    progress: &dyn crate::progress::Progress,
-) -> crate::error::Result<GridStages> {
-    use std::time::Instant;
-    let mut seconds = [0.0; 3];
-    let mut scratch: Vec<u64> = Vec::new();
-    let denoised = match denoise {
-        Some(p) => {
-            progress.start("denoise", 0);
-            let t = Instant::now();
-            let mpu = cloud.crs().map_or(1.0, |c| c.metres_per_unit());
-            let d = denoise::denoise_reusing(cloud, p, mpu, &mut scratch);
-            seconds[0] = t.elapsed().as_secs_f64();
-            progress.finish();
-            Some(d?)
-        }
-        None => None,
-    };
-    progress.start("resample", 0);
-    let t = Instant::now();
-    let keep = denoised.as_ref().map(|d| d.keep.as_slice());
-    let r = resample::resample_reusing(cloud, keep, resample, &mut scratch);
-    drop(scratch);
-    seconds[1] = t.elapsed().as_secs_f64();
-    progress.finish();
-    let mut resampled = r?;
-    let filled = match fill {
-        Some(p) => {
-            progress.start("fill", 0);
-            let t = Instant::now();
-            let f = self::fill(&mut resampled.grid, p);
-            seconds[2] = t.elapsed().as_secs_f64();
-            progress.finish();
-            Some(f?)
-        }
-        None => None,
-    };
-    Ok(GridStages {
-        denoised,
-        resampled,
-        filled,
-        seconds,
-    })
 }

@@ -46,7 +46,7 @@ pub struct ResampleParams {
     /// Square cells of this edge, in the data's units, instead of the √N × √N rule.
     pub cell_size: Option<f64>,
     /// The grid as `[width, height]` cells instead of the √N × √N rule.
-    #[serde(default, deserialize_with = "crate::config::exact_array")]
+    #[serde(default, deserialize_with = "crate::terrain::exact_array")]
     pub size: Option<[u64; 2]>,
 }
 

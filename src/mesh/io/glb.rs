@@ -598,7 +598,7 @@ mod tests {
     #[test]
     fn the_tile_writer_reads_back_exactly() {
         let m = quad();
-        let bytes = crate::output::glb::glb_bytes(&m, "t", 1.0).unwrap();
+        let bytes = crate::mesh::io::glb_bytes(&m, "t", 1.0).unwrap();
         let (back, info) = parse_glb(Path::new("t.glb"), &bytes, &ReadOptions::default()).unwrap();
         assert_eq!(info.format, MeshFormat::Glb);
         assert!(info.warnings.is_empty(), "{:?}", info.warnings);
@@ -609,7 +609,7 @@ mod tests {
 
     #[test]
     fn damaged_ranges_are_errors_naming_the_file() {
-        let bytes = crate::output::glb::glb_bytes(&quad(), "t", 1.0).unwrap();
+        let bytes = crate::mesh::io::glb_bytes(&quad(), "t", 1.0).unwrap();
         // Grow the position accessor's count past its buffer view: same JSON length.
         let mut bad = bytes.clone();
         let at = bad.windows(10).position(|w| w == b"\"count\":4,").unwrap();

@@ -1,0 +1,22 @@
+//! Runs a pipeline file: reads the inputs, runs the configured stages in order, writes the
+//! outputs into a staged directory that replaces the previous output only when everything
+//! succeeded, and returns a summary of what each stage did.
+//!
+//! - [`plan`](Plan): the pipeline file checked in one pass before any work;
+//! - `run`: the stage order, the one place that spells it ([`run`], [`grid_stages`],
+//!   [`tile_stages`]);
+//! - `report`: [`RunSummary`] and each stage's figures;
+//! - `memory`: the run's memory estimate and the probes of what it used.
+
+mod memory;
+mod plan;
+mod report;
+mod run;
+
+pub use crate::outnames::NOISE_FILE;
+pub use memory::{current_rss, empty_input, estimate_pipeline, peak_rss, reset_peak_rss};
+pub use plan::Plan;
+pub use report::{stage_seconds, BaselineMeasurements, RunSummary, StageReport};
+pub use run::{
+    grid_stages, run, run_with_context, tile_stages, GridStages, RunContext, RunOutput, TileStages,
+};
