@@ -14,6 +14,8 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// The classified points' file in the output directory (`ground.write_classified`).
+pub const CLASSIFIED_FILE: &str = "classified.las";
 /// ASPRS class of ground points.
 pub const GROUND_CLASS: u8 = 2;
 /// ASPRS class written for every point that is not ground ("unclassified").

@@ -124,3 +124,51 @@ fn no_ground_found() {
     let e = classify(&[], &[], &[], None, &GroundParams::default(), 1.0).unwrap_err();
     assert!(e.to_string().contains("no points"), "{e}");
 }
+
+/// `[ground]` in a pipeline: the stage runs between denoise and resample, writes
+/// `classified.las` when asked, and refuses `write_classified` on XYZ input (exit 2, the
+/// output directory not created).
+#[test]
+fn pipeline_ground_stage() {
+    let dir = common::default_job();
+    let d = dir.path();
+    let base = std::fs::read_to_string(d.join("pipeline.toml")).unwrap();
+    let with = |paths: &str, out: &str| {
+        let mut s = base.replace("dir = \"out\"", &format!("dir = \"{out}\""));
+        if !paths.is_empty() {
+            s = s.replace(
+                "paths = [\"fixtures/*.las\", \"fixtures/*.xyz\"]",
+                &format!("paths = [{paths}]"),
+            );
+        }
+        s.push_str("\n[ground]\nenabled = true\nwrite_classified = true\n");
+        s
+    };
+    std::fs::write(d.join("las.toml"), with("\"fixtures/*.las\"", "out_las")).unwrap();
+    let r = common::terratile(d, &["run", "las.toml", "--json"]);
+    r.ok();
+    let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+    let names = common::stage_names(&v);
+    let at = |n: &str| names.iter().position(|s| *s == n).unwrap();
+    assert!(
+        at("denoise") < at("ground") && at("ground") < at("resample"),
+        "{names:?}"
+    );
+    let c = read(&d.join("out_las/classified.las"));
+    let src = read(&d.join("fixtures/survey-0-0.las"));
+    assert_eq!(c.x, src.x);
+    assert!(c.classification.contains(&2) && c.classification.contains(&1));
+    std::fs::write(d.join("both.toml"), with("", "out_both")).unwrap();
+    common::terratile(d, &["run", "both.toml"])
+        .input_error(&["ground.write_classified", "no classification field"])
+        .left_nothing("out_both");
+    std::fs::write(
+        d.join("bad.toml"),
+        base.replace("dir = \"out\"", "dir = \"out_bad\"")
+            + "\n[ground]\nenabled = true\nwindow = -3\n",
+    )
+    .unwrap();
+    common::terratile(d, &["run", "bad.toml"])
+        .input_error(&["ground", "window"])
+        .left_nothing("out_bad");
+}

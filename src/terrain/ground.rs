@@ -413,9 +413,9 @@ fn min_surface(
         .collect()
 }
 
-/// Membrane inpainting of the NaN cells (to 1 mm).
+/// Membrane inpainting of the NaN cells (to 1 cm: the tests that follow are in decimetres).
 fn inpaint(z: &mut [f32], cols: usize, rows: usize) {
-    voidfill::membrane_fill(z, cols, rows, 1e-3);
+    voidfill::membrane_fill(z, cols, rows, 1e-2);
 }
 
 /// Cells that some opening of the progressive series lowers by more than the slope
