@@ -256,7 +256,7 @@ fn report_ground(
         let name = crate::classify::CLASSIFIED_FILE;
         let opts = pipeline.config.input.read_options();
         crate::classify::write_classified(&staged.path().join(name), cloud, &opts, ground)
-            .map_err(|e| pipeline.key_error("ground.write_classified", &e.to_string()))?;
+            .map_err(|e| pipeline.key_error("ground.write_classified", e.to_string()))?;
         summary.files.push(name.into());
         figures.push(fig("written", name.into()));
     }
