@@ -125,6 +125,19 @@ fn no_ground_found() {
     assert!(e.to_string().contains("no points"), "{e}");
 }
 
+/// `pipeline` (the default job's file, which lists `[ground]` off) with the stage on and
+/// the line `from` of its table replaced by `to`.
+fn ground_on(pipeline: &str, from: &str, to: &str) -> String {
+    let at = pipeline
+        .find("[ground]")
+        .expect("pipeline.toml has a [ground] table");
+    let (head, table) = pipeline.split_at(at);
+    let table = table
+        .replacen("enabled = false", "enabled = true", 1)
+        .replacen(from, to, 1);
+    format!("{head}{table}")
+}
+
 /// `[ground]` in a pipeline: the stage runs between denoise and resample, writes
 /// `classified.las` when asked, and refuses `write_classified` on XYZ input (exit 2, the
 /// output directory not created).
@@ -141,8 +154,7 @@ fn pipeline_ground_stage() {
                 &format!("paths = [{paths}]"),
             );
         }
-        s.push_str("\n[ground]\nenabled = true\nwrite_classified = true\n");
-        s
+        ground_on(&s, "write_classified = false", "write_classified = true")
     };
     std::fs::write(d.join("las.toml"), with("\"fixtures/*.las\"", "out_las")).unwrap();
     let r = common::terratile(d, &["run", "las.toml", "--json"]);
@@ -164,8 +176,11 @@ fn pipeline_ground_stage() {
         .left_nothing("out_both");
     std::fs::write(
         d.join("bad.toml"),
-        base.replace("dir = \"out\"", "dir = \"out_bad\"")
-            + "\n[ground]\nenabled = true\nwindow = -3\n",
+        ground_on(
+            &base.replace("dir = \"out\"", "dir = \"out_bad\""),
+            "# window = 18.0",
+            "window = -3",
+        ),
     )
     .unwrap();
     common::terratile(d, &["run", "bad.toml"])
