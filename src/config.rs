@@ -37,6 +37,9 @@ pub struct Pipeline {
     /// `[fill]`: hole filling (on by default).
     #[serde(default)]
     pub fill: FillParams,
+    /// `[ground]`: ground classification (off by default).
+    #[serde(default)]
+    pub ground: crate::terrain::ground::GroundParams,
     /// `[baseline]`: the Delaunay baseline and its comparison report (off by default).
     #[serde(default)]
     pub baseline: BaselineParams,
@@ -276,6 +279,7 @@ impl LoadedPipeline {
         c.denoise.validate().map_err(at_key)?;
         c.resample.validate().map_err(at_key)?;
         c.fill.validate().map_err(at_key)?;
+        c.ground.validate().map_err(at_key)?;
         c.tiles.validate().map_err(at_key)?;
         c.quadtree.validate().map_err(at_key)?;
         c.extract.validate().map_err(at_key)?;

@@ -17,6 +17,7 @@
 #![deny(unsafe_code)]
 
 pub mod assets;
+pub mod classify;
 pub mod config;
 pub mod generate;
 pub mod geo;

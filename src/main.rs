@@ -102,6 +102,9 @@ enum Command {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
+    /// Classify the ground points of a LAS/LAZ file (SMRF) and write it as LAS with class 2
+    /// (ground) / 1 (other); prints the counts and the time.
+    Classify(ClassifyArgs),
     /// Measure terratile against references in the same process.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -540,6 +543,82 @@ impl Progress for Bars {
     }
 }
 
+/// `terratile classify` arguments.
+#[derive(clap::Args, Debug)]
+struct ClassifyArgs {
+    /// Input LAS, LAZ (or XYZ, without OUT).
+    input: PathBuf,
+    /// Output LAS (a new file): the input's records with class 2 / 1.
+    output: Option<PathBuf>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    json: bool,
+    /// Score against the file's own class 2: type I, type II, total error, kappa.
+    #[arg(long)]
+    score: bool,
+    /// Cell edge, metres (default: 1, or a quarter of the point spacing when larger).
+    #[arg(long, value_name = "M")]
+    cell_size: Option<f64>,
+    /// Largest window radius, metres (default 18).
+    #[arg(long, value_name = "M")]
+    window: Option<f64>,
+    /// Slope tolerance, rise over run (default 0.25).
+    #[arg(long)]
+    slope: Option<f64>,
+    /// Elevation threshold, metres (default 0.5).
+    #[arg(long, value_name = "M")]
+    threshold: Option<f64>,
+    /// Elevation scalar, metres per unit slope (default 1.25).
+    #[arg(long, value_name = "M")]
+    scalar: Option<f64>,
+}
+
+fn classify(a: ClassifyArgs, progress: &dyn Progress) -> Result<()> {
+    let params = terratile::terrain::ground::GroundParams {
+        enabled: true,
+        cell_size: a.cell_size,
+        window: a.window,
+        slope: a.slope,
+        threshold: a.threshold,
+        scalar: a.scalar,
+        ..Default::default()
+    };
+    if let Some(o) = &a.output {
+        terratile::remove_stale_temps(o);
+    }
+    let r = terratile::classify::classify_file(
+        &a.input,
+        a.output.as_deref(),
+        &params,
+        a.score,
+        progress,
+    )?;
+    if a.json {
+        return print_json(&r);
+    }
+    outln!(
+        "{}: {} points, {} ground ({:.1} %), {:.3} s",
+        a.input.display(),
+        r.points,
+        r.ground,
+        100.0 * r.ground as f64 / r.points.max(1) as f64,
+        r.seconds
+    );
+    if let Some(s) = r.score {
+        outln!(
+            "type I {:.2} %  type II {:.2} %  total {:.2} %  kappa {:.2} %",
+            100.0 * s.type1,
+            100.0 * s.type2,
+            100.0 * s.total,
+            100.0 * s.kappa
+        );
+    }
+    if let Some(o) = r.output {
+        outln!("{}: written", o.display());
+    }
+    Ok(())
+}
+
 fn print_json<T: serde::Serialize>(v: &T) -> Result<()> {
     let s = serde_json::to_string_pretty(v).map_err(|e| Error::Internal(e.to_string()))?;
     outln!("{s}");
@@ -712,6 +791,7 @@ fn run(cli: Cli) -> Result<()> {
             let mb = terratile::bench::table1_memory(&file, count, seed, &method)?;
             outln!("{}", mb.map_or("none".into(), |m| m.to_string()));
         }
+        Command::Classify(a) => classify(a, progress)?,
         Command::Simplify(a) => simplify(a)?,
         Command::Strips(a) => strips(a)?,
         Command::Compare {

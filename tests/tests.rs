@@ -15,6 +15,7 @@ mod cli_read;
 mod cli_terrain;
 mod cli_tiles;
 mod geo;
+mod ground;
 mod intersect;
 mod mesh_io;
 mod outputs;

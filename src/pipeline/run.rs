@@ -120,6 +120,8 @@ pub struct GridStages {
     pub filled: Option<FillReport>,
     /// Seconds spent in denoise, resample and fill (0 for a stage that was off).
     pub seconds: [f64; 3],
+    /// Ground classification's flags per point and report (`None` when `[ground]` is off).
+    pub ground: Option<(Vec<bool>, crate::classify::ClassifyReport)>,
 }
 
 /// The grid stages of `cfg` on `cloud`: denoise (when `[denoise]` is on), resample and fill
@@ -143,9 +145,25 @@ pub fn grid_stages(
     } else {
         None
     };
+    let keep = denoised.as_ref().map(|d| d.keep.as_slice());
+    let ground = if cfg.ground.enabled {
+        progress.start("ground", 0);
+        let g = crate::classify::ground_of(cloud, keep, &cfg.ground);
+        progress.finish();
+        Some(g?)
+    } else {
+        None
+    };
+    // With `surface = "ground"` the grid is built from the ground points (which are all
+    // kept by noise removal) alone.
+    let keep = match &ground {
+        Some((g, _)) if cfg.ground.surface == terrain::ground::Surface::Ground => {
+            Some(g.as_slice())
+        }
+        _ => keep,
+    };
     progress.start("resample", 0);
     let t = Instant::now();
-    let keep = denoised.as_ref().map(|d| d.keep.as_slice());
     let r = terrain::resample::resample_reusing(cloud, keep, &cfg.resample, &mut scratch);
     drop(scratch);
     seconds[1] = t.elapsed().as_secs_f64();
@@ -166,6 +184,7 @@ pub fn grid_stages(
         resampled,
         filled,
         seconds,
+        ground,
     })
 }
 
@@ -189,6 +208,16 @@ fn report_grid(
         )?),
         None => None,
     };
+    let keep = match g.ground {
+        Some((ground, r)) => {
+            report_ground(pipeline, cloud, &ground, r, staged, summary)?;
+            match pipeline.config.ground.surface {
+                terrain::ground::Surface::Ground => Some(ground),
+                terrain::ground::Surface::All => keep,
+            }
+        }
+        None => keep,
+    };
     summary
         .stages
         .push(resample_report(&g.resampled, g.seconds[1]));
@@ -196,6 +225,47 @@ fn report_grid(
         summary.stages.push(fill_report(pipeline, f, g.seconds[2]));
     }
     Ok((keep, g.resampled.grid))
+}
+
+/// Ground classification's report, after writing the classified points to
+/// `classified.las` when `ground.write_classified` asks for it.
+fn report_ground(
+    pipeline: &LoadedPipeline,
+    cloud: &PointCloud,
+    ground: &[bool],
+    r: crate::classify::ClassifyReport,
+    staged: &StagedDir,
+    summary: &mut RunSummary,
+) -> Result<()> {
+    let cfg = &pipeline.config.ground;
+    let mut figures = vec![
+        fig("points", r.points.to_string()),
+        fig("ground", r.ground.to_string()),
+    ];
+    match &r.settings {
+        Some(s) => figures.push(fig(
+            "settings",
+            format!(
+                "cell {} m, window {} m, slope {}, threshold {} m, scalar {} m",
+                s.cell_size, s.window, s.slope, s.threshold, s.scalar
+            ),
+        )),
+        None => figures.push(fig("source", "the file's own class 2".into())),
+    }
+    if cfg.write_classified {
+        let name = crate::classify::CLASSIFIED_FILE;
+        let opts = pipeline.config.input.read_options();
+        crate::classify::write_classified(&staged.path().join(name), cloud, &opts, ground)
+            .map_err(|e| pipeline.key_error("ground.write_classified", e.to_string()))?;
+        summary.files.push(name.into());
+        figures.push(fig("written", name.into()));
+    }
+    summary.stages.push(StageReport {
+        stage: "ground".into(),
+        seconds: r.seconds,
+        figures,
+    });
+    Ok(())
 }
 
 /// Noise removal's report, after writing the removed points to `noise.las` when

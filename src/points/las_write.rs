@@ -223,6 +223,36 @@ pub fn write_selected_records(
     select: &[bool],
     class: u8,
 ) -> Result<bool> {
+    let n = select.len();
+    write_records_with(path, sources, opts, n, |i| {
+        select.get(i).copied().unwrap_or(false).then_some(class)
+    })
+}
+
+/// Writes every record of the cloud read from `sources` with `opts` to an uncompressed LAS
+/// at `path`, in order and byte for byte in the inputs' point format, with point `i`'s class
+/// set to `classes[i]` (nothing else changes). Returns false, writing nothing, as
+/// [`write_selected_records`] does.
+pub fn write_reclassified_records(
+    path: &Path,
+    sources: &[super::SourceInfo],
+    opts: &super::ReadOptions,
+    classes: &[u8],
+) -> Result<bool> {
+    write_records_with(path, sources, opts, classes.len(), |i| {
+        classes.get(i).copied()
+    })
+}
+
+/// The records of the `n` cloud points read from `sources` with `opts` for which `class_of`
+/// (by point index) gives a class, written with that class.
+fn write_records_with(
+    path: &Path,
+    sources: &[super::SourceInfo],
+    opts: &super::ReadOptions,
+    n: usize,
+    mut class_of: impl FnMut(usize) -> Option<u8>,
+) -> Result<bool> {
     use super::Format;
     let Some(first) = sources.first() else {
         return Ok(false);
@@ -257,11 +287,11 @@ pub fn write_selected_records(
                     continue;
                 }
                 left -= 1;
-                let keep = select.get(index).copied().unwrap_or(false);
+                let keep = class_of(index);
                 index += 1;
-                if !keep {
+                let Some(class) = keep else {
                     continue;
-                }
+                };
                 let at = out.len();
                 out.extend_from_slice(r);
                 let rec = &mut out[at..];
@@ -281,11 +311,10 @@ pub fn write_selected_records(
         })?;
         header.get_or_insert(h);
     }
-    if index != select.len() {
+    if index != n {
         return Err(Error::Internal(format!(
-            "{}: re-reading the inputs found {index} points, the run read {}",
+            "{}: re-reading the inputs found {index} points, the run read {n}",
             path.display(),
-            select.len()
         )));
     }
     let Some(h) = header else {

@@ -18,7 +18,9 @@ pub use convert::{convert, Selection};
 pub use crs::{Crs, LinearUnit, VerticalCrs};
 pub use las_header::{LasHeader, Vlr};
 pub use las_read::raw_records;
-pub use las_write::{write_las, write_raw_las, write_selected_records, LasWriteOptions};
+pub use las_write::{
+    write_las, write_raw_las, write_reclassified_records, write_selected_records, LasWriteOptions,
+};
 pub use stats::{class_name, CloudStats, FileInfo, Histogram};
 pub use xyz::parse_xyz;
 

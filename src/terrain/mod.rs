@@ -8,12 +8,14 @@ pub mod delaunay;
 pub mod denoise;
 pub mod extract;
 pub mod fill;
+pub mod ground;
 pub mod heightfield;
 pub mod quadtree;
 #[cfg(any(test, feature = "testing"))]
 pub mod reference;
 pub mod resample;
 pub mod tiles;
+pub mod voidfill;
 
 pub use denoise::{denoise, DenoiseParams, Denoised};
 pub use fill::{fill, Fallback, FillParams, FillReport};
