@@ -1,6 +1,6 @@
 //! A bounding volume hierarchy over a mesh's triangles for closest-point queries (the
-//! point-to-surface distance of the Metro error, SPEC §8; later the local error checks of
-//! QEM and fold-free placement).
+//! point-to-surface distance of the Metro error; the local checks of QEM's
+//! intersection guard).
 //!
 //! Written here rather than taken from a crate: the crates of the field are built for ray
 //! casting (`bvh`, `obvhs`) or pull in a whole physics stack for point projection (`parry3d`

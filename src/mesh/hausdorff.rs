@@ -1,4 +1,4 @@
-//! The Metro-style simplification error (SPEC §8; seed 000 §III.4, after Cignoni, Rocchini
+//! The Metro-style simplification error (Kim et al. §III.4, after Cignoni, Rocchini
 //! & Scopigno's Metro). One-sided from X to Y: points sampled on X — every referenced vertex
 //! plus area-proportional samples inside each triangle — are measured against the surface
 //! Y through a [`Bvh`], in parallel.

@@ -1,11 +1,11 @@
-//! Vertex clustering simplifiers (SPEC §7, seed 000): every vertex of a cluster is replaced
+//! Vertex clustering simplifiers (Kim et al.'s vertex-clustering paper): every vertex of a cluster is replaced
 //! by one representative, triangles with two corners in one cluster vanish, and duplicate
 //! triangles are dropped. Three ways to form the clusters:
 //!
 //! - [`uniform`]: a cubic grid over the bounding box (Rossignac & Borrel 1993);
 //! - [`floating`]: cells centred on the visually most important vertices (Low & Tan 1997);
 //! - [`octree`]: the paper's adaptive octree, splitting where the normals vary and the
-//!   vertices spread (Kim et al., seed 000 §III), with selective refinement.
+//!   vertices spread (Kim et al., §III), with selective refinement.
 //!
 //! Each reaches a target triangle count by searching its one scale parameter (cell size or
 //! split threshold), or runs at a given parameter. The representative is the centroid, the

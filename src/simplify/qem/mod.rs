@@ -1,7 +1,8 @@
-//! Quadric edge collapse (Garland & Heckbert 1997; SPEC §9, first half): one collapse engine
+//! Quadric edge collapse (Garland & Heckbert, "Surface Simplification Using Quadric Error
+//! Metrics", 1997): one collapse engine
 //! with the cost, the placement and the validity checks as separate, pluggable parts, so
-//! that the saliency-weighted cost (SPEC §9, second half) and progressive strips (§11) can
-//! reuse it.
+//! that the saliency-weighted cost (`simplify::saliency`) and progressive strips
+//! (`simplify::strips`) reuse it.
 //!
 //! The engine works on the welded topology of [`Prepared`] (seams are not holes) with the
 //! area-weighted plane quadrics it computes; border edges add a plane through the edge
@@ -79,7 +80,7 @@ pub enum QuadricMerge {
     /// Q = Q₁ + Q₂ (Garland & Heckbert).
     #[default]
     Sum,
-    /// Q = (Q₁ + Q₂) / 2 (the thesis of SPEC §9).
+    /// Q = (Q₁ + Q₂) / 2 (An's 2014 thesis on hybrid saliency).
     Mean,
 }
 
@@ -92,8 +93,8 @@ impl std::fmt::Display for QuadricMerge {
     }
 }
 
-/// The cost by which collapses are ordered (the saliency weighting of SPEC §9 will be a
-/// third).
+/// The cost by which collapses are ordered (a per-vertex saliency weight,
+/// [`QemParams::weights`], multiplies either).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Cost {
     /// Q(p): the area-weighted sum of squared plane distances (Garland & Heckbert). Small
