@@ -84,7 +84,7 @@ impl<'a> Reader<'a> {
     }
 
     /// The bytes of accessor `a`, every range checked.
-    fn data(&self, a: &gltf::Accessor<'a>, role: &str) -> Result<Data<'a>> {
+    fn data(&self, a: &gltf::Accessor, role: &str) -> Result<Data<'a>> {
         let name = what(a, role);
         if a.sparse().is_some() {
             return Err(self.err(
@@ -170,6 +170,34 @@ struct Part {
 /// Parses a glb file's bytes (`path` is for messages) as `opts` say.
 pub fn parse_glb(path: &Path, bytes: &[u8], opts: &ReadOptions) -> Result<(TriMesh, ReadInfo)> {
     let mut notes = Notes::new(opts);
+    let gltf = load_document(path, bytes)?;
+    let reader = Reader {
+        path,
+        blob: gltf.blob.as_deref().unwrap_or(&[]),
+        bin_at: bin_offset(bytes),
+    };
+    let instances = mesh_instances(path, &gltf.document)?;
+    check_instanced_size(&reader, &instances, bytes.len())?;
+    let mut parts: Vec<Part> = Vec::new();
+    for (mesh, m) in &instances {
+        for prim in mesh.primitives() {
+            if let Some(part) = read_primitive(&reader, &mut notes, mesh, &prim, m)? {
+                parts.push(part);
+            }
+        }
+    }
+    let mesh = merge_parts(path, parts, &mut notes)?;
+    let info = ReadInfo {
+        format: MeshFormat::Glb,
+        faces_in_file: mesh.indices.len(),
+        warnings: notes.into_lines(),
+        skipped_faces: 0,
+    };
+    Ok((mesh, info))
+}
+
+/// The container and its JSON document, parsed and validated.
+fn load_document(path: &Path, bytes: &[u8]) -> Result<gltf::Gltf> {
     let invalid = |e: gltf::Error| {
         Error::format(
             path,
@@ -183,6 +211,15 @@ pub fn parse_glb(path: &Path, bytes: &[u8], opts: &ReadOptions) -> Result<(TriMe
     let gltf::Gltf { document, blob } =
         gltf::Gltf::from_slice_without_validation(bytes).map_err(invalid)?;
     let root = document.into_json();
+    check_attribute_accessors(path, &root)?;
+    Ok(gltf::Gltf {
+        document: gltf::Document::from_json(root).map_err(invalid)?,
+        blob,
+    })
+}
+
+/// Every primitive attribute names an existing accessor (see `load_document`).
+fn check_attribute_accessors(path: &Path, root: &gltf::json::Root) -> Result<()> {
     for (i, m) in root.meshes.iter().enumerate() {
         for (j, p) in m.primitives.iter().enumerate() {
             for (semantic, a) in &p.attributes {
@@ -204,53 +241,63 @@ pub fn parse_glb(path: &Path, bytes: &[u8], opts: &ReadOptions) -> Result<(TriMe
             }
         }
     }
-    let gltf = gltf::Gltf {
-        document: gltf::Document::from_json(root).map_err(invalid)?,
-        blob,
-    };
+    Ok(())
+}
+
+/// File offset of the BIN chunk's data: 12-byte header, 8-byte JSON chunk header, the
+/// JSON, then the BIN chunk's 8-byte header.
+fn bin_offset(bytes: &[u8]) -> u64 {
     let json_len = bytes
         .get(12..16)
         .map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as u64);
-    let reader = Reader {
-        path,
-        blob: gltf.blob.as_deref().unwrap_or(&[]),
-        bin_at: 20 + json_len + 8,
-    };
-    let doc = &gltf.document;
+    20 + json_len + 8
+}
 
-    // Mesh instances with their world transforms.
+/// Mesh instances with their world transforms: the default (or first) scene's node tree,
+/// or every mesh untransformed when there is no scene.
+fn mesh_instances<'a>(
+    path: &Path,
+    doc: &'a gltf::Document,
+) -> Result<Vec<(gltf::Mesh<'a>, DMat4)>> {
     let mut instances: Vec<(gltf::Mesh, DMat4)> = Vec::new();
-    match doc.default_scene().or_else(|| doc.scenes().next()) {
-        Some(scene) => {
-            let mut seen = vec![false; doc.nodes().len()];
-            let mut stack: Vec<(gltf::Node, DMat4)> =
-                scene.nodes().map(|n| (n, DMat4::IDENTITY)).collect();
-            stack.reverse();
-            while let Some((node, parent)) = stack.pop() {
-                if std::mem::replace(&mut seen[node.index()], true) {
-                    return Err(Error::format(
-                        path,
-                        0,
-                        format!(
-                            "node {} is reached twice: the node hierarchy must be a tree",
-                            node.index()
-                        ),
-                    ));
-                }
-                let local = node.transform().matrix();
-                let m = parent * DMat4::from_cols_array_2d(&local.map(|c| c.map(f64::from)));
-                if let Some(mesh) = node.mesh() {
-                    instances.push((mesh, m));
-                }
-                let first = stack.len();
-                stack.extend(node.children().map(|c| (c, m)));
-                stack[first..].reverse();
-            }
+    let Some(scene) = doc.default_scene().or_else(|| doc.scenes().next()) else {
+        instances.extend(doc.meshes().map(|m| (m, DMat4::IDENTITY)));
+        return Ok(instances);
+    };
+    let mut seen = vec![false; doc.nodes().len()];
+    let mut stack: Vec<(gltf::Node, DMat4)> = scene.nodes().map(|n| (n, DMat4::IDENTITY)).collect();
+    stack.reverse();
+    while let Some((node, parent)) = stack.pop() {
+        if std::mem::replace(&mut seen[node.index()], true) {
+            return Err(Error::format(
+                path,
+                0,
+                format!(
+                    "node {} is reached twice: the node hierarchy must be a tree",
+                    node.index()
+                ),
+            ));
         }
-        None => instances.extend(doc.meshes().map(|m| (m, DMat4::IDENTITY))),
+        let local = node.transform().matrix();
+        let m = parent * DMat4::from_cols_array_2d(&local.map(|c| c.map(f64::from)));
+        if let Some(mesh) = node.mesh() {
+            instances.push((mesh, m));
+        }
+        let first = stack.len();
+        stack.extend(node.children().map(|c| (c, m)));
+        stack[first..].reverse();
     }
+    Ok(instances)
+}
+
+/// Refuses scenes that instance more position bytes than `INSTANCE_FACTOR` times the file.
+fn check_instanced_size(
+    reader: &Reader,
+    instances: &[(gltf::Mesh, DMat4)],
+    file_len: usize,
+) -> Result<()> {
     let mut instanced = 0usize;
-    for (mesh, _) in &instances {
+    for (mesh, _) in instances {
         for p in mesh.primitives() {
             if let Some(a) = p.get(&Semantic::Positions) {
                 // A count its buffer view cannot hold is the first thing to report.
@@ -259,282 +306,372 @@ pub fn parse_glb(path: &Path, bytes: &[u8], opts: &ReadOptions) -> Result<(TriMe
             }
         }
     }
-    if instanced > INSTANCE_FACTOR.saturating_mul(bytes.len()) {
+    if instanced > INSTANCE_FACTOR.saturating_mul(file_len) {
         return Err(Error::format(
-            path,
+            reader.path,
             0,
             format!(
-                "the scene instances {instanced} bytes of vertex positions, more than {INSTANCE_FACTOR} times the file's {} bytes",
-                bytes.len()
+                "the scene instances {instanced} bytes of vertex positions, more than {INSTANCE_FACTOR} times the file's {file_len} bytes"
             ),
         ));
     }
+    Ok(())
+}
 
-    let mut parts: Vec<Part> = Vec::new();
-    for (mesh, m) in &instances {
-        for prim in mesh.primitives() {
-            let here = format!("mesh {} primitive {}", mesh.index(), prim.index());
-            if !matches!(
-                prim.mode(),
-                Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
-            ) {
-                notes.note("not triangles", || {
-                    format!(
-                        "{}: {here}: {:?} primitives skipped (not triangles)",
-                        path.display(),
-                        prim.mode()
-                    )
-                });
-                continue;
-            }
-            let Some(pa) = prim.get(&Semantic::Positions) else {
-                notes.note("no positions", || {
-                    format!("{}: {here} has no POSITION: skipped", path.display())
-                });
-                continue;
-            };
-            let pd = reader.data(&pa, "POSITION")?;
-            if pd.ty != DataType::F32 || pd.dims != Dimensions::Vec3 {
-                return Err(reader.err(
-                    reader.bin_at,
-                    format!(
-                        "{}: POSITION must be float VEC3, not {:?} {:?}",
-                        what(&pa, "POSITION"),
-                        pd.ty,
-                        pd.dims
-                    ),
-                ));
-            }
-            let z_up = |v: DVec3| Vec3::new(v.x as f32, -v.z as f32, v.y as f32);
-            let mut positions = Vec::with_capacity(pd.count);
-            for i in 0..pd.count {
-                let local = DVec3::new(pd.get(i, 0), pd.get(i, 1), pd.get(i, 2));
-                let p = z_up(m.transform_point3(local));
-                if !p.is_finite() {
-                    return Err(reader.err(
-                        reader.bin_at,
-                        format!(
-                            "{here}: vertex {i} has a non-finite position: NaN or infinite positions are not allowed"
-                        ),
-                    ));
-                }
-                positions.push(p);
-            }
-            let n = positions.len();
-            // Optional attributes: None when absent; dropped (with a note) when unusable.
-            let normals = match prim.get(&Semantic::Normals) {
-                None => None,
-                Some(a) => {
-                    let nm = DMat3::from_mat4(*m).inverse().transpose();
-                    let got = reader.data(&a, "NORMAL").and_then(|d| {
-                        if d.ty != DataType::F32 || d.dims != Dimensions::Vec3 || d.count != n {
-                            return Err(reader.err(
-                                reader.bin_at,
-                                format!(
-                                    "{}: NORMAL must be float VEC3 with one per vertex",
-                                    what(&a, "NORMAL")
-                                ),
-                            ));
-                        }
-                        (0..n)
-                            .map(|i| {
-                                let v = nm * DVec3::new(d.get(i, 0), d.get(i, 1), d.get(i, 2));
-                                let v = z_up(v.normalize_or_zero());
-                                if v.is_finite() {
-                                    Ok(v)
-                                } else {
-                                    Err(reader.err(
-                                        reader.bin_at,
-                                        format!("{}: normal {i} is not finite", what(&a, "NORMAL")),
-                                    ))
-                                }
-                            })
-                            .collect::<Result<Vec<Vec3>>>()
-                    });
-                    match got {
-                        Ok(v) => Some(v),
-                        Err(e) => {
-                            notes.lenient("normal", e, "normals dropped")?;
-                            Some(Vec::new())
-                        }
-                    }
-                }
-            };
-            let uvs = match prim.get(&Semantic::TexCoords(0)) {
-                None => None,
-                Some(a) => {
-                    let got = reader.data(&a, "TEXCOORD_0").and_then(|d| {
-                        let ok_type = d.ty == DataType::F32 || (d.normalized && matches!(d.ty, DataType::U8 | DataType::U16));
-                        if !ok_type || d.dims != Dimensions::Vec2 || d.count != n {
-                            return Err(reader.err(reader.bin_at, format!("{}: TEXCOORD_0 must be VEC2 float or normalised unsigned, one per vertex", what(&a, "TEXCOORD_0"))));
-                        }
-                        (0..n)
-                            .map(|i| {
-                                let v = Vec2::new(d.get(i, 0) as f32, d.get(i, 1) as f32);
-                                if v.is_finite() {
-                                    Ok(v)
-                                } else {
-                                    Err(reader.err(reader.bin_at, format!("{}: texture coordinate {i} is not finite", what(&a, "TEXCOORD_0"))))
-                                }
-                            })
-                            .collect::<Result<Vec<Vec2>>>()
-                    });
-                    match got {
-                        Ok(v) => Some(v),
-                        Err(e) => {
-                            notes.lenient(
-                                "texture coordinate",
-                                e,
-                                "texture coordinates dropped",
-                            )?;
-                            Some(Vec::new())
-                        }
-                    }
-                }
-            };
-            let colors = match prim.get(&Semantic::Colors(0)) {
-                None => None,
-                Some(a) => {
-                    let got = reader.data(&a, "COLOR_0").and_then(|d| {
-                        let ok_type = d.ty == DataType::F32 || (d.normalized && matches!(d.ty, DataType::U8 | DataType::U16));
-                        let k = components(d.dims);
-                        if !ok_type || !matches!(d.dims, Dimensions::Vec3 | Dimensions::Vec4) || d.count != n {
-                            return Err(reader.err(reader.bin_at, format!("{}: COLOR_0 must be VEC3 or VEC4 float or normalised unsigned, one per vertex", what(&a, "COLOR_0"))));
-                        }
-                        (0..n)
-                            .map(|i| {
-                                let mut c = [1f32; 4];
-                                for (j, x) in c.iter_mut().enumerate().take(k) {
-                                    *x = d.get(i, j) as f32;
-                                }
-                                if c.iter().all(|x| x.is_finite()) {
-                                    Ok(c.map(|x| x.clamp(0.0, 1.0)))
-                                } else {
-                                    Err(reader.err(reader.bin_at, format!("{}: colour {i} is not finite", what(&a, "COLOR_0"))))
-                                }
-                            })
-                            .collect::<Result<Vec<[f32; 4]>>>()
-                    });
-                    match got {
-                        Ok(v) => Some(v),
-                        Err(e) => {
-                            notes.lenient("colour", e, "colours dropped")?;
-                            Some(Vec::new())
-                        }
-                    }
-                }
-            };
-            // Corner list: the indices, or 0..n.
-            let corners: Vec<u32> = match prim.indices() {
-                None => (0..n as u32).collect(),
-                Some(a) => {
-                    let d = reader.data(&a, "indices")?;
-                    if !matches!(d.ty, DataType::U8 | DataType::U16 | DataType::U32)
-                        || d.dims != Dimensions::Scalar
-                        || d.normalized
-                    {
-                        return Err(reader.err(
-                            reader.bin_at,
-                            format!("{}: indices must be unsigned SCALAR", what(&a, "indices")),
-                        ));
-                    }
-                    let mut v = Vec::with_capacity(d.count);
-                    for i in 0..d.count {
-                        let x = d.get(i, 0);
-                        if x >= n as f64 {
-                            return Err(reader.err(
-                                reader.bin_at,
-                                format!(
-                                    "{here}: index {i} is {x} but the primitive has {n} vertices"
-                                ),
-                            ));
-                        }
-                        v.push(x as u32);
-                    }
-                    v
-                }
-            };
-            let mut triangles = Vec::with_capacity(corners.len() / 3);
-            let leftover = match prim.mode() {
-                Mode::Triangles => {
-                    triangles.extend(corners.chunks_exact(3).map(|t| [t[0], t[1], t[2]]));
-                    corners.len() % 3
-                }
-                Mode::TriangleStrip => {
-                    for (k, w) in corners.windows(3).enumerate() {
-                        triangles.push(if k % 2 == 0 {
-                            [w[0], w[1], w[2]]
-                        } else {
-                            [w[1], w[0], w[2]]
-                        });
-                    }
-                    if (1..3).contains(&corners.len()) {
-                        corners.len()
-                    } else {
-                        0
-                    }
-                }
-                _ => {
-                    for k in 1..corners.len().saturating_sub(1) {
-                        triangles.push([corners[0], corners[k], corners[k + 1]]);
-                    }
-                    if (1..3).contains(&corners.len()) {
-                        corners.len()
-                    } else {
-                        0
-                    }
-                }
-            };
-            if leftover > 0 {
-                notes.lenient(
-                    "short face",
-                    reader.err(
-                        reader.bin_at,
-                        format!("{here}: {leftover} indices left over after the last triangle"),
-                    ),
-                    "ignored",
-                )?;
-            }
-            parts.push(Part {
-                positions,
-                normals,
-                uvs,
-                colors,
-                triangles,
-            });
+/// glTF's y-up axes to terratile's z-up ones: (x, y, z) → (x, −z, y).
+fn z_up(v: DVec3) -> Vec3 {
+    Vec3::new(v.x as f32, -v.z as f32, v.y as f32)
+}
+
+/// One primitive of a mesh instance with world transform `m`; None when it is skipped
+/// (not triangles, or no POSITION).
+fn read_primitive(
+    reader: &Reader,
+    notes: &mut Notes,
+    mesh: &gltf::Mesh,
+    prim: &gltf::Primitive,
+    m: &DMat4,
+) -> Result<Option<Part>> {
+    let path = reader.path;
+    let here = format!("mesh {} primitive {}", mesh.index(), prim.index());
+    if !matches!(
+        prim.mode(),
+        Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+    ) {
+        notes.note("not triangles", || {
+            format!(
+                "{}: {here}: {:?} primitives skipped (not triangles)",
+                path.display(),
+                prim.mode()
+            )
+        });
+        return Ok(None);
+    }
+    let Some(pa) = prim.get(&Semantic::Positions) else {
+        notes.note("no positions", || {
+            format!("{}: {here} has no POSITION: skipped", path.display())
+        });
+        return Ok(None);
+    };
+    let positions = read_positions(reader, &pa, m, &here)?;
+    let n = positions.len();
+    // Optional attributes: None when absent; dropped (with a note) when unusable.
+    let normals = match prim.get(&Semantic::Normals) {
+        None => None,
+        Some(a) => usable(
+            notes,
+            read_normals(reader, &a, m, n),
+            "normal",
+            "normals dropped",
+        )?,
+    };
+    let uvs = match prim.get(&Semantic::TexCoords(0)) {
+        None => None,
+        Some(a) => usable(
+            notes,
+            read_uvs(reader, &a, n),
+            "texture coordinate",
+            "texture coordinates dropped",
+        )?,
+    };
+    let colors = match prim.get(&Semantic::Colors(0)) {
+        None => None,
+        Some(a) => usable(
+            notes,
+            read_colors(reader, &a, n),
+            "colour",
+            "colours dropped",
+        )?,
+    };
+    let corners = read_corners(reader, prim, n, &here)?;
+    let (triangles, leftover) = triangulate(prim.mode(), &corners);
+    if leftover > 0 {
+        notes.lenient(
+            "short face",
+            reader.err(
+                reader.bin_at,
+                format!("{here}: {leftover} indices left over after the last triangle"),
+            ),
+            "ignored",
+        )?;
+    }
+    Ok(Some(Part {
+        positions,
+        normals,
+        uvs,
+        colors,
+        triangles,
+    }))
+}
+
+/// An optional attribute as read: Some(values), or Some(empty) once its error has been
+/// noted (an error itself with `strict`).
+fn usable<T>(
+    notes: &mut Notes,
+    got: Result<Vec<T>>,
+    kind: &'static str,
+    action: &str,
+) -> Result<Option<Vec<T>>> {
+    match got {
+        Ok(v) => Ok(Some(v)),
+        Err(e) => {
+            notes.lenient(kind, e, action)?;
+            Ok(Some(Vec::new()))
         }
     }
+}
 
-    // Merge: an attribute survives when every primitive has it, usable.
+/// Float VEC3 positions, transformed by `m` into z-up world coordinates, all finite.
+fn read_positions(
+    reader: &Reader,
+    pa: &gltf::Accessor,
+    m: &DMat4,
+    here: &str,
+) -> Result<Vec<Vec3>> {
+    let pd = reader.data(pa, "POSITION")?;
+    if pd.ty != DataType::F32 || pd.dims != Dimensions::Vec3 {
+        return Err(reader.err(
+            reader.bin_at,
+            format!(
+                "{}: POSITION must be float VEC3, not {:?} {:?}",
+                what(pa, "POSITION"),
+                pd.ty,
+                pd.dims
+            ),
+        ));
+    }
+    let mut positions = Vec::with_capacity(pd.count);
+    for i in 0..pd.count {
+        let local = DVec3::new(pd.get(i, 0), pd.get(i, 1), pd.get(i, 2));
+        let p = z_up(m.transform_point3(local));
+        if !p.is_finite() {
+            return Err(reader.err(
+                reader.bin_at,
+                format!(
+                    "{here}: vertex {i} has a non-finite position: NaN or infinite positions are not allowed"
+                ),
+            ));
+        }
+        positions.push(p);
+    }
+    Ok(positions)
+}
+
+/// `n` float VEC3 normals, transformed by the inverse transpose of `m`, unit length, z-up.
+fn read_normals(reader: &Reader, a: &gltf::Accessor, m: &DMat4, n: usize) -> Result<Vec<Vec3>> {
+    let nm = DMat3::from_mat4(*m).inverse().transpose();
+    let d = reader.data(a, "NORMAL")?;
+    if d.ty != DataType::F32 || d.dims != Dimensions::Vec3 || d.count != n {
+        return Err(reader.err(
+            reader.bin_at,
+            format!(
+                "{}: NORMAL must be float VEC3 with one per vertex",
+                what(a, "NORMAL")
+            ),
+        ));
+    }
+    (0..n)
+        .map(|i| {
+            let v = nm * DVec3::new(d.get(i, 0), d.get(i, 1), d.get(i, 2));
+            let v = z_up(v.normalize_or_zero());
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(reader.err(
+                    reader.bin_at,
+                    format!("{}: normal {i} is not finite", what(a, "NORMAL")),
+                ))
+            }
+        })
+        .collect()
+}
+
+/// Float or normalised unsigned, the types glTF allows for texture coordinates and colours.
+fn float_or_unorm(d: &Data) -> bool {
+    d.ty == DataType::F32 || (d.normalized && matches!(d.ty, DataType::U8 | DataType::U16))
+}
+
+/// `n` VEC2 texture coordinates, all finite.
+fn read_uvs(reader: &Reader, a: &gltf::Accessor, n: usize) -> Result<Vec<Vec2>> {
+    let d = reader.data(a, "TEXCOORD_0")?;
+    if !float_or_unorm(&d) || d.dims != Dimensions::Vec2 || d.count != n {
+        return Err(reader.err(
+            reader.bin_at,
+            format!(
+                "{}: TEXCOORD_0 must be VEC2 float or normalised unsigned, one per vertex",
+                what(a, "TEXCOORD_0")
+            ),
+        ));
+    }
+    (0..n)
+        .map(|i| {
+            let v = Vec2::new(d.get(i, 0) as f32, d.get(i, 1) as f32);
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(reader.err(
+                    reader.bin_at,
+                    format!(
+                        "{}: texture coordinate {i} is not finite",
+                        what(a, "TEXCOORD_0")
+                    ),
+                ))
+            }
+        })
+        .collect()
+}
+
+/// `n` VEC3 or VEC4 colours as linear RGBA (alpha 1 when absent), clamped to [0, 1].
+fn read_colors(reader: &Reader, a: &gltf::Accessor, n: usize) -> Result<Vec<[f32; 4]>> {
+    let d = reader.data(a, "COLOR_0")?;
+    let k = components(d.dims);
+    if !float_or_unorm(&d) || !matches!(d.dims, Dimensions::Vec3 | Dimensions::Vec4) || d.count != n
+    {
+        return Err(reader.err(
+            reader.bin_at,
+            format!(
+                "{}: COLOR_0 must be VEC3 or VEC4 float or normalised unsigned, one per vertex",
+                what(a, "COLOR_0")
+            ),
+        ));
+    }
+    (0..n)
+        .map(|i| {
+            let mut c = [1f32; 4];
+            for (j, x) in c.iter_mut().enumerate().take(k) {
+                *x = d.get(i, j) as f32;
+            }
+            if c.iter().all(|x| x.is_finite()) {
+                Ok(c.map(|x| x.clamp(0.0, 1.0)))
+            } else {
+                Err(reader.err(
+                    reader.bin_at,
+                    format!("{}: colour {i} is not finite", what(a, "COLOR_0")),
+                ))
+            }
+        })
+        .collect()
+}
+
+/// The primitive's corner list: its unsigned indices, each below `n`, or 0..n.
+fn read_corners(reader: &Reader, prim: &gltf::Primitive, n: usize, here: &str) -> Result<Vec<u32>> {
+    let Some(a) = prim.indices() else {
+        return Ok((0..n as u32).collect());
+    };
+    let d = reader.data(&a, "indices")?;
+    if !matches!(d.ty, DataType::U8 | DataType::U16 | DataType::U32)
+        || d.dims != Dimensions::Scalar
+        || d.normalized
+    {
+        return Err(reader.err(
+            reader.bin_at,
+            format!("{}: indices must be unsigned SCALAR", what(&a, "indices")),
+        ));
+    }
+    let mut v = Vec::with_capacity(d.count);
+    for i in 0..d.count {
+        let x = d.get(i, 0);
+        if x >= n as f64 {
+            return Err(reader.err(
+                reader.bin_at,
+                format!("{here}: index {i} is {x} but the primitive has {n} vertices"),
+            ));
+        }
+        v.push(x as u32);
+    }
+    Ok(v)
+}
+
+/// Triangles from a triangle list, strip or fan, and how many corners were left over.
+fn triangulate(mode: Mode, corners: &[u32]) -> (Vec<[u32; 3]>, usize) {
+    let mut triangles = Vec::with_capacity(corners.len() / 3);
+    let leftover = match mode {
+        Mode::Triangles => {
+            triangles.extend(corners.chunks_exact(3).map(|t| [t[0], t[1], t[2]]));
+            corners.len() % 3
+        }
+        Mode::TriangleStrip => {
+            for (k, w) in corners.windows(3).enumerate() {
+                triangles.push(if k % 2 == 0 {
+                    [w[0], w[1], w[2]]
+                } else {
+                    [w[1], w[0], w[2]]
+                });
+            }
+            if (1..3).contains(&corners.len()) {
+                corners.len()
+            } else {
+                0
+            }
+        }
+        _ => {
+            for k in 1..corners.len().saturating_sub(1) {
+                triangles.push([corners[0], corners[k], corners[k + 1]]);
+            }
+            if (1..3).contains(&corners.len()) {
+                corners.len()
+            } else {
+                0
+            }
+        }
+    };
+    (triangles, leftover)
+}
+
+/// Whether every primitive has an attribute (`len` gives its length), usable; notes when
+/// some have it and others lack it.
+fn keep_attribute(
+    path: &Path,
+    parts: &[Part],
+    len: impl Fn(&Part) -> Option<usize>,
+    name: &str,
+    notes: &mut Notes,
+) -> bool {
+    let have: Vec<Option<usize>> = parts.iter().map(len).collect();
+    let all = !parts.is_empty()
+        && have
+            .iter()
+            .zip(parts)
+            .all(|(h, p)| *h == Some(p.positions.len()));
+    let some = have.iter().any(|h| h.is_some_and(|n| n > 0));
+    if some && !all && have.iter().all(|h| h.is_none_or(|n| n > 0)) {
+        notes.note("partial attribute", || {
+            format!(
+                "{}: {name} are missing on some primitives: dropped",
+                path.display()
+            )
+        });
+    }
+    all
+}
+
+/// The primitives as one mesh: an attribute survives when every primitive has it, usable.
+fn merge_parts(path: &Path, parts: Vec<Part>, notes: &mut Notes) -> Result<TriMesh> {
     let total: usize = parts.iter().map(|p| p.positions.len()).sum();
     if total > u32::MAX as usize {
         return Err(Error::format(path, 0, "more than 2^32 - 1 vertices"));
     }
-    let keep = |f: &dyn Fn(&Part) -> Option<usize>, name: &str, notes: &mut Notes| -> bool {
-        let have: Vec<Option<usize>> = parts.iter().map(f).collect();
-        let all = !parts.is_empty()
-            && have
-                .iter()
-                .zip(&parts)
-                .all(|(h, p)| *h == Some(p.positions.len()));
-        let some = have.iter().any(|h| h.is_some_and(|n| n > 0));
-        if some && !all && have.iter().all(|h| h.is_none_or(|n| n > 0)) {
-            notes.note("partial attribute", || {
-                format!(
-                    "{}: {name} are missing on some primitives: dropped",
-                    path.display()
-                )
-            });
-        }
-        all
-    };
-    let with_normals = keep(&|p| p.normals.as_ref().map(Vec::len), "normals", &mut notes);
-    let with_uvs = keep(
-        &|p| p.uvs.as_ref().map(Vec::len),
-        "texture coordinates",
-        &mut notes,
+    let with_normals = keep_attribute(
+        path,
+        &parts,
+        |p| p.normals.as_ref().map(Vec::len),
+        "normals",
+        notes,
     );
-    let with_colors = keep(&|p| p.colors.as_ref().map(Vec::len), "colours", &mut notes);
+    let with_uvs = keep_attribute(
+        path,
+        &parts,
+        |p| p.uvs.as_ref().map(Vec::len),
+        "texture coordinates",
+        notes,
+    );
+    let with_colors = keep_attribute(
+        path,
+        &parts,
+        |p| p.colors.as_ref().map(Vec::len),
+        "colours",
+        notes,
+    );
     let mut mesh = TriMesh {
         positions: Vec::with_capacity(total),
         indices: Vec::new(),
@@ -557,13 +694,7 @@ pub fn parse_glb(path: &Path, bytes: &[u8], opts: &ReadOptions) -> Result<(TriMe
             out.extend(v);
         }
     }
-    let info = ReadInfo {
-        format: MeshFormat::Glb,
-        faces_in_file: mesh.indices.len(),
-        warnings: notes.into_lines(),
-        skipped_faces: 0,
-    };
-    Ok((mesh, info))
+    Ok(mesh)
 }
 
 /// `s` on one line (the crate's validation errors may list several problems).
