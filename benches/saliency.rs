@@ -7,26 +7,13 @@
 //! Run: `cargo bench --bench saliency` (needs ../shared/data or TERRATILE_DATA).
 
 use criterion::{criterion_group, criterion_main, Criterion};
+
+mod common;
+
+use common::load;
 use std::hint::black_box;
-use std::path::PathBuf;
-use terratile::mesh::{io, TriMesh};
 use terratile::simplify::qem;
 use terratile::simplify::saliency::{self, image::ViewParams};
-
-fn load(name: &str) -> Option<TriMesh> {
-    let dir = std::env::var_os("TERRATILE_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    let path = dir.join("meshes").join(name);
-    if !path.is_file() {
-        eprintln!(
-            "skipping: {} not found (set TERRATILE_DATA)",
-            path.display()
-        );
-        return None;
-    }
-    Some(io::read(&path).expect("a readable mesh"))
-}
 
 fn mesh_saliency(c: &mut Criterion) {
     let mut g = c.benchmark_group("mesh_saliency");
