@@ -40,16 +40,7 @@ fn image_saliency(c: &mut Criterion) {
 fn weighted_qem(c: &mut Criterion) {
     let Some(m) = load("bunny.obj") else { return };
     let w = saliency::hybrid::weights(&saliency::mesh::mesh_saliency(&m).saliency, saliency::H_MIN);
-    let plain = qem::QemParams {
-        triangles: m.triangle_count() as u64 / 10,
-        max_error: None,
-        placement: qem::Placement::Optimal,
-        merge: qem::QuadricMerge::Sum,
-        lock_border: false,
-        cost: qem::Cost::Quadric,
-        check_intersections: false,
-        weights: None,
-    };
+    let plain = qem::QemParams::plain(m.triangle_count() as u64 / 10, qem::Placement::Optimal);
     let weighted = qem::QemParams {
         weights: w.map(Into::into),
         ..plain.clone()

@@ -49,16 +49,7 @@ fn fast_and_slow<'m>(m: &'m TriMesh, p: &QemParams, target: u64) -> (Collapse<'m
 }
 
 fn params(triangles: u64, placement: Placement) -> QemParams {
-    QemParams {
-        triangles,
-        max_error: None,
-        placement,
-        merge: QuadricMerge::Sum,
-        lock_border: false,
-        cost: Cost::Quadric,
-        check_intersections: false,
-        weights: None,
-    }
+    QemParams::plain(triangles, placement)
 }
 
 #[test]
