@@ -7,26 +7,13 @@
 //! Run: `cargo bench --bench saliency` (needs ../shared/data or TERRATILE_DATA).
 
 use criterion::{criterion_group, criterion_main, Criterion};
+
+mod common;
+
+use common::load;
 use std::hint::black_box;
-use std::path::PathBuf;
-use terratile::mesh::{io, TriMesh};
 use terratile::simplify::qem;
 use terratile::simplify::saliency::{self, image::ViewParams};
-
-fn load(name: &str) -> Option<TriMesh> {
-    let dir = std::env::var_os("TERRATILE_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    let path = dir.join("meshes").join(name);
-    if !path.is_file() {
-        eprintln!(
-            "skipping: {} not found (set TERRATILE_DATA)",
-            path.display()
-        );
-        return None;
-    }
-    Some(io::read(&path).expect("a readable mesh"))
-}
 
 fn mesh_saliency(c: &mut Criterion) {
     let mut g = c.benchmark_group("mesh_saliency");
@@ -53,16 +40,7 @@ fn image_saliency(c: &mut Criterion) {
 fn weighted_qem(c: &mut Criterion) {
     let Some(m) = load("bunny.obj") else { return };
     let w = saliency::hybrid::weights(&saliency::mesh::mesh_saliency(&m).saliency, saliency::H_MIN);
-    let plain = qem::QemParams {
-        triangles: m.triangle_count() as u64 / 10,
-        max_error: None,
-        placement: qem::Placement::Optimal,
-        merge: qem::QuadricMerge::Sum,
-        lock_border: false,
-        cost: qem::Cost::Quadric,
-        check_intersections: false,
-        weights: None,
-    };
+    let plain = qem::QemParams::plain(m.triangle_count() as u64 / 10, qem::Placement::Optimal);
     let weighted = qem::QemParams {
         weights: w.map(Into::into),
         ..plain.clone()

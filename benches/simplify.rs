@@ -6,29 +6,17 @@
 //! Run: `cargo bench --bench simplify` (needs ../shared/data or TERRATILE_DATA).
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+
+mod common;
+
+use common::load;
 use std::hint::black_box;
-use std::path::PathBuf;
 use terratile::mesh::hausdorff::{one_sided, HausdorffParams};
-use terratile::mesh::{io, Bvh, TriMesh};
+use terratile::mesh::{Bvh, TriMesh};
 use terratile::simplify::{simplify, Method, Placement, SimplifyParams};
 
 fn bunny() -> Option<TriMesh> {
     load("bunny.obj")
-}
-
-fn load(name: &str) -> Option<TriMesh> {
-    let dir = std::env::var_os("TERRATILE_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
-    let path = dir.join("meshes").join(name);
-    if !path.is_file() {
-        eprintln!(
-            "skipping: {} not found (set TERRATILE_DATA)",
-            path.display()
-        );
-        return None;
-    }
-    Some(io::read(&path).expect("a readable mesh"))
 }
 
 /// Quadric edge collapse (optimal placement) against meshoptimizer's `simplify` (its edge

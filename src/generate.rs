@@ -226,6 +226,19 @@ struct Ret {
     intensity: u16,
 }
 
+impl Ret {
+    /// A return at `p` of class `class`, number `ret.0` of `ret.1`.
+    fn new(p: [f64; 3], class: u8, ret: (u8, u8), intensity: u16) -> Ret {
+        Ret {
+            p,
+            class,
+            ret: ret.0,
+            nret: ret.1,
+            intensity,
+        }
+    }
+}
+
 /// One scan line's returns.
 fn scan_line(world: &World, v0: f64, spacing: f64, seed: u64, out: &mut Vec<Ret>) {
     let mut rng = SplitMix64::new(seed);
@@ -248,13 +261,7 @@ fn scan_line(world: &World, v0: f64, spacing: f64, seed: u64, out: &mut Vec<Ret>
         let g = world.ground(pu, pv) + 0.03 * rng.normal();
         if let Some(b) = world.building_at(pu, pv) {
             let z = b.roof + 0.02 * rng.normal();
-            out.push(Ret {
-                p: [pu, pv, z],
-                class: 6,
-                ret: 1,
-                nret: 1,
-                intensity: 180 + rng.below(40) as u16,
-            });
+            out.push(Ret::new([pu, pv, z], 6, (1, 1), 180 + rng.below(40) as u16));
             continue;
         }
         if let Some((t, rel)) = world.tree_at(pu, pv) {
@@ -264,42 +271,23 @@ fn scan_line(world: &World, v0: f64, spacing: f64, seed: u64, out: &mut Vec<Ret>
                 let mid = rng.unit() < 0.4;
                 let reaches_ground = rng.unit() < 0.7;
                 let n = 1 + mid as u8 + reaches_ground as u8;
-                out.push(Ret {
-                    p: [pu, pv, canopy],
-                    class: 5,
-                    ret: 1,
-                    nret: n,
-                    intensity: 40 + rng.below(60) as u16,
-                });
+                out.push(Ret::new(
+                    [pu, pv, canopy],
+                    5,
+                    (1, n),
+                    40 + rng.below(60) as u16,
+                ));
                 if mid {
                     let z = rng.range(g + 1.0, canopy - 0.5).max(g + 0.5);
-                    out.push(Ret {
-                        p: [pu, pv, z],
-                        class: 5,
-                        ret: 2,
-                        nret: n,
-                        intensity: 20 + rng.below(40) as u16,
-                    });
+                    out.push(Ret::new([pu, pv, z], 5, (2, n), 20 + rng.below(40) as u16));
                 }
                 if reaches_ground {
-                    out.push(Ret {
-                        p: [pu, pv, g],
-                        class: 2,
-                        ret: n,
-                        nret: n,
-                        intensity: 10 + rng.below(30) as u16,
-                    });
+                    out.push(Ret::new([pu, pv, g], 2, (n, n), 10 + rng.below(30) as u16));
                 }
                 continue;
             }
         }
-        out.push(Ret {
-            p: [pu, pv, g],
-            class: 2,
-            ret: 1,
-            nret: 1,
-            intensity: 90 + rng.below(60) as u16,
-        });
+        out.push(Ret::new([pu, pv, g], 2, (1, 1), 90 + rng.below(60) as u16));
     }
 }
 

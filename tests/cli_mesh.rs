@@ -524,14 +524,7 @@ fn saliency_maps_of_cow_are_written() {
     assert_eq!(classes, 2903);
     let ply = std::fs::read(d.join("maps/saliency.ply")).unwrap();
     let head = String::from_utf8_lossy(&ply[..600]);
-    for p in [
-        "curvature",
-        "mesh_saliency",
-        "image_max",
-        "image_min",
-        "image_mean",
-        "hybrid",
-    ] {
+    for p in terratile::simplify::saliency::pictures::NAMES {
         assert!(head.contains(&format!("property float {p}\n")), "{head}");
         let png = image::open(d.join(format!("maps/{p}.png"))).unwrap();
         assert_eq!(png.height(), 64);

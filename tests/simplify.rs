@@ -545,14 +545,8 @@ fn qem_table() {
             clean += all_clean as usize;
             // The distance-ordered cost (engine API only), optimal placement.
             let q = terratile::simplify::qem::QemParams {
-                triangles: target as u64,
-                max_error: None,
-                placement: Placement::Optimal,
-                merge: terratile::simplify::QuadricMerge::Sum,
-                lock_border: false,
                 cost: terratile::simplify::qem::Cost::Distance,
-                check_intersections: false,
-                weights: None,
+                ..terratile::simplify::qem::QemParams::plain(target as u64, Placement::Optimal)
             };
             let t = std::time::Instant::now();
             let s = terratile::simplify::qem::simplify(&m, &q).unwrap();
@@ -834,16 +828,7 @@ fn saliency_table() {
         return;
     };
     // The thesis' armadillo of 5,000 triangles: plain QEM from the full model.
-    let p5k = qem::QemParams {
-        triangles: 5000,
-        max_error: None,
-        placement: terratile::simplify::Placement::Optimal,
-        merge: terratile::simplify::QuadricMerge::Sum,
-        lock_border: false,
-        cost: qem::Cost::Quadric,
-        check_intersections: false,
-        weights: None,
-    };
+    let p5k = qem::QemParams::plain(5000, terratile::simplify::Placement::Optimal);
     let arm5k = qem::simplify(&arm, &p5k).unwrap().mesh;
     let mut cases: Vec<(String, TriMesh, Vec<u64>)> =
         vec![("armadillo 5k".into(), arm5k, vec![1000, 500])];

@@ -1,7 +1,9 @@
-//! What the criterion benchmarks share.
+//! What the criterion benchmarks share (each uses a part of it).
+#![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
 use terratile::generate::{generate, write_scene, GenerateParams, OutFormat};
+use terratile::mesh::{io, TriMesh};
 
 /// The paper's largest case (seed 003, Table 1).
 pub const PAPER_POINTS: u64 = 3_408_187;
@@ -22,4 +24,21 @@ pub fn paper_las(dir: &Path) -> PathBuf {
     let path = dir.join("paper.las");
     write_scene(&scene, &path, &[OutFormat::Las], (1, 1)).expect("write");
     path
+}
+
+/// The mesh `name` of the shared data (`TERRATILE_DATA`, else `../shared/data`) under
+/// `meshes/`, or `None` (and a note) when it is not there.
+pub fn load(name: &str) -> Option<TriMesh> {
+    let dir = std::env::var_os("TERRATILE_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let path = dir.join("meshes").join(name);
+    if !path.is_file() {
+        eprintln!(
+            "skipping: {} not found (set TERRATILE_DATA)",
+            path.display()
+        );
+        return None;
+    }
+    Some(io::read(&path).expect("a readable mesh"))
 }

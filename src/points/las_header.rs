@@ -210,12 +210,15 @@ fn check_point_format(
 /// The scale factors and offsets: finite, scales non-zero, and no record able to hold a
 /// coordinate beyond [`MAX_COORDINATE`]. Returns (scale, offset).
 fn check_scale_offset(path: &Path, raw: &las::raw::Header) -> Result<([f64; 3], [f64; 3])> {
+    // The error of axis k's field in the run of three that starts at `first`.
+    let axis_error =
+        |first: u64, k: usize, message: String| Error::format(path, first + 8 * k as u64, message);
     let scale = [raw.x_scale_factor, raw.y_scale_factor, raw.z_scale_factor];
     for (k, s) in scale.iter().enumerate() {
         if *s == 0.0 || !s.is_finite() {
-            return Err(Error::format(
-                path,
-                off::SCALE + 8 * k as u64,
+            return Err(axis_error(
+                off::SCALE,
+                k,
                 format!(
                     "{} scale factor is {s}; it must be finite and non-zero",
                     ["x", "y", "z"][k]
@@ -226,9 +229,9 @@ fn check_scale_offset(path: &Path, raw: &las::raw::Header) -> Result<([f64; 3], 
     let offset = [raw.x_offset, raw.y_offset, raw.z_offset];
     for (k, o) in offset.iter().enumerate() {
         if !o.is_finite() {
-            return Err(Error::format(
-                path,
-                off::OFFSET + 8 * k as u64,
+            return Err(axis_error(
+                off::OFFSET,
+                k,
                 format!("{} offset is {o}", ["x", "y", "z"][k]),
             ));
         }
@@ -240,9 +243,9 @@ fn check_scale_offset(path: &Path, raw: &las::raw::Header) -> Result<([f64; 3], 
         let axis = ["x", "y", "z"][k];
         let reach = scale[k].abs() * 2147483648.0;
         if reach.is_nan() || reach > MAX_COORDINATE {
-            return Err(Error::format(
-                path,
-                off::SCALE + 8 * k as u64,
+            return Err(axis_error(
+                off::SCALE,
+                k,
                 format!(
                     "{axis} scale factor {:e} puts coordinates beyond ±{MAX_COORDINATE:e} (scale × 2^31 = {reach:e})",
                     scale[k]
@@ -250,9 +253,9 @@ fn check_scale_offset(path: &Path, raw: &las::raw::Header) -> Result<([f64; 3], 
             ));
         }
         if reach + offset[k].abs() > MAX_COORDINATE {
-            return Err(Error::format(
-                path,
-                off::OFFSET + 8 * k as u64,
+            return Err(axis_error(
+                off::OFFSET,
+                k,
                 format!(
                     "{axis} offset {:e} puts coordinates beyond ±{MAX_COORDINATE:e}",
                     offset[k]

@@ -51,11 +51,7 @@ impl IndexedHeap {
             let i = i as usize;
             let old = self.items[i].0;
             self.items[i].0 = key;
-            if key < old {
-                self.up(i);
-            } else {
-                self.down(i);
-            }
+            self.sift(i, key < old);
         }
     }
 
@@ -70,13 +66,8 @@ impl IndexedHeap {
         let last = self.items.pop().expect("a slot in the heap");
         if i < self.items.len() {
             let old = self.items[i].0;
-            self.items[i] = last;
-            self.at[last.1 as usize] = i as u32;
-            if last.0 < old {
-                self.up(i);
-            } else {
-                self.down(i);
-            }
+            self.place(i, last);
+            self.sift(i, last.0 < old);
         }
     }
 
@@ -94,12 +85,10 @@ impl IndexedHeap {
             if self.items[p].0 <= x.0 {
                 break;
             }
-            self.items[i] = self.items[p];
-            self.at[self.items[i].1 as usize] = i as u32;
+            self.place(i, self.items[p]);
             i = p;
         }
-        self.items[i] = x;
-        self.at[x.1 as usize] = i as u32;
+        self.place(i, x);
     }
 
     fn down(&mut self, mut i: usize) {
@@ -119,12 +108,25 @@ impl IndexedHeap {
             if x.0 <= self.items[c].0 {
                 break;
             }
-            self.items[i] = self.items[c];
-            self.at[self.items[i].1 as usize] = i as u32;
+            self.place(i, self.items[c]);
             i = c;
         }
+        self.place(i, x);
+    }
+
+    /// Stores entry `x` at position `i` and records where its slot now is.
+    fn place(&mut self, i: usize, x: (u128, u32)) {
         self.items[i] = x;
         self.at[x.1 as usize] = i as u32;
+    }
+
+    /// Restores the heap order at `i` after its key changed: up when it got smaller.
+    fn sift(&mut self, i: usize, smaller: bool) {
+        if smaller {
+            self.up(i);
+        } else {
+            self.down(i);
+        }
     }
 }
 

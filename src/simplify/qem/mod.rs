@@ -131,6 +131,23 @@ pub struct QemParams {
     pub weights: Option<std::sync::Arc<[f64]>>,
 }
 
+impl QemParams {
+    /// Plain QEM down to `triangles` with `placement`: no error bound, summed quadrics,
+    /// quadric cost, border free, no intersection check, no weights.
+    pub fn plain(triangles: u64, placement: Placement) -> QemParams {
+        QemParams {
+            triangles,
+            max_error: None,
+            placement,
+            merge: QuadricMerge::Sum,
+            lock_border: false,
+            cost: Cost::Quadric,
+            check_intersections: false,
+            weights: None,
+        }
+    }
+}
+
 /// What a quadric edge collapse did.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct QemReport {

@@ -38,17 +38,18 @@ fn sphere(n: usize) -> TriMesh {
     m
 }
 
+/// The fast collapse path and its slow twin, each run on `m` with `p` down to `target`.
+fn fast_and_slow<'m>(m: &'m TriMesh, p: &QemParams, target: u64) -> (Collapse<'m>, Collapse<'m>) {
+    let prep = Prepared::new(m);
+    let mut fast = Collapse::new(&prep, p);
+    fast.run_fast(target as usize);
+    let mut slow = Collapse::new(&prep, p);
+    slow.run_slow(target as usize);
+    (fast, slow)
+}
+
 fn params(triangles: u64, placement: Placement) -> QemParams {
-    QemParams {
-        triangles,
-        max_error: None,
-        placement,
-        merge: QuadricMerge::Sum,
-        lock_border: false,
-        cost: Cost::Quadric,
-        check_intersections: false,
-        weights: None,
-    }
+    QemParams::plain(triangles, placement)
 }
 
 #[test]
@@ -188,11 +189,7 @@ fn the_heap_equals_the_slow_twin() {
                         check_intersections,
                         ..params(target, placement)
                     };
-                    let prep = Prepared::new(&m);
-                    let mut fast = Collapse::new(&prep, &p);
-                    fast.run_fast(target as usize);
-                    let mut slow = Collapse::new(&prep, &p);
-                    slow.run_slow(target as usize);
+                    let (fast, slow) = fast_and_slow(&m, &p, target);
                     assert_eq!(fast.log, slow.log, "{placement} {merge} {lock_border}");
                     let (a, b) = (fast.finish(), slow.finish());
                     assert_eq!(a.mesh.positions, b.mesh.positions);
@@ -360,11 +357,7 @@ fn saliency_weights_keep_the_twin_and_spare_the_salient_part() {
                 weights: Some(w.clone().into()),
                 ..params(target, placement)
             };
-            let prep = Prepared::new(&m);
-            let mut fast = Collapse::new(&prep, &p);
-            fast.run_fast(target as usize);
-            let mut slow = Collapse::new(&prep, &p);
-            slow.run_slow(target as usize);
+            let (fast, slow) = fast_and_slow(&m, &p, target);
             assert_eq!(fast.log, slow.log, "{placement}");
             let ones = QemParams {
                 weights: Some(vec![1.0; m.vertex_count()].into()),

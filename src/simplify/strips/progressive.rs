@@ -344,14 +344,8 @@ pub fn progressive(mesh: &TriMesh, params: &ProgressiveParams) -> Result<Progres
 fn qem_params(canon: &TriMesh, params: &ProgressiveParams) -> QemParams {
     let t = canon.triangle_count() as f64 * params.base_ratio;
     QemParams {
-        triangles: (t.ceil() as u64).max(1),
         max_error: params.max_error,
-        placement: qem::Placement::Endpoint,
-        merge: Default::default(),
-        lock_border: false,
-        cost: Default::default(),
-        check_intersections: false,
-        weights: None,
+        ..QemParams::plain((t.ceil() as u64).max(1), qem::Placement::Endpoint)
     }
 }
 

@@ -105,16 +105,7 @@ fn a_grid_strips_to_about_one_index_per_triangle() {
 #[test]
 fn the_collapse_log_equals_the_slow_twins() {
     let m = grid(12);
-    let params = qem::QemParams {
-        triangles: 30,
-        max_error: None,
-        placement: qem::Placement::Endpoint,
-        merge: Default::default(),
-        lock_border: false,
-        cost: Default::default(),
-        check_intersections: false,
-        weights: None,
-    };
+    let params = qem::QemParams::plain(30, qem::Placement::Endpoint);
     let (r, fast) = qem::simplify_logged(&m, &params).unwrap();
     let prep = Prepared::new(&m);
     let mut c = Collapse::new(&prep, &params);
