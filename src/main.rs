@@ -732,65 +732,7 @@ fn run(cli: Cli) -> Result<()> {
             let n = n?;
             outln!("{}: {n} points", output.display());
         }
-        Command::Bench(BenchCommand::Read {
-            file,
-            repeat,
-            las_rs,
-            json,
-        }) => {
-            let r = terratile::bench::read(&file, &ReadOptions::default(), repeat, las_rs)?;
-            if json {
-                print_json(&r)?;
-            } else {
-                outln!("{r}");
-            }
-        }
-        Command::Bench(BenchCommand::Terrain { file, repeat, json }) => {
-            let r = terratile::bench::terrain(&file, repeat)?;
-            if json {
-                print_json(&r)?;
-            } else {
-                outln!("{r}");
-            }
-        }
-        Command::Bench(BenchCommand::Table1 {
-            file,
-            counts,
-            repeat,
-            seed,
-            json,
-            plot,
-        }) => {
-            let counts = counts.unwrap_or_else(terratile::bench::paper_counts);
-            // Each memory figure comes from a fresh process running one method once.
-            let probe = |count: u64, method: &str| table1_memory_probe(&file, seed, count, method);
-            let t = terratile::bench::table1(&file, &counts, repeat, seed, Some(&probe))?;
-            for s in &t.skipped {
-                let line = format!(
-                    "bench table1: skipping {s} points: {} holds {}",
-                    file.display(),
-                    t.file_points
-                );
-                eprintln!("terratile: {}", one_line(&line));
-            }
-            if let Some(p) = &plot {
-                terratile::bench::plot_table1(&t, p)?;
-            }
-            if json {
-                print_json(&t.rows)?;
-            } else {
-                out!("{t}");
-            }
-        }
-        Command::Bench(BenchCommand::Table1Memory {
-            file,
-            count,
-            seed,
-            method,
-        }) => {
-            let mb = terratile::bench::table1_memory(&file, count, seed, &method)?;
-            outln!("{}", mb.map_or("none".into(), |m| m.to_string()));
-        }
+        Command::Bench(cmd) => bench(cmd)?,
         Command::Classify(a) => classify(a, progress)?,
         Command::Simplify(a) => simplify(a)?,
         Command::Strips(a) => strips(a)?,
@@ -841,6 +783,72 @@ fn run(cli: Cli) -> Result<()> {
             } else {
                 out!("{r}");
             }
+        }
+    }
+    Ok(())
+}
+
+/// `terratile bench …`: the read, terrain and Table 1 benchmarks.
+fn bench(cmd: BenchCommand) -> Result<()> {
+    match cmd {
+        BenchCommand::Read {
+            file,
+            repeat,
+            las_rs,
+            json,
+        } => {
+            let r = terratile::bench::read(&file, &ReadOptions::default(), repeat, las_rs)?;
+            if json {
+                print_json(&r)?;
+            } else {
+                outln!("{r}");
+            }
+        }
+        BenchCommand::Terrain { file, repeat, json } => {
+            let r = terratile::bench::terrain(&file, repeat)?;
+            if json {
+                print_json(&r)?;
+            } else {
+                outln!("{r}");
+            }
+        }
+        BenchCommand::Table1 {
+            file,
+            counts,
+            repeat,
+            seed,
+            json,
+            plot,
+        } => {
+            let counts = counts.unwrap_or_else(terratile::bench::paper_counts);
+            // Each memory figure comes from a fresh process running one method once.
+            let probe = |count: u64, method: &str| table1_memory_probe(&file, seed, count, method);
+            let t = terratile::bench::table1(&file, &counts, repeat, seed, Some(&probe))?;
+            for s in &t.skipped {
+                let line = format!(
+                    "bench table1: skipping {s} points: {} holds {}",
+                    file.display(),
+                    t.file_points
+                );
+                eprintln!("terratile: {}", one_line(&line));
+            }
+            if let Some(p) = &plot {
+                terratile::bench::plot_table1(&t, p)?;
+            }
+            if json {
+                print_json(&t.rows)?;
+            } else {
+                out!("{t}");
+            }
+        }
+        BenchCommand::Table1Memory {
+            file,
+            count,
+            seed,
+            method,
+        } => {
+            let mb = terratile::bench::table1_memory(&file, count, seed, &method)?;
+            outln!("{}", mb.map_or("none".into(), |m| m.to_string()));
         }
     }
     Ok(())

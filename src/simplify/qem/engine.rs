@@ -147,6 +147,139 @@ pub struct Collapse<'m> {
     orig_bvh: Option<crate::mesh::Bvh>,
 }
 
+/// The dense faces with three distinct corners, and the index of each in
+/// `prep.dense_faces`: triangles with a repeated (welded) corner have no area and no edges
+/// to collapse.
+fn live_faces(prep: &Prepared<'_>) -> (Vec<[u32; 3]>, Vec<u32>) {
+    let mut faces = Vec::with_capacity(prep.dense_faces.len());
+    let mut orig_face = Vec::with_capacity(prep.dense_faces.len());
+    for (f, t) in prep.dense_faces.iter().enumerate() {
+        if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
+            faces.push(*t);
+            orig_face.push(f as u32);
+        }
+    }
+    (faces, orig_face)
+}
+
+/// The corners around each of `n` vertices as linked lists: `head` per vertex, `next` per
+/// corner, `NONE` ending a list.
+fn corner_lists(n: usize, faces: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let mut head = vec![NONE; n];
+    let mut next = vec![NONE; faces.len() * 3];
+    for (f, t) in faces.iter().enumerate() {
+        for k in 0..3 {
+            let c = 3 * f + k;
+            next[c] = head[t[k] as usize];
+            head[t[k] as usize] = c as u32;
+        }
+    }
+    (head, next)
+}
+
+/// Manifold analysis: border edges, non-manifold edges, and fans that are neither a disk
+/// nor a half-disk (a vertex with f triangles has f neighbours inside a surface, f + 1 on a
+/// border with two border edges). Returns per vertex whether it is on a border and whether
+/// it is locked (not manifold).
+fn manifold(n: usize, faces: &[[u32; 3]], ef: &EdgeFaces) -> (Vec<bool>, Vec<bool>) {
+    let mut border = vec![false; n];
+    let mut locked = vec![false; n];
+    let mut border_edges = vec![0u32; n];
+    let mut degree = vec![0u32; n];
+    let mut fcount = vec![0u32; n];
+    for (e, &[a, b]) in ef.edges().iter().enumerate() {
+        degree[a as usize] += 1;
+        degree[b as usize] += 1;
+        match ef.faces(e as u32).len() {
+            1 => {
+                border[a as usize] = true;
+                border[b as usize] = true;
+                border_edges[a as usize] += 1;
+                border_edges[b as usize] += 1;
+            }
+            2 => {}
+            _ => {
+                locked[a as usize] = true;
+                locked[b as usize] = true;
+            }
+        }
+    }
+    for t in faces {
+        for &v in t {
+            fcount[v as usize] += 1;
+        }
+    }
+    for v in 0..n {
+        let disk = border_edges[v] == 0 && degree[v] == fcount[v];
+        let half = border_edges[v] == 2 && degree[v] == fcount[v] + 1;
+        if !(disk || half) {
+            locked[v] = true;
+        }
+    }
+    (border, locked)
+}
+
+/// Border planes: the preparation adds, at a border edge, the plane through the edge
+/// perpendicular to its triangle with weight |e|²; the engine adds it again
+/// BORDER_WEIGHT − 1 times (see BORDER_WEIGHT).
+fn add_border_planes(quad: &mut [Quadric], pos: &[DVec3], faces: &[[u32; 3]], ef: &EdgeFaces) {
+    let extra = BORDER_WEIGHT - 1.0;
+    if extra > 0.0 {
+        for (e, &[a, b]) in ef.edges().iter().enumerate() {
+            let fs = ef.faces(e as u32);
+            if fs.len() != 1 {
+                continue;
+            }
+            let t = faces[fs[0] as usize];
+            let [p0, p1, p2] = t.map(|v| pos[v as usize]);
+            let n = (p1 - p0).cross(p2 - p0).normalize_or_zero();
+            let (pa, pb) = (pos[a as usize], pos[b as usize]);
+            let m = (pb - pa).cross(n).normalize_or_zero();
+            if n == DVec3::ZERO || m == DVec3::ZERO {
+                continue;
+            }
+            let q = Quadric::plane(m, -m.dot(pa), extra * (pb - pa).length_squared());
+            quad[a as usize] += q;
+            quad[b as usize] += q;
+        }
+    }
+}
+
+/// Attribute seams: a welded vertex whose input copies differ in an attribute keeps all its
+/// copies and is never moved (seams are not collapsed across).
+fn lock_seams(prep: &Prepared<'_>, locked: &mut [bool]) {
+    let mesh = prep.mesh;
+    for v in 0..mesh.vertex_count() {
+        let w = prep.weld[v] as usize;
+        if w == v {
+            continue;
+        }
+        let differ = mesh.normals.as_ref().is_some_and(|a| a[v] != a[w])
+            || mesh.colors.as_ref().is_some_and(|a| a[v] != a[w])
+            || mesh.uvs.as_ref().is_some_and(|a| a[v] != a[w]);
+        let d = prep.dense_of[w];
+        if differ && d != NONE {
+            locked[d as usize] = true;
+        }
+    }
+}
+
+/// Saliency weights per dense vertex (`params.weights`; empty without): the largest of the
+/// welded copies' weights.
+fn saliency_weights(prep: &Prepared<'_>, params: &QemParams, n: usize) -> Vec<f64> {
+    let mut weight = Vec::new();
+    if let Some(w) = &params.weights {
+        weight = vec![0.0f64; n];
+        for (v, &x) in w.iter().enumerate() {
+            let d = prep.dense_of[prep.weld[v] as usize];
+            if d != NONE {
+                weight[d as usize] = weight[d as usize].max(x);
+            }
+        }
+    }
+    weight
+}
+
 impl<'m> Collapse<'m> {
     /// Sets up the state for `prep`'s mesh.
     pub fn new(prep: &Prepared<'m>, params: &QemParams) -> Collapse<'m> {
@@ -154,118 +287,19 @@ impl<'m> Collapse<'m> {
         let n = prep.active.len();
         let qs = prep.quadrics();
         let pos: Vec<DVec3> = prep.dense_pos.iter().map(|p| p.as_dvec3()).collect();
-        let quad: Vec<Quadric> = prep.active.iter().map(|&v| qs[v as usize]).collect();
-        // Triangles with a repeated (welded) corner have no area and no edges to collapse.
-        let mut faces = Vec::with_capacity(prep.dense_faces.len());
-        let mut orig_face = Vec::with_capacity(prep.dense_faces.len());
-        for (f, t) in prep.dense_faces.iter().enumerate() {
-            if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
-                faces.push(*t);
-                orig_face.push(f as u32);
-            }
-        }
-        let mut head = vec![NONE; n];
-        let mut next = vec![NONE; faces.len() * 3];
-        for (f, t) in faces.iter().enumerate() {
-            for k in 0..3 {
-                let c = 3 * f + k;
-                next[c] = head[t[k] as usize];
-                head[t[k] as usize] = c as u32;
-            }
-        }
-        // Manifold analysis: border edges, non-manifold edges, and fans that are neither a
-        // disk nor a half-disk (a vertex with f triangles has f neighbours inside a surface,
-        // f + 1 on a border with two border edges).
+        let mut quad: Vec<Quadric> = prep.active.iter().map(|&v| qs[v as usize]).collect();
+        let (faces, orig_face) = live_faces(prep);
+        let (head, next) = corner_lists(n, &faces);
         let ef = EdgeFaces::new(&faces);
-        let mut border = vec![false; n];
-        let mut locked = vec![false; n];
-        let mut border_edges = vec![0u32; n];
-        let mut degree = vec![0u32; n];
-        let mut fcount = vec![0u32; n];
-        for (e, &[a, b]) in ef.edges().iter().enumerate() {
-            degree[a as usize] += 1;
-            degree[b as usize] += 1;
-            match ef.faces(e as u32).len() {
-                1 => {
-                    border[a as usize] = true;
-                    border[b as usize] = true;
-                    border_edges[a as usize] += 1;
-                    border_edges[b as usize] += 1;
-                }
-                2 => {}
-                _ => {
-                    locked[a as usize] = true;
-                    locked[b as usize] = true;
-                }
-            }
-        }
-        for t in &faces {
-            for &v in t {
-                fcount[v as usize] += 1;
-            }
-        }
-        for v in 0..n {
-            let disk = border_edges[v] == 0 && degree[v] == fcount[v];
-            let half = border_edges[v] == 2 && degree[v] == fcount[v] + 1;
-            if !(disk || half) {
-                locked[v] = true;
-            }
-        }
+        let (border, mut locked) = manifold(n, &faces, &ef);
         let non_manifold = locked.iter().filter(|&&l| l).count();
-        // Border planes: the preparation adds, at a border edge, the plane through the edge
-        // perpendicular to its triangle with weight |e|²; the engine adds it again
-        // BORDER_WEIGHT − 1 times (see BORDER_WEIGHT).
-        let mut quad = quad;
-        let extra = BORDER_WEIGHT - 1.0;
-        if extra > 0.0 {
-            for (e, &[a, b]) in ef.edges().iter().enumerate() {
-                let fs = ef.faces(e as u32);
-                if fs.len() != 1 {
-                    continue;
-                }
-                let t = faces[fs[0] as usize];
-                let [p0, p1, p2] = t.map(|v| pos[v as usize]);
-                let n = (p1 - p0).cross(p2 - p0).normalize_or_zero();
-                let (pa, pb) = (pos[a as usize], pos[b as usize]);
-                let m = (pb - pa).cross(n).normalize_or_zero();
-                if n == DVec3::ZERO || m == DVec3::ZERO {
-                    continue;
-                }
-                let q = Quadric::plane(m, -m.dot(pa), extra * (pb - pa).length_squared());
-                quad[a as usize] += q;
-                quad[b as usize] += q;
-            }
-        }
-        // Attribute seams: a welded vertex whose input copies differ in an attribute keeps
-        // all its copies and is never moved (seams are not collapsed across).
+        add_border_planes(&mut quad, &pos, &faces, &ef);
+        lock_seams(prep, &mut locked);
         let source: Vec<u32> = prep.active.clone();
-        for v in 0..mesh.vertex_count() {
-            let w = prep.weld[v] as usize;
-            if w == v {
-                continue;
-            }
-            let differ = mesh.normals.as_ref().is_some_and(|a| a[v] != a[w])
-                || mesh.colors.as_ref().is_some_and(|a| a[v] != a[w])
-                || mesh.uvs.as_ref().is_some_and(|a| a[v] != a[w]);
-            let d = prep.dense_of[w];
-            if differ && d != NONE {
-                locked[d as usize] = true;
-            }
-        }
         fn pick<T: Copy>(a: &[T], source: &[u32]) -> Vec<T> {
             source.iter().map(|&v| a[v as usize]).collect()
         }
-        // Saliency weights per dense vertex: the largest of the welded copies' weights.
-        let mut weight = Vec::new();
-        if let Some(w) = &params.weights {
-            weight = vec![0.0f64; n];
-            for (v, &x) in w.iter().enumerate() {
-                let d = prep.dense_of[prep.weld[v] as usize];
-                if d != NONE {
-                    weight[d as usize] = weight[d as usize].max(x);
-                }
-            }
-        }
+        let weight = saliency_weights(prep, params, n);
         let diag = prep.bounds.diagonal();
         let tris = faces.len();
         let mut c = Collapse {
@@ -317,8 +351,14 @@ impl<'m> Collapse<'m> {
             c.guard = Some(g);
             c.orig_bvh = Some(crate::mesh::Bvh::new(mesh));
         }
-        // Every edge of at most two faces at its canonical corner, its cost computed in
-        // parallel (the one parallel part: the collapses themselves are a sequence).
+        c.seed_heap(&ef);
+        c
+    }
+
+    /// Every edge of at most two faces at its canonical corner, its cost computed in
+    /// parallel (the one parallel part: the collapses themselves are a sequence); fills the
+    /// heap and clears the refusal marks.
+    fn seed_heap(&mut self, ef: &EdgeFaces) {
         let mut canon: Vec<(u32, u32, u32)> = Vec::with_capacity(ef.len());
         for (e, &[a, b]) in ef.edges().iter().enumerate() {
             let fs = ef.faces(e as u32);
@@ -328,7 +368,7 @@ impl<'m> Collapse<'m> {
             let corner = fs
                 .iter()
                 .flat_map(|&f| {
-                    let t = c.faces[f as usize];
+                    let t = self.faces[f as usize];
                     (0..3).filter_map(move |k| {
                         let (u, v) = (t[k], t[(k + 1) % 3]);
                         ((u == a && v == b) || (u == b && v == a)).then_some(3 * f + k as u32)
@@ -338,14 +378,14 @@ impl<'m> Collapse<'m> {
                 .expect("an edge's face holds it");
             canon.push((corner, a.min(b), a.max(b)));
         }
+        let c = &*self;
         let entries: Vec<(u128, u32)> = canon
             .par_iter()
             .with_min_len(4096)
             .filter_map(|&(corner, a, b)| c.candidate(a, b).map(|x| (key(x.cost, a, b), corner)))
             .collect();
-        c.refused = vec![false; c.faces.len() * 3];
-        c.heap = IndexedHeap::from_entries(c.faces.len() * 3, entries);
-        c
+        self.refused = vec![false; self.faces.len() * 3];
+        self.heap = IndexedHeap::from_entries(self.faces.len() * 3, entries);
     }
 
     /// The vertices of corner `c`'s edge.

@@ -194,6 +194,63 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<(Progressive, Encoding)> {
         at: 0,
         path,
     };
+    let h = read_header(&mut c)?;
+    let encoding = h.encoding;
+    let (slots, base) = read_base_strip(&mut c, &h)?;
+    let mut m = TriMesh {
+        normals: (h.flags & F_NORMALS != 0).then(Vec::new),
+        colors: (h.flags & F_COLORS != 0).then(Vec::new),
+        uvs: (h.flags & F_UVS != 0).then(Vec::new),
+        ..TriMesh::default()
+    };
+    m.positions.reserve(h.vertices as usize);
+    for _ in 0..h.base_vertices {
+        c.vertex(&mut m)?;
+    }
+    // Splits, checked against the strip as they are replayed forward.
+    let mut replay = Replay {
+        drawn: base.clone(),
+        state: slots.clone(),
+        stack: Vec::new(),
+    };
+    let mut splits = Vec::with_capacity(h.n_splits as usize);
+    let mut at_of = Vec::with_capacity(h.n_splits as usize);
+    for i in 0..h.n_splits {
+        let rec = c.at;
+        at_of.push(rec);
+        splits.push(read_split(&mut c, &h, i, &mut m, &mut replay)?);
+    }
+    if c.at != bytes.len() {
+        return Err(c.err(c.at, "trailing bytes after the last split"));
+    }
+    // The records must be the inverses of collapses: rebuild them from the full strip by
+    // collapsing again, and compare.
+    let rebuilt = Progressive::from_full(
+        m,
+        h.base_vertices,
+        replay.drawn,
+        &splits,
+        h.triangles as usize,
+    );
+    check_rebuilt(&c, &rebuilt.splits, &splits, &at_of, encoding)?;
+    Ok((rebuilt, encoding))
+}
+
+/// The fixed-size header of a stream, as read and checked by [`read_header`].
+struct Header {
+    flags: u16,
+    vertices: u32,
+    base_vertices: u32,
+    len: u32,
+    n_splits: u32,
+    triangles: u32,
+    encoding: Encoding,
+}
+
+/// Reads and checks the header (magic, version, flags, counts), and checks that the stream
+/// is long enough for the strip, the vertices and the splits it announces.
+fn read_header(c: &mut Cursor<'_>) -> Result<Header> {
+    let bytes = c.b;
     c.need(HEADER as u64, "the header")?;
     if &bytes[..4] != MAGIC {
         return Err(c.err(0, "not a progressive strip stream (bad magic)"));
@@ -234,7 +291,21 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<(Progressive, Encoding)> {
         4 * len as u64 + vb * base_vertices as u64 + (vb + 8) * n_splits as u64,
         "the strip, the vertices and the splits",
     )?;
-    // Base strip.
+    Ok(Header {
+        flags,
+        vertices,
+        base_vertices,
+        len,
+        n_splits,
+        triangles,
+        encoding,
+    })
+}
+
+/// Reads the base strip's slots and resolves their references: returns the slots as stored
+/// and the vertex each slot shows.
+fn read_base_strip(c: &mut Cursor<'_>, h: &Header) -> Result<(Vec<u32>, Vec<u32>)> {
+    let (len, base_vertices, encoding) = (h.len, h.base_vertices, h.encoding);
     let strip_at = c.at;
     let mut slots = Vec::with_capacity(len as usize);
     for i in 0..len as usize {
@@ -260,105 +331,111 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<(Progressive, Encoding)> {
             format!("strip slot {i}: its references go round in a circle or end at a restart"),
         )
     })?;
-    let mut m = TriMesh {
-        normals: (flags & F_NORMALS != 0).then(Vec::new),
-        colors: (flags & F_COLORS != 0).then(Vec::new),
-        uvs: (flags & F_UVS != 0).then(Vec::new),
-        ..TriMesh::default()
-    };
-    m.positions.reserve(vertices as usize);
-    for _ in 0..base_vertices {
-        c.vertex(&mut m)?;
+    Ok((slots, base))
+}
+
+/// The base strip as the splits read so far have left it: `drawn` is the vertex each slot
+/// shows, `state` what each slot holds (references included), `stack` scratch for [`show`].
+struct Replay {
+    drawn: Vec<u32>,
+    state: Vec<u32>,
+    stack: Vec<u32>,
+}
+
+/// Reads split `i` (its vertex into `m`, its kept vertex, offsets and, encoded, slot
+/// codes), checks it against the strip and replays it on `r`.
+fn read_split(
+    c: &mut Cursor<'_>,
+    h: &Header,
+    i: u32,
+    m: &mut TriMesh,
+    r: &mut Replay,
+) -> Result<Split> {
+    let (len, encoding) = (h.len, h.encoding);
+    c.vertex(m)?;
+    let v = h.base_vertices + i;
+    let kept_at = c.at;
+    let kept = c.u32()?;
+    if kept >= v {
+        return Err(c.err(
+            kept_at,
+            format!("split {i} refers to vertex {kept}, not yet present ({v} are)"),
+        ));
     }
-    // Splits, checked against the strip as they are replayed forward.
-    let mut drawn = base.clone();
-    let mut state = slots.clone();
-    let mut splits = Vec::with_capacity(n_splits as usize);
-    let mut at_of = Vec::with_capacity(n_splits as usize);
-    let mut stack = Vec::new();
-    for i in 0..n_splits {
-        let rec = c.at;
-        at_of.push(rec);
-        c.vertex(&mut m)?;
-        let v = base_vertices + i;
-        let kept_at = c.at;
-        let kept = c.u32()?;
-        if kept >= v {
+    let count_at = c.at;
+    let count = c.u32()?;
+    let each = if encoding == Encoding::Encoded { 5 } else { 4 };
+    c.need(each * count as u64, "the split's offsets")?;
+    let mut offs = Vec::with_capacity(count as usize);
+    for k in 0..count as usize {
+        let o = c.u32()?;
+        if o >= len || offs.last().is_some_and(|&l| o <= l) {
             return Err(c.err(
-                kept_at,
-                format!("split {i} refers to vertex {kept}, not yet present ({v} are)"),
+                count_at + 4 + 4 * k,
+                format!("split {i}: offset {o} is out of range or out of order"),
             ));
         }
-        let count_at = c.at;
-        let count = c.u32()?;
-        let each = if encoding == Encoding::Encoded { 5 } else { 4 };
-        c.need(each * count as u64, "the split's offsets")?;
-        let mut offs = Vec::with_capacity(count as usize);
-        for k in 0..count as usize {
-            let o = c.u32()?;
-            if o >= len || offs.last().is_some_and(|&l| o <= l) {
-                return Err(c.err(
-                    count_at + 4 + 4 * k,
-                    format!("split {i}: offset {o} is out of range or out of order"),
-                ));
-            }
-            if drawn[o as usize] != kept {
-                return Err(c.err(
-                    count_at + 4 + 4 * k,
-                    format!("split {i}: strip slot {o} does not show the kept vertex {kept}"),
-                ));
-            }
-            offs.push(o);
+        if r.drawn[o as usize] != kept {
+            return Err(c.err(
+                count_at + 4 + 4 * k,
+                format!("split {i}: strip slot {o} does not show the kept vertex {kept}"),
+            ));
         }
-        let mut split = Split {
-            kept,
-            ..Split::default()
-        };
-        match encoding {
-            Encoding::Naive => {
-                for &o in &offs {
-                    drawn[o as usize] = v;
-                }
-                split.naive = offs;
+        offs.push(o);
+    }
+    let mut split = Split {
+        kept,
+        ..Split::default()
+    };
+    match encoding {
+        Encoding::Naive => {
+            for &o in &offs {
+                r.drawn[o as usize] = v;
             }
-            Encoding::Encoded => {
-                let codes_at = c.at;
-                for (k, &o) in offs.iter().enumerate() {
-                    let code = bytes[codes_at + k];
-                    let was = match code {
-                        0 => kept,
-                        1..=4 => ref_slot(CODES[code as usize - 1]),
-                        _ => {
-                            return Err(c.err(
-                                codes_at + k,
-                                format!("split {i}: slot code {code} is not 0..4"),
-                            ))
-                        }
-                    };
-                    if state[o as usize] != was {
+            split.naive = offs;
+        }
+        Encoding::Encoded => {
+            let codes_at = c.at;
+            for (k, &o) in offs.iter().enumerate() {
+                let code = c.b[codes_at + k];
+                let was = match code {
+                    0 => kept,
+                    1..=4 => ref_slot(CODES[code as usize - 1]),
+                    _ => {
                         return Err(c.err(
                             codes_at + k,
-                            format!("split {i}: strip slot {o} does not hold what the record says"),
-                        ));
+                            format!("split {i}: slot code {code} is not 0..4"),
+                        ))
                     }
-                    split.encoded.push((o, was));
+                };
+                if r.state[o as usize] != was {
+                    return Err(c.err(
+                        codes_at + k,
+                        format!("split {i}: strip slot {o} does not hold what the record says"),
+                    ));
                 }
-                c.at += offs.len();
-                for &o in &offs {
-                    state[o as usize] = v;
-                    show(&state, &mut drawn, &mut stack, o, v);
-                }
+                split.encoded.push((o, was));
+            }
+            c.at += offs.len();
+            for &o in &offs {
+                r.state[o as usize] = v;
+                show(&r.state, &mut r.drawn, &mut r.stack, o, v);
             }
         }
-        splits.push(split);
     }
-    if c.at != bytes.len() {
-        return Err(c.err(c.at, "trailing bytes after the last split"));
-    }
-    // The records must be the inverses of collapses: rebuild them from the full strip by
-    // collapsing again, and compare.
-    let rebuilt = Progressive::from_full(m, base_vertices, drawn, &splits, triangles as usize);
-    for (i, (a, b)) in rebuilt.splits.iter().zip(&splits).enumerate() {
+    Ok(split)
+}
+
+/// Checks that the splits as read are the ones rebuilt by collapsing the full strip again;
+/// `at_of` holds each record's byte offset.
+fn check_rebuilt(
+    c: &Cursor<'_>,
+    rebuilt: &[Split],
+    splits: &[Split],
+    at_of: &[usize],
+    encoding: Encoding,
+) -> Result<()> {
+    for (i, (a, b)) in rebuilt.iter().zip(splits).enumerate() {
         let same = match encoding {
             Encoding::Naive => a.naive == b.naive,
             Encoding::Encoded => a.encoded == b.encoded,
@@ -373,7 +450,7 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<(Progressive, Encoding)> {
             ));
         }
     }
-    Ok((rebuilt, encoding))
+    Ok(())
 }
 
 /// The drawn strip of E-PS `slots`, or the first slot whose references do not end at a
