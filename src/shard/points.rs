@@ -46,6 +46,33 @@ pub struct PointRun {
 }
 
 /// The points `idx` of `x`, `y`, `z`, in order.
+/// The parts of a shard's noise-removal input that every window shares.
+struct Base<'a> {
+    frame: &'a Frame,
+    params: &'a DenoiseParams,
+    metres_per_unit: f64,
+}
+
+impl<'a> Base<'a> {
+    fn with(
+        &self,
+        x: &'a [f64],
+        y: &'a [f64],
+        z: &'a [f64],
+        owned: &'a ColumnWindow,
+    ) -> denoise::ShardInput<'a> {
+        denoise::ShardInput {
+            x,
+            y,
+            z,
+            frame: self.frame,
+            params: self.params,
+            metres_per_unit: self.metres_per_unit,
+            owned,
+        }
+    }
+}
+
 fn gather(x: &[f64], y: &[f64], z: &[f64], idx: &[usize]) -> [Vec<f64>; 3] {
     [
         idx.iter().map(|&i| x[i]).collect(),
@@ -96,10 +123,16 @@ pub fn denoise_sharded(
             (own, idx)
         })
         .collect();
+    let base = Base {
+        frame: &frame,
+        params,
+        metres_per_unit,
+    };
     let mut sums: Vec<[usize; 3]> = Vec::new();
     for (own, idx) in &windows {
         let [wx, wy, wz] = gather(x, y, z, idx);
-        let c = denoise::shard_counts(&wx, &wy, &wz, &frame, params, metres_per_unit, own)?;
+        let input = base.with(&wx, &wy, &wz, own);
+        let c = denoise::shard_counts(&input)?;
         sums.resize(c.len(), [0; 3]);
         for (acc, c) in sums.iter_mut().zip(&c) {
             for k in 0..3 {
@@ -111,7 +144,8 @@ pub fn denoise_sharded(
     let mut keep = vec![false; x.len()];
     for (own, idx) in &windows {
         let [wx, wy, wz] = gather(x, y, z, idx);
-        let d = denoise::shard_denoise(&wx, &wy, &wz, &frame, params, metres_per_unit, own, q)?;
+        let input = base.with(&wx, &wy, &wz, own);
+        let d = denoise::shard_denoise(&input, q)?;
         for (&i, &k) in idx.iter().zip(&d.keep) {
             keep[i] |= k;
         }

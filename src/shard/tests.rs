@@ -383,7 +383,9 @@ mod from_points {
         halo: u64,
         of: std::ops::Range<usize>,
     ) -> (Vec<bool>, Vec<bool>) {
-        use crate::terrain::denoise::{denoise_xyz, shard_denoise, ColumnWindow, Frame};
+        use crate::terrain::denoise::{
+            denoise_xyz, shard_denoise, ColumnWindow, Frame, ShardInput,
+        };
         let col = |k: usize| pts.iter().map(|q| q[k]).collect::<Vec<f64>>();
         let (x, y, z) = (col(0), col(1), col(2));
         let whole = denoise_xyz(&x, &y, &z, p, 1.0).unwrap().keep;
@@ -398,7 +400,17 @@ mod from_points {
             })
             .collect();
         let pick = |v: &[f64]| idx.iter().map(|&i| v[i]).collect::<Vec<_>>();
-        let d = shard_denoise(&pick(&x), &pick(&y), &pick(&z), &frame, p, 1.0, &own, 1).unwrap();
+        let (px, py, pz) = (pick(&x), pick(&y), pick(&z));
+        let input = ShardInput {
+            x: &px,
+            y: &py,
+            z: &pz,
+            frame: &frame,
+            params: p,
+            metres_per_unit: 1.0,
+            owned: &own,
+        };
+        let d = shard_denoise(&input, 1).unwrap();
         let mut keep = vec![false; x.len()];
         for (&i, &k) in idx.iter().zip(&d.keep) {
             keep[i] = k;

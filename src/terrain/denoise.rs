@@ -1100,16 +1100,37 @@ impl Frame {
     }
 }
 
+/// What a shard's noise removal reads: its points (own columns and halo, in input order),
+/// the global frame and parameters, and which voxel columns the shard owns.
+#[derive(Clone, Copy)]
+pub struct ShardInput<'a> {
+    /// x of the shard's points.
+    pub x: &'a [f64],
+    /// y of the shard's points.
+    pub y: &'a [f64],
+    /// z of the shard's points.
+    pub z: &'a [f64],
+    /// The global lattice's frame.
+    pub frame: &'a Frame,
+    /// The run's noise-removal parameters.
+    pub params: &'a DenoiseParams,
+    /// Metres per horizontal unit of the input.
+    pub metres_per_unit: f64,
+    /// The voxel columns the shard owns.
+    pub owned: &'a ColumnWindow,
+}
+
 /// A shard's points set up against the global lattice, with its owned columns flagged.
-fn shard_setup(
-    x: &[f64],
-    y: &[f64],
-    z: &[f64],
-    frame: &Frame,
-    params: &DenoiseParams,
-    metres_per_unit: f64,
-    owned: &ColumnWindow,
-) -> Result<(Setup, Vec<bool>)> {
+fn shard_setup(input: &ShardInput) -> Result<(Setup, Vec<bool>)> {
+    let ShardInput {
+        x,
+        y,
+        z,
+        frame,
+        params,
+        metres_per_unit,
+        owned,
+    } = *input;
     let setup = setup(
         x,
         y,
@@ -1134,15 +1155,8 @@ fn shard_setup(
 /// given): per q, (points failing, points failing but passing at the tallest voxels,
 /// occupied voxels), over the shard's own columns. Summed over all shards, they are what
 /// the in-memory run counts; [`choose_steps`] picks q from the sums.
-pub fn shard_counts(
-    x: &[f64],
-    y: &[f64],
-    z: &[f64],
-    frame: &Frame,
-    params: &DenoiseParams,
-    metres_per_unit: f64,
-    owned: &ColumnWindow,
-) -> Result<Vec<[usize; 3]>> {
+pub fn shard_counts(input: &ShardInput) -> Result<Vec<[usize; 3]>> {
+    let (x, params) = (input.x, input.params);
     let (
         Setup {
             settings,
@@ -1150,7 +1164,7 @@ pub fn shard_counts(
             sorted,
         },
         own,
-    ) = shard_setup(x, y, z, frame, params, metres_per_unit, owned)?;
+    ) = shard_setup(input)?;
     let n = x.len();
     let mut dense = vec![false; n];
     if params.voxel_height.is_some() {
@@ -1202,18 +1216,9 @@ pub fn choose_steps(params: &DenoiseParams, counts: &[[usize; 3]], points: usize
 /// Noise removal of a shard at voxel height steps `q` (from [`choose_steps`]): the keep flags
 /// of the shard's points (true only for kept points of its own columns) and the figures
 /// over its own columns. The flags of its own points are those the in-memory run gives them.
-#[allow(clippy::too_many_arguments)]
-pub fn shard_denoise(
-    x: &[f64],
-    y: &[f64],
-    z: &[f64],
-    frame: &Frame,
-    params: &DenoiseParams,
-    metres_per_unit: f64,
-    owned: &ColumnWindow,
-    q: u32,
-) -> Result<Denoised> {
-    let (mut st, own) = shard_setup(x, y, z, frame, params, metres_per_unit, owned)?;
+pub fn shard_denoise(input: &ShardInput, q: u32) -> Result<Denoised> {
+    let (x, params) = (input.x, input.params);
+    let (mut st, own) = shard_setup(input)?;
     let mut dense = vec![false; x.len()];
     let (sparse, _, voxels) = count_pass(
         &st.sorted,
