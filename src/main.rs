@@ -625,6 +625,16 @@ fn print_json<T: serde::Serialize>(v: &T) -> Result<()> {
     Ok(())
 }
 
+/// A command's report: its JSON with `--json`, else its text (which ends with its newline).
+fn print_report<T: serde::Serialize + std::fmt::Display>(json: bool, r: &T) -> Result<()> {
+    if json {
+        print_json(r)
+    } else {
+        out!("{r}");
+        Ok(())
+    }
+}
+
 /// The process-wide effects of the global options: the memory budget and the worker threads
 /// (refused outside 1 to `memory::max_threads`), and the clean-up of this process's files on
 /// SIGINT/SIGTERM.
@@ -686,11 +696,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Run { pipeline, json } => {
             let loaded = terratile::config::load(&pipeline)?;
             let summary = terratile::pipeline::run(&loaded, progress)?;
-            if json {
-                print_json(&summary)?;
-            } else {
-                out!("{summary}");
-            }
+            print_report(json, &summary)?;
         }
         Command::Info { files, json, read } => {
             let opts = read.options();
@@ -758,11 +764,7 @@ fn run(cli: Cli) -> Result<()> {
             for w in &r.warnings {
                 eprintln!("terratile: warning: {}", one_line(w));
             }
-            if json {
-                print_json(&r)?;
-            } else {
-                out!("{r}");
-            }
+            print_report(json, &r)?;
         }
         Command::Saliency {
             input,
@@ -778,11 +780,7 @@ fn run(cli: Cli) -> Result<()> {
             };
             let r =
                 terratile::simplify::saliency::saliency_file(&input, &out, &views, picture_size)?;
-            if json {
-                print_json(&r)?;
-            } else {
-                out!("{r}");
-            }
+            print_report(json, &r)?;
         }
     }
     Ok(())
@@ -798,19 +796,11 @@ fn bench(cmd: BenchCommand) -> Result<()> {
             json,
         } => {
             let r = terratile::bench::read(&file, &ReadOptions::default(), repeat, las_rs)?;
-            if json {
-                print_json(&r)?;
-            } else {
-                outln!("{r}");
-            }
+            print_report(json, &r)?;
         }
         BenchCommand::Terrain { file, repeat, json } => {
             let r = terratile::bench::terrain(&file, repeat)?;
-            if json {
-                print_json(&r)?;
-            } else {
-                outln!("{r}");
-            }
+            print_report(json, &r)?;
         }
         BenchCommand::Table1 {
             file,
@@ -934,12 +924,7 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
     for w in &r.warnings {
         eprintln!("terratile: warning: {}", one_line(w));
     }
-    if a.json {
-        print_json(&r)?;
-    } else {
-        out!("{r}");
-    }
-    Ok(())
+    print_report(a.json, &r)
 }
 
 fn strips(a: StripsArgs) -> Result<()> {

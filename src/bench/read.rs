@@ -161,6 +161,6 @@ impl std::fmt::Display for ReadBench {
                 l / 1e6
             )?;
         }
-        write!(f, "  (median of {} runs)", self.repeats)
+        writeln!(f, "  (median of {} runs)", self.repeats)
     }
 }

@@ -391,7 +391,7 @@ impl std::fmt::Display for TerrainBench {
         if let Some(p) = self.delaunay_peak_mb {
             writeln!(f, "  peak memory while triangulating: {p:.1} MB")?;
         }
-        write!(
+        writeln!(
             f,
             "  (median of {} runs, {} threads)",
             self.repeats, self.threads
