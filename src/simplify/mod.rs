@@ -178,32 +178,29 @@ impl std::fmt::Display for FileReport {
                 q.non_manifold_vertices,
                 self.seconds * 1e3
             )?;
-            if let Some(e) = &self.error {
-                write!(f, "{e}")?;
-            }
-            return Ok(());
+        } else {
+            writeln!(
+                f,
+                "{} → {}: {} method, {} representative",
+                self.input.display(),
+                self.output.display(),
+                r.method,
+                r.representative.unwrap_or(Representative::Quadric)
+            )?;
+            writeln!(
+                f,
+                "triangles {} → {} ({:.1} %), vertices {} → {}, {} clusters ({} stranded split), scale {:.6}, {:.1} ms",
+                r.triangles_in,
+                r.triangles_out,
+                100.0 * r.triangles_out as f64 / r.triangles_in.max(1) as f64,
+                r.vertices_in,
+                r.vertices_out,
+                r.clusters,
+                r.stranded_split,
+                r.scale,
+                self.seconds * 1e3
+            )?;
         }
-        writeln!(
-            f,
-            "{} → {}: {} method, {} representative",
-            self.input.display(),
-            self.output.display(),
-            r.method,
-            r.representative.unwrap_or(Representative::Quadric)
-        )?;
-        writeln!(
-            f,
-            "triangles {} → {} ({:.1} %), vertices {} → {}, {} clusters ({} stranded split), scale {:.6}, {:.1} ms",
-            r.triangles_in,
-            r.triangles_out,
-            100.0 * r.triangles_out as f64 / r.triangles_in.max(1) as f64,
-            r.vertices_in,
-            r.vertices_out,
-            r.clusters,
-            r.stranded_split,
-            r.scale,
-            self.seconds * 1e3
-        )?;
         if let Some(e) = &self.error {
             write!(f, "{e}")?;
         }

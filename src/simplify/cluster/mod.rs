@@ -352,8 +352,7 @@ impl SimplifyParams {
     /// bounds non-negative.
     fn check_qem_keys(&self) -> Result<()> {
         const S: &str = "simplify";
-        let qem = self.method == Method::Qem;
-        for (name, given) in [
+        let qem_keys = [
             ("placement", self.placement.is_some()),
             ("quadric_merge", self.quadric_merge.is_some()),
             ("lock_border", self.lock_border.is_some()),
@@ -364,32 +363,26 @@ impl SimplifyParams {
             ("saliency_h_min", self.saliency_h_min.is_some()),
             ("saliency_views", self.saliency_views.is_some()),
             ("saliency_view_size", self.saliency_view_size.is_some()),
-        ] {
-            if given && !qem {
-                return Err(Error::param(
-                    S,
-                    name,
-                    self.method,
-                    "only method = \"qem\" takes this key",
-                ));
-            }
-        }
-        for (name, given) in [
+        ];
+        let clustering_keys = [
             ("cell_size", self.cell_size.is_some()),
             ("threshold", self.threshold.is_some()),
             ("representative", self.representative.is_some()),
             ("split_stranded", self.split_stranded.is_some()),
             ("theta_avg_weight", self.theta_avg_weight.is_some()),
             ("theta_max_weight", self.theta_max_weight.is_some()),
-        ] {
-            if given && qem {
-                return Err(Error::param(
-                    S,
-                    name,
-                    "qem",
-                    "method = \"qem\" does not take this key (a clustering key)",
-                ));
-            }
+        ];
+        // The keys of the other kind of method, refused with the method as the value.
+        let (refused, why) = if self.method == Method::Qem {
+            (
+                &clustering_keys[..],
+                "method = \"qem\" does not take this key (a clustering key)",
+            )
+        } else {
+            (&qem_keys[..], "only method = \"qem\" takes this key")
+        };
+        if let Some(&(name, _)) = refused.iter().find(|(_, given)| *given) {
+            return Err(Error::param(S, name, self.method, why));
         }
         if let Some(h) = self.saliency_h_min {
             crate::simplify::saliency::check_h_min(h)?;
