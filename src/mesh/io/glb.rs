@@ -356,33 +356,23 @@ fn read_primitive(
     let positions = read_positions(reader, &pa, m, &here)?;
     let n = positions.len();
     // Optional attributes: None when absent; dropped (with a note) when unusable.
-    let normals = match prim.get(&Semantic::Normals) {
-        None => None,
-        Some(a) => usable(
-            notes,
-            read_normals(reader, &a, m, n),
-            "normal",
-            "normals dropped",
-        )?,
-    };
-    let uvs = match prim.get(&Semantic::TexCoords(0)) {
-        None => None,
-        Some(a) => usable(
-            notes,
-            read_uvs(reader, &a, n),
-            "texture coordinate",
-            "texture coordinates dropped",
-        )?,
-    };
-    let colors = match prim.get(&Semantic::Colors(0)) {
-        None => None,
-        Some(a) => usable(
-            notes,
-            read_colors(reader, &a, n),
-            "colour",
-            "colours dropped",
-        )?,
-    };
+    let normals = prim
+        .get(&Semantic::Normals)
+        .map(|a| read_normals(reader, &a, m, n));
+    let normals = usable(notes, normals, "normal", "normals dropped")?;
+    let uvs = prim
+        .get(&Semantic::TexCoords(0))
+        .map(|a| read_uvs(reader, &a, n));
+    let uvs = usable(
+        notes,
+        uvs,
+        "texture coordinate",
+        "texture coordinates dropped",
+    )?;
+    let colors = prim
+        .get(&Semantic::Colors(0))
+        .map(|a| read_colors(reader, &a, n));
+    let colors = usable(notes, colors, "colour", "colours dropped")?;
     let corners = read_corners(reader, prim, n, &here)?;
     let (triangles, leftover) = triangulate(prim.mode(), &corners);
     if leftover > 0 {
@@ -404,17 +394,18 @@ fn read_primitive(
     }))
 }
 
-/// An optional attribute as read: Some(values), or Some(empty) once its error has been
-/// noted (an error itself with `strict`).
+/// An optional attribute: None when absent, Some(values) as read, or Some(empty) once its
+/// error has been noted (an error itself with `strict`).
 fn usable<T>(
     notes: &mut Notes,
-    got: Result<Vec<T>>,
+    got: Option<Result<Vec<T>>>,
     kind: &'static str,
     action: &str,
 ) -> Result<Option<Vec<T>>> {
     match got {
-        Ok(v) => Ok(Some(v)),
-        Err(e) => {
+        None => Ok(None),
+        Some(Ok(v)) => Ok(Some(v)),
+        Some(Err(e)) => {
             notes.lenient(kind, e, action)?;
             Ok(Some(Vec::new()))
         }
@@ -585,10 +576,9 @@ fn read_corners(reader: &Reader, prim: &gltf::Primitive, n: usize, here: &str) -
 /// Triangles from a triangle list, strip or fan, and how many corners were left over.
 fn triangulate(mode: Mode, corners: &[u32]) -> (Vec<[u32; 3]>, usize) {
     let mut triangles = Vec::with_capacity(corners.len() / 3);
-    let leftover = match mode {
+    match mode {
         Mode::Triangles => {
             triangles.extend(corners.chunks_exact(3).map(|t| [t[0], t[1], t[2]]));
-            corners.len() % 3
         }
         Mode::TriangleStrip => {
             for (k, w) in corners.windows(3).enumerate() {
@@ -598,22 +588,19 @@ fn triangulate(mode: Mode, corners: &[u32]) -> (Vec<[u32; 3]>, usize) {
                     [w[1], w[0], w[2]]
                 });
             }
-            if (1..3).contains(&corners.len()) {
-                corners.len()
-            } else {
-                0
-            }
         }
         _ => {
             for k in 1..corners.len().saturating_sub(1) {
                 triangles.push([corners[0], corners[k], corners[k + 1]]);
             }
-            if (1..3).contains(&corners.len()) {
-                corners.len()
-            } else {
-                0
-            }
         }
+    }
+    // A list leaves its last `len % 3` corners over; a strip or fan of one or two corners
+    // leaves them all, a longer one none.
+    let leftover = match mode {
+        Mode::Triangles => corners.len() % 3,
+        _ if corners.len() < 3 => corners.len(),
+        _ => 0,
     };
     (triangles, leftover)
 }
@@ -651,27 +638,11 @@ fn merge_parts(path: &Path, parts: Vec<Part>, notes: &mut Notes) -> Result<TriMe
     if total > u32::MAX as usize {
         return Err(Error::format(path, 0, "more than 2^32 - 1 vertices"));
     }
-    let with_normals = keep_attribute(
-        path,
-        &parts,
-        |p| p.normals.as_ref().map(Vec::len),
-        "normals",
-        notes,
-    );
-    let with_uvs = keep_attribute(
-        path,
-        &parts,
-        |p| p.uvs.as_ref().map(Vec::len),
-        "texture coordinates",
-        notes,
-    );
-    let with_colors = keep_attribute(
-        path,
-        &parts,
-        |p| p.colors.as_ref().map(Vec::len),
-        "colours",
-        notes,
-    );
+    let mut keep =
+        |len: fn(&Part) -> Option<usize>, name| keep_attribute(path, &parts, len, name, notes);
+    let with_normals = keep(|p| p.normals.as_ref().map(Vec::len), "normals");
+    let with_uvs = keep(|p| p.uvs.as_ref().map(Vec::len), "texture coordinates");
+    let with_colors = keep(|p| p.colors.as_ref().map(Vec::len), "colours");
     let mut mesh = TriMesh {
         positions: Vec::with_capacity(total),
         indices: Vec::new(),

@@ -81,25 +81,29 @@ pub fn glb_bytes(mesh: &TriMesh, name: &str, metres_per_unit: f64) -> Result<Vec
         "bufferViews": views,
         "buffers": [{"byteLength": bin.len()}],
     });
-    let mut text = serde_json::to_vec(&doc).map_err(|e| Error::Internal(e.to_string()))?;
-    while text.len() % 4 != 0 {
-        text.push(b' ');
-    }
-    while bin.len() % 4 != 0 {
-        bin.push(0);
-    }
-    let total = 12 + 8 + text.len() + 8 + bin.len();
+    let text = serde_json::to_vec(&doc).map_err(|e| Error::Internal(e.to_string()))?;
+    Ok(glb_container(&text, &bin))
+}
+
+/// The .glb container: the 12-byte header, then the JSON chunk (padded with spaces) and the
+/// binary chunk (padded with zeros), each to 4 bytes.
+pub fn glb_container(json: &[u8], bin: &[u8]) -> Vec<u8> {
+    let pad = |len: usize| len.next_multiple_of(4) - len;
+    let (json_len, bin_len) = (json.len() + pad(json.len()), bin.len() + pad(bin.len()));
+    let total = 12 + 8 + json_len + 8 + bin_len;
     let mut out = Vec::with_capacity(total);
     out.extend_from_slice(b"glTF");
     out.extend_from_slice(&2u32.to_le_bytes());
     out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
+    out.extend_from_slice(&(json_len as u32).to_le_bytes());
     out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&text);
-    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    out.extend_from_slice(json);
+    out.resize(out.len() + pad(json.len()), b' ');
+    out.extend_from_slice(&(bin_len as u32).to_le_bytes());
     out.extend_from_slice(b"BIN\0");
-    out.extend_from_slice(&bin);
-    Ok(out)
+    out.extend_from_slice(bin);
+    out.resize(out.len() + pad(bin.len()), 0);
+    out
 }
 
 #[cfg(test)]

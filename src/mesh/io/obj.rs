@@ -507,38 +507,31 @@ fn face_corner(
             ),
         ));
     }
-    let t = match raw_index(
-        parts.next().unwrap_or(b""),
+    // A bad texture coordinate or normal index drops that attribute, with one note.
+    let mut optional =
+        |len: usize, kind: &'static str, dropped: &mut bool, action: &str| match raw_index(
+            parts.next().unwrap_or(b""),
+            len,
+            line_no,
+            path,
+            kind,
+        ) {
+            Ok(i) => Ok(i),
+            Err(e) => {
+                if !*dropped {
+                    notes.lenient(kind, e, action)?;
+                    *dropped = true;
+                }
+                Ok(NONE)
+            }
+        };
+    let t = optional(
         lens[1],
-        line_no,
-        path,
         "texture coordinate",
-    ) {
-        Ok(t) => t,
-        Err(e) => {
-            if !drops.uvs {
-                notes.lenient("texture coordinate", e, "texture coordinates dropped")?;
-                drops.uvs = true;
-            }
-            NONE
-        }
-    };
-    let n = match raw_index(
-        parts.next().unwrap_or(b""),
-        lens[2],
-        line_no,
-        path,
-        "normal",
-    ) {
-        Ok(n) => n,
-        Err(e) => {
-            if !drops.normals {
-                notes.lenient("normal", e, "normals dropped")?;
-                drops.normals = true;
-            }
-            NONE
-        }
-    };
+        &mut drops.uvs,
+        "texture coordinates dropped",
+    )?;
+    let n = optional(lens[2], "normal", &mut drops.normals, "normals dropped")?;
     Ok([v, t, n])
 }
 
@@ -1020,12 +1013,8 @@ mod tests {
                 assert_eq!(a, m);
             }
             // Same bytes on one thread.
-            let one = rayon::ThreadPoolBuilder::new()
-                .num_threads(1)
-                .build()
-                .unwrap();
             let mut single = Vec::new();
-            one.install(|| write_obj(&m, &mut single)).unwrap();
+            crate::testing::on_threads(1, || write_obj(&m, &mut single)).unwrap();
             assert_eq!(single, fast);
         }
     }
