@@ -48,3 +48,7 @@ pub use progress::{bar_label, NoProgress, Progress};
 /// Seeded randomness, bit-identical across releases (for tests and benchmarks).
 #[cfg(feature = "testing")]
 pub use rng::SplitMix64;
+
+/// Support shared by the unit tests of every module.
+#[cfg(test)]
+mod testing;

@@ -505,18 +505,7 @@ mod tests {
     #[test]
     fn same_figures_for_any_thread_count() {
         let (a, b) = (cube(1.0), plane(9, 3.0, 0.3));
-        let runs: Vec<HausdorffReport> = [1, 2, 8]
-            .iter()
-            .map(|&n| {
-                rayon::ThreadPoolBuilder::new()
-                    .num_threads(n)
-                    .build()
-                    .unwrap()
-                    .install(|| hausdorff(&a, &b, &P).unwrap())
-            })
-            .collect();
-        assert_eq!(runs[0], runs[1]);
-        assert_eq!(runs[0], runs[2]);
+        crate::testing::assert_same_for_any_thread_count(|| hausdorff(&a, &b, &P).unwrap());
     }
 
     #[test]

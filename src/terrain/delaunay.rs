@@ -845,16 +845,8 @@ mod tests {
         }
         // And the rasterisation is the same for any thread count.
         let tin = tin_of(&pts);
-        let one = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .unwrap()
-            .install(|| tin.rasterise(&hf));
-        let eight = rayon::ThreadPoolBuilder::new()
-            .num_threads(8)
-            .build()
-            .unwrap()
-            .install(|| tin.rasterise(&hf));
+        let one = crate::testing::on_threads(1, || tin.rasterise(&hf));
+        let eight = crate::testing::on_threads(8, || tin.rasterise(&hf));
         assert!(crate::terrain::reference::same_grid(&one, &eight));
     }
 

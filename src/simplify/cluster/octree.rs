@@ -1326,22 +1326,11 @@ mod tests {
     fn same_clusters_for_any_thread_count() {
         // Big enough for the chunked parallel sums (> 8192 members at the top).
         let m = grid(110);
-        let runs: Vec<Vec<u32>> = [1, 2, 8]
-            .iter()
-            .map(|&t| {
-                rayon::ThreadPoolBuilder::new()
-                    .num_threads(t)
-                    .build()
-                    .unwrap()
-                    .install(|| {
-                        let prep = Prepared::new(&m);
-                        let o = opts(RELAX_PASSES);
-                        cluster(&prep, Target::Triangles(2000), &o).0.of
-                    })
-            })
-            .collect();
-        assert_eq!(runs[0], runs[1]);
-        assert_eq!(runs[0], runs[2]);
+        crate::testing::assert_same_for_any_thread_count(|| {
+            let prep = Prepared::new(&m);
+            let o = opts(RELAX_PASSES);
+            cluster(&prep, Target::Triangles(2000), &o).0.of
+        });
     }
 
     #[test]
