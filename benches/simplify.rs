@@ -27,12 +27,7 @@ fn edge_collapse(c: &mut Criterion) {
         let Some(mesh) = load(name) else { return };
         let target = (mesh.triangle_count() as f64 * ratio).round() as usize;
         let flat: Vec<u32> = mesh.indices.iter().flatten().copied().collect();
-        let bytes: Vec<u8> = mesh
-            .positions
-            .iter()
-            .flat_map(|p| p.to_array())
-            .flat_map(f32::to_le_bytes)
-            .collect();
+        let bytes = meshopt::typed_to_bytes(&mesh.positions);
         let mut g = c.benchmark_group(format!(
             "{}_{}pct",
             name.trim_end_matches(".obj"),
@@ -41,7 +36,7 @@ fn edge_collapse(c: &mut Criterion) {
         g.sample_size(10);
         g.bench_function("meshopt_simplify", |b| {
             b.iter(|| {
-                let adapter = meshopt::VertexDataAdapter::new(&bytes, 12, 0).expect("adapter");
+                let adapter = meshopt::VertexDataAdapter::new(bytes, 12, 0).expect("adapter");
                 black_box(meshopt::simplify(
                     &flat,
                     &adapter,
@@ -75,18 +70,13 @@ fn clustering(c: &mut Criterion) {
     let Some(mesh) = bunny() else { return };
     let target = mesh.triangle_count() / 10;
     let flat: Vec<u32> = mesh.indices.iter().flatten().copied().collect();
-    let positions: Vec<[f32; 3]> = mesh.positions.iter().map(|p| p.to_array()).collect();
-    let bytes: Vec<u8> = positions
-        .iter()
-        .flatten()
-        .flat_map(|x| x.to_le_bytes())
-        .collect();
+    let bytes = meshopt::typed_to_bytes(&mesh.positions);
 
     let mut g = c.benchmark_group("bunny_10pct");
     g.sample_size(30);
     g.bench_function("meshopt_simplify_sloppy", |b| {
         b.iter(|| {
-            let adapter = meshopt::VertexDataAdapter::new(&bytes, 12, 0).expect("adapter");
+            let adapter = meshopt::VertexDataAdapter::new(bytes, 12, 0).expect("adapter");
             black_box(meshopt::simplify_sloppy(
                 &flat,
                 &adapter,

@@ -10,7 +10,7 @@ use std::hint::black_box;
 use terratile::generate::{generate, GenerateParams};
 use terratile::points::{self, PointCloud, ReadOptions};
 use terratile::terrain::{
-    denoise, fill, reference, resample, DenoiseParams, FillParams, ResampleParams,
+    denoise, fill, reference, resample, DenoiseParams, FillParams, Heightfield, ResampleParams,
 };
 use terratile::NoProgress;
 
@@ -31,12 +31,21 @@ fn survey(points: u64) -> PointCloud {
     .cloud
 }
 
-fn stages(c: &mut Criterion) {
-    let cloud = survey(3_408_187);
-    let d = denoise(&cloud, &DenoiseParams::default(), 1.0).expect("denoise");
-    let grid = resample(&cloud, Some(&d.keep), &ResampleParams::default())
+/// The survey of `points` points with the default stages' inputs: the denoise keep mask and
+/// the resampled (unfilled) grid.
+fn stage_inputs(points: u64) -> (PointCloud, Vec<bool>, Heightfield) {
+    let cloud = survey(points);
+    let keep = denoise(&cloud, &DenoiseParams::default(), 1.0)
+        .expect("denoise")
+        .keep;
+    let grid = resample(&cloud, Some(&keep), &ResampleParams::default())
         .expect("resample")
         .grid;
+    (cloud, keep, grid)
+}
+
+fn stages(c: &mut Criterion) {
+    let (cloud, keep, grid) = stage_inputs(3_408_187);
     let mut g = c.benchmark_group("terrain");
     g.sample_size(10);
     g.throughput(Throughput::Elements(cloud.len() as u64));
@@ -45,9 +54,7 @@ fn stages(c: &mut Criterion) {
     });
     g.bench_function("resample", |b| {
         b.iter(|| {
-            black_box(
-                resample(&cloud, Some(&d.keep), &ResampleParams::default()).expect("resample"),
-            )
+            black_box(resample(&cloud, Some(&keep), &ResampleParams::default()).expect("resample"))
         })
     });
     g.bench_function("fill", |b| {
@@ -60,11 +67,7 @@ fn stages(c: &mut Criterion) {
 }
 
 fn twins(c: &mut Criterion) {
-    let cloud = survey(200_000);
-    let d = denoise(&cloud, &DenoiseParams::default(), 1.0).expect("denoise");
-    let grid = resample(&cloud, Some(&d.keep), &ResampleParams::default())
-        .expect("resample")
-        .grid;
+    let (cloud, keep, grid) = stage_inputs(200_000);
     let mut g = c.benchmark_group("twins_200k");
     g.sample_size(10);
     g.bench_function("denoise_fast", |b| {
@@ -82,13 +85,13 @@ fn twins(c: &mut Criterion) {
         })
     });
     g.bench_function("resample_fast", |b| {
-        b.iter(|| black_box(resample(&cloud, Some(&d.keep), &ResampleParams::default())))
+        b.iter(|| black_box(resample(&cloud, Some(&keep), &ResampleParams::default())))
     });
     g.bench_function("resample_reference", |b| {
         b.iter(|| {
             black_box(reference::resample(
                 &cloud,
-                Some(&d.keep),
+                Some(&keep),
                 &ResampleParams::default(),
             ))
         })

@@ -437,23 +437,20 @@ mod tests {
     use super::*;
 
     #[test]
-    fn unknown_key_names_line_and_key() {
-        let text = "[input]\npaths = [\"a.las\"]\ncolour = 3\n";
-        let e = parse(Path::new("p.toml"), text).unwrap_err().to_string();
-        assert!(
-            e.starts_with("p.toml:3:1: input.colour: unknown field `colour`"),
-            "{e}"
-        );
-    }
-
-    #[test]
-    fn wrong_type_names_line_and_key() {
-        let text = "[input]\npaths = [\"a.las\"]\nmax_points = \"many\"\n";
-        let e = parse(Path::new("p.toml"), text).unwrap_err().to_string();
-        assert!(
-            e.starts_with("p.toml:3:14: input.max_points: invalid type"),
-            "{e}"
-        );
+    fn unknown_key_and_wrong_type_name_line_and_key() {
+        for (text, start) in [
+            (
+                "[input]\npaths = [\"a.las\"]\ncolour = 3\n",
+                "p.toml:3:1: input.colour: unknown field `colour`",
+            ),
+            (
+                "[input]\npaths = [\"a.las\"]\nmax_points = \"many\"\n",
+                "p.toml:3:14: input.max_points: invalid type",
+            ),
+        ] {
+            let e = parse(Path::new("p.toml"), text).unwrap_err().to_string();
+            assert!(e.starts_with(start), "{e}");
+        }
     }
 
     #[test]

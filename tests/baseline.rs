@@ -3,33 +3,16 @@
 
 use crate::common;
 
-use common::{terratile, Run};
+use common::{fixture_las, run_pipeline, terratile, write_xyz};
 use std::path::Path;
 use terratile::points::{self, ReadOptions};
 use terratile::terrain::delaunay::{self, TinMethod};
 use terratile::NoProgress;
 
-fn fixture() -> String {
-    common::repo()
-        .join("fixtures/survey-0-0.las")
-        .display()
-        .to_string()
-}
-
-fn run_pipeline(dir: &Path, input: &str, extra: &str) -> Run {
-    let text = format!("[input]\npaths = [\"{input}\"]\n[output]\ndir = \"out\"\n{extra}");
-    std::fs::write(dir.join("p.toml"), text).unwrap();
-    let r = terratile(dir, &["run", "-q", "--json", "p.toml"]);
-    if r.code != 0 {
-        r.left_nothing("out");
-    }
-    r
-}
-
 #[test]
 fn baseline_stage_writes_the_tin_and_the_report() {
     let d = tempfile::tempdir().unwrap();
-    let r = run_pipeline(d.path(), &fixture(), "[baseline]\nenabled = true\n");
+    let r = run_pipeline(d.path(), &fixture_las(), "[baseline]\nenabled = true\n");
     r.ok();
     let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
     let files: Vec<&str> = v["files"]
@@ -95,7 +78,7 @@ fn baseline_obj_and_no_holdout() {
     let d = tempfile::tempdir().unwrap();
     run_pipeline(
         d.path(),
-        &fixture(),
+        &fixture_las(),
         "[baseline]\nenabled = true\nmesh = \"surface/tin.obj\"\nholdout = 0\nmethod = \"bulk\"\n",
     )
     .ok();
@@ -116,7 +99,7 @@ fn baseline_glb_reads_back_and_grid_time_counts_the_tile_stages() {
     let d = tempfile::tempdir().unwrap();
     let r = run_pipeline(
         d.path(),
-        &fixture(),
+        &fixture_las(),
         "[baseline]\nenabled = true\nmesh = \"tin.glb\"\nholdout = 0\n",
     );
     r.ok();
@@ -159,19 +142,19 @@ fn bad_baseline_parameters() {
     let d = tempfile::tempdir().unwrap();
     run_pipeline(
         d.path(),
-        &fixture(),
+        &fixture_las(),
         "[baseline]\nenabled = true\nholdout = 0.7\n",
     )
     .input_error(&["p.toml:7:1: baseline.holdout: 0.7:", "[0, 0.5)"]);
     run_pipeline(
         d.path(),
-        &fixture(),
+        &fixture_las(),
         "[baseline]\nenabled = true\nmesh = \"tin.stl\"\n",
     )
     .input_error(&["baseline.mesh: \"tin.stl\":", ".ply", ".obj", ".glb"]);
     run_pipeline(
         d.path(),
-        &fixture(),
+        &fixture_las(),
         "[baseline]\nenabled = true\nmethod = \"fast\"\n",
     )
     .input_error(&["baseline.method", "unknown variant"]);
@@ -182,7 +165,7 @@ fn bad_baseline_parameters() {
     ] {
         run_pipeline(
             d.path(),
-            &fixture(),
+            &fixture_las(),
             &format!("[baseline]\nenabled = true\n{key} = \"{value}\"\n"),
         )
         .input_error(&[
@@ -192,14 +175,6 @@ fn bad_baseline_parameters() {
     }
 }
 
-fn xyz(dir: &Path, name: &str, pts: &[(f64, f64, f64)]) {
-    let mut s = String::from("x y z\n");
-    for (x, y, z) in pts {
-        s.push_str(&format!("{x} {y} {z}\n"));
-    }
-    std::fs::write(dir.join(name), s).unwrap();
-}
-
 #[test]
 fn delaunay_refuses_collinear_or_too_few_points_while_the_grid_works() {
     let d = tempfile::tempdir().unwrap();
@@ -207,11 +182,6 @@ fn delaunay_refuses_collinear_or_too_few_points_while_the_grid_works() {
     let line: Vec<(f64, f64, f64)> = (0..300)
         .map(|i| (500_000.0 + i as f64, 5_400_000.0 + i as f64, 200.0))
         .collect();
-    xyz(d.path(), "line.xyz", &line);
-    run_pipeline(d.path(), "line.xyz", "").ok();
-    std::fs::remove_dir_all(d.path().join("out")).unwrap();
-    run_pipeline(d.path(), "line.xyz", "[baseline]\nenabled = true\n")
-        .input_error(&["delaunay: all 300 distinct points are collinear"]);
     // Two distinct positions, repeated: the grid still has its two cells.
     let two: Vec<(f64, f64, f64)> = (0..20)
         .map(|i| {
@@ -222,11 +192,23 @@ fn delaunay_refuses_collinear_or_too_few_points_while_the_grid_works() {
             }
         })
         .collect();
-    xyz(d.path(), "two.xyz", &two);
-    run_pipeline(d.path(), "two.xyz", "").ok();
-    std::fs::remove_dir_all(d.path().join("out")).unwrap();
-    run_pipeline(d.path(), "two.xyz", "[baseline]\nenabled = true\n")
-        .input_error(&["delaunay: 2 distinct point(s): a triangulation needs at least three"]);
+    for (name, pts, refusal) in [
+        (
+            "line.xyz",
+            line,
+            "delaunay: all 300 distinct points are collinear",
+        ),
+        (
+            "two.xyz",
+            two,
+            "delaunay: 2 distinct point(s): a triangulation needs at least three",
+        ),
+    ] {
+        write_xyz(d.path(), name, &pts);
+        run_pipeline(d.path(), name, "").ok();
+        std::fs::remove_dir_all(d.path().join("out")).unwrap();
+        run_pipeline(d.path(), name, "[baseline]\nenabled = true\n").input_error(&[refusal]);
+    }
 }
 
 #[test]
@@ -252,7 +234,7 @@ fn table1_json_plot_and_skipped_counts() {
         &[
             "bench",
             "table1",
-            &fixture(),
+            &fixture_las(),
             "--counts",
             "2000,20000,99999999",
             "--repeat",
@@ -310,7 +292,7 @@ fn table1_json_plot_and_skipped_counts() {
 #[test]
 fn table1_bad_counts() {
     let d = tempfile::tempdir().unwrap();
-    let f = fixture();
+    let f = fixture_las();
     for (counts, needle) in [
         ("0", "0 is not a point count"),
         ("12,abc", "`abc` is not a point count"),

@@ -50,63 +50,99 @@ fn bad_simplify(dir: &Path, input: &str, extra: &[&str], needles: &[&str]) {
     nothing_written(&r, "out.obj");
 }
 
+/// Bad meshes and bad targets: one line naming the file and line (or byte, or the key),
+/// exit code 2, nothing written.
 #[test]
-fn face_index_out_of_range() {
+fn bad_meshes_and_targets() {
     let d = tempfile::tempdir().unwrap();
-    write(
-        d.path(),
-        "m.obj",
-        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n",
-    );
-    bad_simplify(
-        d.path(),
-        "m.obj",
-        &["--ratio", "0.5"],
-        &["m.obj:5", "index 9 is out of range"],
-    );
     let ply = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
                property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n\
                0 0 0\n1 0 0\n0 1 0\n3 0 1 3\n";
-    write(d.path(), "m.ply", ply);
-    bad_simplify(
-        d.path(),
-        "m.ply",
-        &["--ratio", "0.5"],
-        &["m.ply:13", "vertex 3 but there are 3"],
-    );
+    // A face with fewer than 3 vertices is skipped with a warning (so this file has no
+    // triangles left); `--strict` refuses it.
+    let short_face = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n";
+    let half = &["--ratio", "0.5"][..];
+    let cases: &[(&str, &str, &[&str], &[&str])] = &[
+        (
+            "m.obj",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n",
+            half,
+            &["m.obj:5", "index 9 is out of range"],
+        ),
+        (
+            "m.ply",
+            ply,
+            half,
+            &["m.ply:13", "vertex 3 but there are 3"],
+        ),
+        (
+            "m.obj",
+            short_face,
+            &["--ratio", "0.5", "--strict"],
+            &["m.obj:4", "at least 3 vertices"],
+        ),
+        (
+            "m.obj",
+            short_face,
+            half,
+            &["m.obj", "the mesh has no triangles"],
+        ),
+        (
+            "m.obj",
+            "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n",
+            half,
+            &["m.obj:2", "not a finite number"],
+        ),
+        (
+            "none.obj",
+            "# nothing here\nv 0 0 0\n",
+            half,
+            &["none.obj", "no triangles"],
+        ),
+        ("zero.obj", "", half, &["zero.obj", "empty file"]),
+        (
+            "t.obj",
+            TETRA,
+            &["--triangles", "0"],
+            &["triangles = 0", "at least 1"],
+        ),
+        (
+            "t.obj",
+            TETRA,
+            &["--ratio", "0"],
+            &["ratio", "must be in (0, 1]"],
+        ),
+        (
+            "t.obj",
+            TETRA,
+            &["--ratio", "1.5"],
+            &["ratio", "must be in (0, 1]"],
+        ),
+        (
+            "t.obj",
+            TETRA,
+            &["--ratio", "-0.2"],
+            &["ratio", "must be in (0, 1]"],
+        ),
+        (
+            "t.obj",
+            TETRA,
+            &["--ratio", "NaN"],
+            &["ratio", "must be in (0, 1]"],
+        ),
+    ];
+    for (name, text, args, needles) in cases {
+        write(d.path(), name, text);
+        bad_simplify(d.path(), name, args, needles);
+    }
+    let r = terratile(d.path(), &["compare", "none.obj", "none.obj"]);
+    r.input_error(&["none.obj", "no triangles"]);
 }
 
-/// A face with fewer than 3 vertices is skipped with a warning (so this file has no
-/// triangles left); `--strict` refuses it.
+/// A NaN in a binary PLY is named by the byte offset of its vertex.
 #[test]
-fn face_with_fewer_than_three_vertices() {
+fn nan_coordinates_in_binary_ply() {
     let d = tempfile::tempdir().unwrap();
-    write(d.path(), "m.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n");
-    bad_simplify(
-        d.path(),
-        "m.obj",
-        &["--ratio", "0.5", "--strict"],
-        &["m.obj:4", "at least 3 vertices"],
-    );
-    bad_simplify(
-        d.path(),
-        "m.obj",
-        &["--ratio", "0.5"],
-        &["m.obj", "the mesh has no triangles"],
-    );
-}
-
-#[test]
-fn nan_coordinates() {
-    let d = tempfile::tempdir().unwrap();
-    write(d.path(), "m.obj", "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n");
-    bad_simplify(
-        d.path(),
-        "m.obj",
-        &["--ratio", "0.5"],
-        &["m.obj:2", "not a finite number"],
-    );
-    // Binary PLY: the byte offset of the vertex.
     let mut ply = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n\
                     property float y\nproperty float z\nelement face 1\n\
                     property list uchar int vertex_indices\nend_header\n"
@@ -132,53 +168,6 @@ fn nan_coordinates() {
 }
 
 #[test]
-fn empty_mesh() {
-    let d = tempfile::tempdir().unwrap();
-    write(d.path(), "none.obj", "# nothing here\nv 0 0 0\n");
-    bad_simplify(
-        d.path(),
-        "none.obj",
-        &["--ratio", "0.5"],
-        &["none.obj", "no triangles"],
-    );
-    write(d.path(), "zero.obj", "");
-    bad_simplify(
-        d.path(),
-        "zero.obj",
-        &["--ratio", "0.5"],
-        &["zero.obj", "empty file"],
-    );
-    let r = terratile(d.path(), &["compare", "none.obj", "none.obj"]);
-    r.input_error(&["none.obj", "no triangles"]);
-}
-
-#[test]
-fn target_of_zero_triangles() {
-    let d = tempfile::tempdir().unwrap();
-    write(d.path(), "t.obj", TETRA);
-    bad_simplify(
-        d.path(),
-        "t.obj",
-        &["--triangles", "0"],
-        &["triangles = 0", "at least 1"],
-    );
-}
-
-#[test]
-fn ratio_outside_zero_one() {
-    let d = tempfile::tempdir().unwrap();
-    write(d.path(), "t.obj", TETRA);
-    for r in ["0", "1.5", "-0.2", "NaN"] {
-        bad_simplify(
-            d.path(),
-            "t.obj",
-            &["--ratio", r],
-            &["ratio", "must be in (0, 1]"],
-        );
-    }
-}
-
-#[test]
 fn unknown_output_format_writes_nothing() {
     let d = tempfile::tempdir().unwrap();
     write(d.path(), "t.obj", TETRA);
@@ -196,11 +185,11 @@ fn simplify_reports_counts_time_and_error() {
     write(d.path(), "s.obj", &sphere_obj(40));
     for method in ["uniform", "floating", "octree"] {
         let out = format!("{method}.ply");
-        let r = terratile(
+        let r = common::simplify(
             d.path(),
-            &[
-                "simplify", "s.obj", &out, "--method", method, "--ratio", "0.1", "--json",
-            ],
+            "s.obj",
+            &out,
+            &["--method", method, "--ratio", "0.1", "--json"],
         );
         r.ok();
         let v: serde_json::Value =
@@ -216,10 +205,7 @@ fn simplify_reports_counts_time_and_error() {
         assert_eq!(m.triangle_count() as u64, tout);
     }
     // Text output names the counts and the error.
-    let r = terratile(
-        d.path(),
-        &["simplify", "s.obj", "o.obj", "--triangles", "500"],
-    );
+    let r = common::simplify(d.path(), "s.obj", "o.obj", &["--triangles", "500"]);
     r.ok();
     for needle in ["triangles 3200 →", "ms", "Hausdorff error", "symmetric"] {
         assert!(r.stdout.contains(needle), "`{needle}`\n{}", r.context());
@@ -432,17 +418,11 @@ fn saliency_bad_input_is_one_line_and_exit_2() {
             .left_nothing("out.obj");
     }
     // Saliency keys belong to QEM.
-    terratile(
+    common::simplify(
         d,
-        &[
-            "simplify",
-            "s.obj",
-            "out.obj",
-            "--ratio",
-            "0.5",
-            "--saliency",
-            "mesh",
-        ],
+        "s.obj",
+        "out.obj",
+        &["--ratio", "0.5", "--saliency", "mesh"],
     )
     .input_error(&["saliency"])
     .left_nothing("out.obj");
@@ -533,12 +513,11 @@ fn saliency_maps_of_cow_are_written() {
     let back = terratile::mesh::io::read(&d.join("maps/saliency.ply")).unwrap();
     assert_eq!(back.vertex_count(), 2903);
     // Hybrid-weighted QEM runs on it and reaches its target.
-    let r = terratile(
+    let r = common::simplify(
         d,
+        cow,
+        "h.obj",
         &[
-            "simplify",
-            cow,
-            "h.obj",
             "--method",
             "qem",
             "--triangles",

@@ -59,24 +59,6 @@ fn empty_file() {
 }
 
 #[test]
-fn wrong_signature() {
-    let d = tempfile::tempdir().unwrap();
-    let las = small_las(d.path());
-    write(
-        d.path(),
-        "sig.las",
-        &patched(&las, 0, &[0x00, 0x01, 0x02, 0x03]),
-    );
-    bad_point_file(d.path(), "sig.las", &["byte 0", "unrecognised format"]);
-    // With the format forced, the LAS reader names the signature.
-    terratile(d.path(), &["info", "-q", "--format", "las", "sig.las"]).input_error(&[
-        "sig.las",
-        "byte 0",
-        "signature",
-    ]);
-}
-
-#[test]
 fn truncated_header() {
     let d = tempfile::tempdir().unwrap();
     let las = small_las(d.path());
@@ -105,67 +87,63 @@ fn truncated_point_records() {
     );
 }
 
+/// A header field patched to a bad value: `info` and `convert` name the field's byte.
 #[test]
-fn unsupported_version() {
+fn patched_header_fields() {
     let d = tempfile::tempdir().unwrap();
     let las = small_las(d.path());
-    write(d.path(), "v2.las", &patched(&las, 24, &[2, 0]));
-    bad_point_file(
-        d.path(),
-        "v2.las",
-        &["byte 24", "unsupported LAS version 2.0"],
-    );
-    write(d.path(), "v15.las", &patched(&las, 24, &[1, 5]));
-    bad_point_file(
-        d.path(),
-        "v15.las",
-        &["byte 25", "unsupported LAS version 1.5"],
-    );
-}
-
-#[test]
-fn unsupported_point_format() {
-    let d = tempfile::tempdir().unwrap();
-    let las = small_las(d.path());
-    write(d.path(), "pf11.las", &patched(&las, 104, &[11]));
-    bad_point_file(
-        d.path(),
-        "pf11.las",
-        &["byte 104", "point data record format 11"],
-    );
-    write(d.path(), "pf6.las", &patched(&las, 104, &[6]));
-    bad_point_file(d.path(), "pf6.las", &["byte 104", "needs LAS 1.4"]);
-}
-
-#[test]
-fn zero_scale_factor() {
-    let d = tempfile::tempdir().unwrap();
-    let las = small_las(d.path());
-    write(
-        d.path(),
-        "scale.las",
-        &patched(&las, 139, &0f64.to_le_bytes()),
-    );
-    bad_point_file(d.path(), "scale.las", &["byte 139", "y scale factor is 0"]);
-}
-
-#[test]
-fn record_length_too_short() {
-    let d = tempfile::tempdir().unwrap();
-    let las = small_las(d.path());
-    write(
-        d.path(),
-        "len.las",
-        &patched(&las, 105, &12u16.to_le_bytes()),
-    );
-    bad_point_file(
-        d.path(),
-        "len.las",
-        &[
-            "byte 105",
-            "record length 12 is too short for point format 0",
-        ],
-    );
+    let cases: [(&str, usize, &[u8], &[&str]); 7] = [
+        (
+            "sig.las",
+            0,
+            &[0x00, 0x01, 0x02, 0x03],
+            &["byte 0", "unrecognised format"],
+        ),
+        (
+            "v2.las",
+            24,
+            &[2, 0],
+            &["byte 24", "unsupported LAS version 2.0"],
+        ),
+        (
+            "v15.las",
+            24,
+            &[1, 5],
+            &["byte 25", "unsupported LAS version 1.5"],
+        ),
+        (
+            "pf11.las",
+            104,
+            &[11],
+            &["byte 104", "point data record format 11"],
+        ),
+        ("pf6.las", 104, &[6], &["byte 104", "needs LAS 1.4"]),
+        (
+            "scale.las",
+            139,
+            &0f64.to_le_bytes(),
+            &["byte 139", "y scale factor is 0"],
+        ),
+        (
+            "len.las",
+            105,
+            &12u16.to_le_bytes(),
+            &[
+                "byte 105",
+                "record length 12 is too short for point format 0",
+            ],
+        ),
+    ];
+    for (name, at, bytes, needles) in cases {
+        write(d.path(), name, &patched(&las, at, bytes));
+        bad_point_file(d.path(), name, needles);
+    }
+    // With the format forced, the LAS reader names the signature.
+    terratile(d.path(), &["info", "-q", "--format", "las", "sig.las"]).input_error(&[
+        "sig.las",
+        "byte 0",
+        "signature",
+    ]);
 }
 
 #[test]
@@ -234,7 +212,7 @@ fn missing_input_file() {
 
 fn pipeline(dir: &Path, text: &str) -> Run {
     write(dir, "p.toml", text.as_bytes());
-    let r = terratile(dir, &["run", "-q", "p.toml"]);
+    let r = common::run_p_toml(dir);
     r.left_nothing("out");
     r
 }

@@ -4,84 +4,92 @@
 
 use crate::common;
 
-use common::{terratile, Run};
+use common::{terratile, write_xyz, Run};
 use std::path::Path;
 use terratile::points::{self, ReadOptions};
 use terratile::NoProgress;
 
-/// A pipeline over the fixture LAS tile with `extra` appended; runs it and checks that a
-/// failing run leaves no output directory.
+/// A pipeline over the fixture LAS tile with `extra` appended, run.
 fn run_with(dir: &Path, extra: &str) -> Run {
-    let job = common::repo().join("fixtures/survey-0-0.las");
-    let text = format!(
-        "[input]\npaths = [\"{}\"]\n[output]\ndir = \"out\"\n{extra}",
-        job.display()
-    );
-    std::fs::write(dir.join("p.toml"), text).unwrap();
-    let r = terratile(dir, &["run", "-q", "--json", "p.toml"]);
-    if r.code != 0 {
-        r.left_nothing("out");
-    }
-    r
+    common::run_pipeline(dir, &common::fixture_las(), extra)
 }
 
+/// Each bad stage value: one line naming the key (and its line) or the stage, nothing
+/// written.
 #[test]
-fn radius_zero_negative_or_nan() {
+fn bad_stage_parameters() {
+    const RADIUS: &str = "must be a positive number of cells";
+    let cases: &[(&str, &[&str])] = &[
+        (
+            "[fill]\nradius = 0\n",
+            &["p.toml:6:1: fill.radius:", "0", RADIUS],
+        ),
+        (
+            "[fill]\nradius = -2.5\n",
+            &["p.toml:6:1: fill.radius:", "-2.5", RADIUS],
+        ),
+        (
+            "[fill]\nradius = nan\n",
+            &["p.toml:6:1: fill.radius:", "NaN", RADIUS],
+        ),
+        (
+            "[denoise]\nvoxel_size = 0\n",
+            &["p.toml:6:1: denoise.voxel_size:", "0", "must be a positive"],
+        ),
+        (
+            "[denoise]\nvoxel_size = -1\n",
+            &[
+                "p.toml:6:1: denoise.voxel_size:",
+                "-1",
+                "must be a positive",
+            ],
+        ),
+        (
+            "[denoise]\nvoxel_size = nan\n",
+            &[
+                "p.toml:6:1: denoise.voxel_size:",
+                "NaN",
+                "must be a positive",
+            ],
+        ),
+        (
+            "[denoise]\nvoxel_height = 0.0\n",
+            &[
+                "p.toml:6:1: denoise.voxel_height:",
+                "0",
+                "must be a positive",
+            ],
+        ),
+        (
+            "[denoise]\nvoxel_height = nan\n",
+            &[
+                "p.toml:6:1: denoise.voxel_height:",
+                "NaN",
+                "must be a positive",
+            ],
+        ),
+        (
+            "[resample]\nsize = [0, 100]\n",
+            &[
+                "p.toml:6:1: resample.size:",
+                "[0, 100]",
+                "at least one cell",
+            ],
+        ),
+        ("[resample]\ncell_size = 0\n", &["resample.cell_size:", "0"]),
+        ("[resample]\nsize = [10, -1]\n", &["resample.size"]),
+        (
+            "[denoise]\nmin_points = 100000000\n",
+            &[
+                "denoise: every one of the 55057 points was removed as noise",
+                "min_points 100000000",
+            ],
+        ),
+    ];
     let d = tempfile::tempdir().unwrap();
-    for (v, shown) in [("0", "0"), ("-2.5", "-2.5"), ("nan", "NaN")] {
-        run_with(d.path(), &format!("[fill]\nradius = {v}\n")).input_error(&[
-            "p.toml:6:1: fill.radius:",
-            shown,
-            "must be a positive number of cells",
-        ]);
+    for (extra, needles) in cases {
+        run_with(d.path(), extra).input_error(needles);
     }
-}
-
-#[test]
-fn voxel_size_zero_negative_or_nan() {
-    let d = tempfile::tempdir().unwrap();
-    for (key, v, shown) in [
-        ("voxel_size", "0", "0"),
-        ("voxel_size", "-1", "-1"),
-        ("voxel_size", "nan", "NaN"),
-        ("voxel_height", "0.0", "0"),
-        ("voxel_height", "nan", "NaN"),
-    ] {
-        run_with(d.path(), &format!("[denoise]\n{key} = {v}\n")).input_error(&[
-            &format!("p.toml:6:1: denoise.{key}:"),
-            shown,
-            "must be a positive",
-        ]);
-    }
-}
-
-#[test]
-fn grid_override_of_zero_cells() {
-    let d = tempfile::tempdir().unwrap();
-    run_with(d.path(), "[resample]\nsize = [0, 100]\n").input_error(&[
-        "p.toml:6:1: resample.size:",
-        "[0, 100]",
-        "at least one cell",
-    ]);
-    run_with(d.path(), "[resample]\ncell_size = 0\n").input_error(&["resample.cell_size:", "0"]);
-    run_with(d.path(), "[resample]\nsize = [10, -1]\n").input_error(&["resample.size"]);
-}
-
-#[test]
-fn every_point_removed_as_noise() {
-    let d = tempfile::tempdir().unwrap();
-    run_with(d.path(), "[denoise]\nmin_points = 100000000\n").input_error(&[
-        "denoise: every one of the 55057 points was removed as noise",
-        "min_points 100000000",
-    ]);
-}
-
-fn xyz(dir: &Path, name: &str, pts: &[(f64, f64, f64)]) {
-    let mut s = String::from("x y z\n");
-    for (x, y, z) in pts {
-        s.push_str(&format!("{x} {y} {z}\n"));
-    }
-    std::fs::write(dir.join(name), s).unwrap();
 }
 
 fn run_file(dir: &Path, file: &str, extra: &str) -> Run {
@@ -90,7 +98,7 @@ fn run_file(dir: &Path, file: &str, extra: &str) -> Run {
         format!("[input]\npaths = [\"{file}\"]\n{extra}"),
     )
     .unwrap();
-    let r = terratile(dir, &["run", "-q", "p.toml"]);
+    let r = common::run_p_toml(dir);
     r.left_nothing("out");
     r
 }
@@ -101,7 +109,7 @@ fn points_on_one_line_or_one_spot() {
     let line: Vec<(f64, f64, f64)> = (0..200)
         .map(|i| (500_000.0 + i as f64, 5_400_000.0, 300.0))
         .collect();
-    xyz(d.path(), "line.xyz", &line);
+    write_xyz(d.path(), "line.xyz", &line);
     run_file(d.path(), "line.xyz", "").input_error(&[
         "p.toml:1:1: denoise.voxel_size: auto:",
         "zero-width range",
@@ -111,7 +119,7 @@ fn points_on_one_line_or_one_spot() {
     run_file(d.path(), "line.xyz", "[denoise]\nenabled = false\n")
         .input_error(&["resample: y range = 0:", "all 200 points share y = 5400000"]);
     let spot: Vec<(f64, f64, f64)> = (0..50).map(|i| (7.5, 2.5, i as f64)).collect();
-    xyz(d.path(), "spot.xyz", &spot);
+    write_xyz(d.path(), "spot.xyz", &spot);
     run_file(d.path(), "spot.xyz", "[denoise]\nenabled = false\n")
         .input_error(&["resample: x range = 0:", "x = 7.5"]);
     run_file(d.path(), "spot.xyz", "")

@@ -4,7 +4,7 @@
 
 use crate::common;
 
-use common::{default_job, terratile};
+use common::{default_job, edit_pipeline as edit, terratile};
 use std::path::Path;
 
 /// Puts `table` (a header line and keys) into the default job's pipeline.toml in place of
@@ -29,44 +29,11 @@ fn with_table(dir: &Path, table: &str) {
     std::fs::write(&p, text).unwrap();
 }
 
-/// Replaces `from` by `to` in the job's pipeline.toml (which must contain it).
-fn edit(dir: &Path, from: &str, to: &str) {
-    let p = dir.join("pipeline.toml");
-    let text = std::fs::read_to_string(&p).unwrap();
-    assert!(text.contains(from), "pipeline.toml lacks `{from}`");
-    std::fs::write(&p, text.replace(from, to)).unwrap();
-}
-
 /// The run fails with the needles on one line, exit 2, and leaves nothing behind.
 fn refused(dir: &Path, needles: &[&str]) {
     terratile(dir, &["run", "-q"])
         .input_error(needles)
         .left_nothing("out");
-}
-
-#[test]
-fn tile_size_not_two_to_the_k_plus_one() {
-    for size in ["300", "256", "1000"] {
-        let d = default_job();
-        with_table(d.path(), &format!("[tiles]\nsize = {size}"));
-        refused(
-            d.path(),
-            &[
-                "pipeline.toml:",
-                "tiles.size",
-                &format!("{size}: must be 2^k + 1"),
-            ],
-        );
-    }
-}
-
-#[test]
-fn tile_size_out_of_range() {
-    for size in ["33", "17", "8193", "16385"] {
-        let d = default_job();
-        with_table(d.path(), &format!("[tiles]\nsize = {size}"));
-        refused(d.path(), &["tiles.size", "between 65 and 4097"]);
-    }
 }
 
 #[test]
@@ -81,38 +48,53 @@ fn tile_size_line_is_named() {
     );
 }
 
+/// Each bad tile-stage value: refused at its key, nothing written.
 #[test]
-fn tolerance_not_positive() {
-    for tol in ["0", "-0.5", "0.0", "nan"] {
-        let d = default_job();
-        with_table(d.path(), &format!("[extract]\ntolerance = {tol}"));
-        refused(d.path(), &["extract.tolerance", "must be > 0 metres"]);
-    }
-}
-
-#[test]
-fn other_tile_parameters_are_checked() {
-    for (table, key) in [
+fn bad_tile_parameters() {
+    const RANGE: &str = "between 65 and 4097";
+    const TOL: &str = "must be > 0 metres";
+    let cases: &[(&str, &[&str])] = &[
+        (
+            "[tiles]\nsize = 300",
+            &["pipeline.toml:", "tiles.size", "300: must be 2^k + 1"],
+        ),
+        (
+            "[tiles]\nsize = 256",
+            &["pipeline.toml:", "tiles.size", "256: must be 2^k + 1"],
+        ),
+        (
+            "[tiles]\nsize = 1000",
+            &["pipeline.toml:", "tiles.size", "1000: must be 2^k + 1"],
+        ),
+        ("[tiles]\nsize = 33", &["tiles.size", RANGE]),
+        ("[tiles]\nsize = 17", &["tiles.size", RANGE]),
+        ("[tiles]\nsize = 8193", &["tiles.size", RANGE]),
+        ("[tiles]\nsize = 16385", &["tiles.size", RANGE]),
+        ("[extract]\ntolerance = 0", &["extract.tolerance", TOL]),
+        ("[extract]\ntolerance = -0.5", &["extract.tolerance", TOL]),
+        ("[extract]\ntolerance = 0.0", &["extract.tolerance", TOL]),
+        ("[extract]\ntolerance = nan", &["extract.tolerance", TOL]),
         (
             "[quadtree]\nmin_resolution_c = 2",
-            "quadtree.min_resolution_c",
+            &["quadtree.min_resolution_c"],
         ),
-        ("[extract]\nskirt_depth = -1", "extract.skirt_depth"),
+        ("[extract]\nskirt_depth = -1", &["extract.skirt_depth"]),
         (
             "[extract]\ndesired_resolution_c = 0",
-            "extract.desired_resolution_c",
+            &["extract.desired_resolution_c"],
         ),
-        ("[output]\npreview_size = 3", "output.preview_size"),
-        ("[tiles]\npreset = \"godot\"", "tiles.preset"),
-        ("[output]\nmeshes = [\"stl\"]", "output.meshes"),
+        ("[output]\npreview_size = 3", &["output.preview_size"]),
+        ("[tiles]\npreset = \"godot\"", &["tiles.preset"]),
+        ("[output]\nmeshes = [\"stl\"]", &["output.meshes"]),
         (
             "[output]\nexr_compression = \"b44\"",
-            "output.exr_compression",
+            &["output.exr_compression"],
         ),
-    ] {
+    ];
+    for (table, needles) in cases {
         let d = default_job();
         with_table(d.path(), table);
-        refused(d.path(), &[key]);
+        refused(d.path(), needles);
     }
 }
 

@@ -8,8 +8,24 @@ use crate::common;
 use crate::tiles_support::*;
 use proptest::prelude::*;
 use terratile::terrain::extract::{self, Criterion, ExtractParams, Refiner, TileTriangulation};
-use terratile::terrain::quadtree::{self, build, NodeValues, QuadtreeParams};
+use terratile::terrain::quadtree::{self, build, NodeValues, Quadtree, QuadtreeParams};
 use terratile::terrain::tiles::TileSet;
+
+/// A shared survey's filled heightfield in tiles of 65 samples, when the data is there.
+fn real_tiles(rel: &str) -> Option<TileSet> {
+    let path = common::data_file(rel)?;
+    Some(tiles_of(
+        &heightfield_from_points(&read_points(&path), true),
+        65,
+    ))
+}
+
+/// autzen_trim's tiles of 65 samples and their quadtree with the default C.
+fn autzen_quadtree() -> Option<(TileSet, Quadtree)> {
+    let set = real_tiles("lidar/autzen_trim.las")?;
+    let qt = build(&set, &QuadtreeParams::default()).unwrap();
+    Some((set, qt))
+}
 
 /// d2 of every node of every tile equals the brute force, and non-centre samples hold 0.
 fn check_d2_against_brute_force(set: &TileSet, c: f64) {
@@ -114,11 +130,9 @@ fn d2_equals_brute_force_on_random_tiles() {
 
 #[test]
 fn d2_equals_brute_force_on_real_tiles() {
-    let Some(path) = common::data_file("lidar/Topography.laz") else {
+    let Some(set) = real_tiles("lidar/Topography.laz") else {
         return;
     };
-    let hf = heightfield_from_points(&read_points(&path), true);
-    let set = tiles_of(&hf, 65);
     assert!(set.tiles.len() >= 9, "{:?}", set.grid);
     check_d2_against_brute_force(&set, 9.0);
 }
@@ -261,12 +275,9 @@ fn tolerance_meshes_hold_every_sample_on_real_tiles() {
 
 #[test]
 fn view_dependent_meshes_are_crack_free_on_real_tiles() {
-    let Some(path) = common::data_file("lidar/autzen_trim.las") else {
+    let Some((set, qt)) = autzen_quadtree() else {
         return;
     };
-    let hf = heightfield_from_points(&read_points(&path), true);
-    let set = tiles_of(&hf, 65);
-    let qt = build(&set, &QuadtreeParams::default()).unwrap();
     let err = quadtree::vertical_error(&set);
     let (lo, hi) = set.z_range().unwrap();
     let [x0, y0] = set.corner;
@@ -342,12 +353,9 @@ proptest! {
 #[test]
 fn extract_params_map_metres_to_height_units() {
     // Autzen is in international feet: 0.3048 m per unit.
-    let Some(path) = common::data_file("lidar/autzen_trim.las") else {
+    let Some((set, qt)) = autzen_quadtree() else {
         return;
     };
-    let hf = heightfield_from_points(&read_points(&path), true);
-    let set = tiles_of(&hf, 65);
-    let qt = build(&set, &QuadtreeParams::default()).unwrap();
     let p = ExtractParams {
         tolerance: 0.3048,
         ..Default::default()

@@ -121,6 +121,15 @@ fn point_cloud_costs_at_most_30_bytes_per_point() {
     }
 }
 
+/// `got` holds exactly the points `want` of `all`, in that order.
+fn assert_selection(got: &PointCloud, all: &PointCloud, want: &[usize]) {
+    assert_eq!(got.len(), want.len());
+    assert!(want
+        .iter()
+        .enumerate()
+        .all(|(k, &i)| { got.x[k] == all.x[i] && got.y[k] == all.y[i] && got.z[k] == all.z[i] }));
+}
+
 #[test]
 fn class_filter_and_cap_match_a_plain_filter() {
     let Some(f) = common::data_file("lidar/autzen_trim.las") else {
@@ -135,11 +144,7 @@ fn class_filter_and_cap_match_a_plain_filter() {
     let want: Vec<usize> = (0..all.len())
         .filter(|&i| all.classification[i] == 2)
         .collect();
-    assert_eq!(ground.len(), want.len());
-    assert!(want
-        .iter()
-        .enumerate()
-        .all(|(k, &i)| ground.x[k] == all.x[i] && ground.z[k] == all.z[i]));
+    assert_selection(&ground, &all, &want);
 
     let capped = ReadOptions {
         classes: ClassFilter::new(None, &[1]),
@@ -168,11 +173,7 @@ fn laz_cap_and_filter_cross_batches() {
         .filter(|&i| all.classification[i] == 2)
         .take(30_000)
         .collect();
-    assert_eq!(c.len(), want.len());
-    assert!(want
-        .iter()
-        .enumerate()
-        .all(|(k, &i)| c.x[k] == all.x[i] && c.y[k] == all.y[i]));
+    assert_selection(&c, &all, &want);
 }
 
 #[test]

@@ -13,6 +13,13 @@ fn load(name: &str) -> Option<TriMesh> {
     Some(io::read(&common::data_file(&format!("meshes/{name}"))?).unwrap())
 }
 
+/// The shared mesh `name` and its simplification by `method` at `ratio`.
+fn load_simplified(name: &str, method: Method, ratio: f64) -> Option<(TriMesh, TriMesh)> {
+    let m = load(name)?;
+    let s = simplify(&m, &SimplifyParams::ratio(method, ratio)).unwrap();
+    Some((m, s.mesh))
+}
+
 /// What every output must satisfy.
 fn check_output(input: &TriMesh, out: &TriMesh, what: &str) {
     out.validate(what).unwrap();
@@ -76,10 +83,9 @@ fn every_method_on_the_small_shared_meshes() {
 
 #[test]
 fn attributes_are_carried_over() {
-    let Some(spot) = load("spot.obj") else { return };
-    let s = simplify(&spot, &SimplifyParams::ratio(Method::Octree, 0.2))
-        .unwrap()
-        .mesh;
+    let Some((spot, s)) = load_simplified("spot.obj", Method::Octree, 0.2) else {
+        return;
+    };
     // Output UVs are averages of input ones: inside the input's range (spot's own UVs
     // stray slightly outside [0, 1], e.g. v = 1.00065).
     let uv = s.uvs.as_ref().unwrap();
@@ -104,24 +110,18 @@ fn attributes_are_carried_over() {
         w.iter().enumerate().any(|(i, &r)| r as usize != i),
         "seam vertices kept apart"
     );
-    let Some(plane) = load("colored_airplane.ply") else {
+    let Some((_, s)) = load_simplified("colored_airplane.ply", Method::Uniform, 0.2) else {
         return;
     };
-    let s = simplify(&plane, &SimplifyParams::ratio(Method::Uniform, 0.2))
-        .unwrap()
-        .mesh;
     let c = s.colors.as_ref().unwrap();
     assert!(
         c.iter().any(|c| c[2] > c[0] + 0.1),
         "the blue ramp survives"
     );
     assert!(c.iter().all(|c| c.iter().all(|x| (0.0..=1.0).contains(x))));
-    let Some(pirate) = load("pirate.obj") else {
+    let Some((_, s)) = load_simplified("pirate.obj", Method::Floating, 0.3) else {
         return;
     };
-    let s = simplify(&pirate, &SimplifyParams::ratio(Method::Floating, 0.3))
-        .unwrap()
-        .mesh;
     let n = s.normals.as_ref().unwrap();
     assert!(
         n.iter().all(|n| n.length() < 1.0001),
@@ -394,14 +394,9 @@ fn clustering_table() {
 /// meshoptimizer's `simplify` (edge collapse) and `simplify_sloppy` (grid clustering) at
 /// `target` triangles, as meshes over `m`'s vertices.
 fn meshopt_references(m: &TriMesh, target: usize) -> Vec<(&'static str, TriMesh)> {
-    let bytes: Vec<u8> = m
-        .positions
-        .iter()
-        .flat_map(|p| p.to_array())
-        .flat_map(f32::to_le_bytes)
-        .collect();
+    let bytes = meshopt::typed_to_bytes(&m.positions);
     let indices: Vec<u32> = m.indices.iter().flatten().copied().collect();
-    let adapter = meshopt::VertexDataAdapter::new(&bytes, 12, 0).unwrap();
+    let adapter = meshopt::VertexDataAdapter::new(bytes, 12, 0).unwrap();
     let collapse = meshopt::simplify(
         &indices,
         &adapter,
@@ -552,14 +547,9 @@ fn qem_table() {
             let s = terratile::simplify::qem::simplify(&m, &q).unwrap();
             let ms = t.elapsed().as_secs_f64() * 1e3;
             let dist = row("qem optimal, distance cost", &s.mesh, ms);
-            let bytes: Vec<u8> = m
-                .positions
-                .iter()
-                .flat_map(|p| p.to_array())
-                .flat_map(f32::to_le_bytes)
-                .collect();
+            let bytes = meshopt::typed_to_bytes(&m.positions);
             let indices: Vec<u32> = m.indices.iter().flatten().copied().collect();
-            let adapter = meshopt::VertexDataAdapter::new(&bytes, 12, 0).unwrap();
+            let adapter = meshopt::VertexDataAdapter::new(bytes, 12, 0).unwrap();
             let mut best = (f64::INFINITY, f64::INFINITY);
             for (what, opt) in [
                 ("meshopt simplify", meshopt::SimplifyOptions::None),
@@ -650,12 +640,11 @@ fn qem_refuses_bad_parameters() {
         r.left_nothing("out.obj");
     }
     // An unknown placement is a usage error (clap's own message).
-    let r = common::terratile(
+    let r = common::simplify(
         d.path(),
+        "m.obj",
+        "out.obj",
         &[
-            "simplify",
-            "m.obj",
-            "out.obj",
             "--method",
             "qem",
             "--ratio",
@@ -668,16 +657,11 @@ fn qem_refuses_bad_parameters() {
     assert!(r.stderr.contains("nearest"), "{}", r.context());
     r.left_nothing("out.obj");
     // QEM keys with a clustering method.
-    let r = common::terratile(
+    let r = common::simplify(
         d.path(),
-        &[
-            "simplify",
-            "m.obj",
-            "out.obj",
-            "--ratio",
-            "0.5",
-            "--lock-border",
-        ],
+        "m.obj",
+        "out.obj",
+        &["--ratio", "0.5", "--lock-border"],
     );
     r.input_error(&["lock_border"]);
 }
@@ -686,18 +670,11 @@ fn qem_refuses_bad_parameters() {
 fn qem_stops_with_a_warning_where_no_collapse_is_valid() {
     let d = tempfile::tempdir().unwrap();
     std::fs::write(d.path().join("t.obj"), TETRA).unwrap();
-    let r = common::terratile(
+    let r = common::simplify(
         d.path(),
-        &[
-            "simplify",
-            "t.obj",
-            "out.obj",
-            "--method",
-            "qem",
-            "--triangles",
-            "1",
-            "--no-error",
-        ],
+        "t.obj",
+        "out.obj",
+        &["--method", "qem", "--triangles", "1", "--no-error"],
     );
     r.ok();
     assert!(
@@ -715,19 +692,11 @@ fn qem_leaves_non_manifold_parts_alone_and_counts_them() {
     let d = tempfile::tempdir().unwrap();
     let extra = "v 0.5 0.5 1\nv 0.5 0.5 -1\nf 13 14 26\nf 14 13 27\n";
     std::fs::write(d.path().join("m.obj"), grid_obj(4, extra)).unwrap();
-    let r = common::terratile(
+    let r = common::simplify(
         d.path(),
-        &[
-            "simplify",
-            "m.obj",
-            "out.obj",
-            "--method",
-            "qem",
-            "--ratio",
-            "0.3",
-            "--json",
-            "--no-error",
-        ],
+        "m.obj",
+        "out.obj",
+        &["--method", "qem", "--ratio", "0.3", "--json", "--no-error"],
     );
     r.ok();
     let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();

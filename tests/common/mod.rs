@@ -229,3 +229,55 @@ pub fn stage_names(summary: &serde_json::Value) -> Vec<&str> {
         .map(|s| s["stage"].as_str().expect("a stage name"))
         .collect()
 }
+
+/// The fixture LAS tile of the default job, as an absolute path.
+pub fn fixture_las() -> String {
+    repo().join("fixtures/survey-0-0.las").display().to_string()
+}
+
+/// Writes `dir/p.toml`: `input` into `out`, with `extra` TOML appended (it may go on with
+/// `[output]` keys before its first table).
+pub fn write_pipeline(dir: &Path, input: &str, extra: &str) {
+    let text = format!("[input]\npaths = [{input:?}]\n[output]\ndir = \"out\"\n{extra}");
+    std::fs::write(dir.join("p.toml"), text).unwrap();
+}
+
+/// Runs `terratile run -q p.toml` in `dir`.
+pub fn run_p_toml(dir: &Path) -> Run {
+    terratile(dir, &["run", "-q", "p.toml"])
+}
+
+/// Writes `p.toml` as [`write_pipeline`] does and runs it (`-q --json`); a failing run must
+/// leave no output directory.
+pub fn run_pipeline(dir: &Path, input: &str, extra: &str) -> Run {
+    write_pipeline(dir, input, extra);
+    let r = terratile(dir, &["run", "-q", "--json", "p.toml"]);
+    if r.code != 0 {
+        r.left_nothing("out");
+    }
+    r
+}
+
+/// Writes `pts` as an XYZ text file (with a header line) at `dir/name`.
+pub fn write_xyz(dir: &Path, name: &str, pts: &[(f64, f64, f64)]) {
+    let mut s = String::from("x y z\n");
+    for (x, y, z) in pts {
+        s.push_str(&format!("{x} {y} {z}\n"));
+    }
+    std::fs::write(dir.join(name), s).unwrap();
+}
+
+/// Runs `terratile simplify INPUT OUTPUT ARGS` in `dir`.
+pub fn simplify(dir: &Path, input: &str, output: &str, args: &[&str]) -> Run {
+    let mut a = vec!["simplify", input, output];
+    a.extend_from_slice(args);
+    terratile(dir, &a)
+}
+
+/// Replaces `from` by `to` in the job's pipeline.toml (which must contain it).
+pub fn edit_pipeline(dir: &Path, from: &str, to: &str) {
+    let p = dir.join("pipeline.toml");
+    let text = std::fs::read_to_string(&p).unwrap();
+    assert!(text.contains(from), "pipeline.toml lacks `{from}`");
+    std::fs::write(&p, text.replace(from, to)).unwrap();
+}

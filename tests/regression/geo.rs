@@ -7,10 +7,7 @@ use crate::common::*;
 #[test]
 fn input_crs_unknown_epsg_code_is_refused_at_its_key() {
     let d = default_job();
-    let p = d.path().join("pipeline.toml");
-    let text = std::fs::read_to_string(&p).unwrap();
-    let text = text.replacen("[input]\n", "[input]\ncrs = \"EPSG:99999\"\n", 1);
-    std::fs::write(&p, text).unwrap();
+    edit_pipeline(d.path(), "[input]\n", "[input]\ncrs = \"EPSG:99999\"\n");
     terratile(d.path(), &["run", "--quiet"])
         .input_error(&["pipeline.toml:", "input.crs", "EPSG:99999"])
         .left_nothing("out");
@@ -20,10 +17,7 @@ fn input_crs_unknown_epsg_code_is_refused_at_its_key() {
 #[test]
 fn input_crs_not_an_epsg_code_is_refused_at_its_key() {
     let d = default_job();
-    let p = d.path().join("pipeline.toml");
-    let text = std::fs::read_to_string(&p).unwrap();
-    let text = text.replacen("[input]\n", "[input]\ncrs = \"+proj=utm\\n\"\n", 1);
-    std::fs::write(&p, text).unwrap();
+    edit_pipeline(d.path(), "[input]\n", "[input]\ncrs = \"+proj=utm\\n\"\n");
     terratile(d.path(), &["run", "--quiet"])
         .input_error(&["input.crs", "EPSG:n", "\\n"])
         .left_nothing("out");

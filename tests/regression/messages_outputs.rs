@@ -154,15 +154,6 @@ fn glb_positions(path: &std::path::Path) -> (Vec<[f32; 3]>, [f32; 3], [f32; 3], 
     (pos, min, max, used.len())
 }
 
-/// A pipeline file for `input` into `out` with `extra` TOML appended.
-fn pipeline(dir: &std::path::Path, input: &str, extra: &str) {
-    std::fs::write(
-        dir.join("p.toml"),
-        format!("[input]\npaths = [{input:?}]\n[output]\ndir = \"out\"\n{extra}"),
-    )
-    .unwrap();
-}
-
 /// Meshes of padded tiles kept the padding's vertices unused (default job `tile_000_001`:
 /// 17,984 vertices, 4,412 used), and the glTF POSITION bounds then covered 517 × 398 m for a
 /// 46 × 36 m mesh. Every written mesh now references all its vertices, in every format.
@@ -231,13 +222,13 @@ fn engine_facing_numbers_are_metres_for_a_crs_in_feet() {
         return;
     };
     let d = tempfile::tempdir().unwrap();
-    pipeline(
+    common::write_pipeline(
         d.path(),
         las.to_str().unwrap(),
         "meshes = [\"ply\", \"glb\"]\nexr = false\npng = false\nrelief = false\nwireframe = false\n\
          [tiles]\npreset = \"unity\"\n",
     );
-    terratile(d.path(), &["run", "-q", "p.toml"]).ok();
+    common::run_p_toml(d.path()).ok();
     let out = d.path().join("out");
     let m: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("manifest.json")).unwrap()).unwrap();
@@ -289,10 +280,11 @@ fn engine_facing_numbers_are_metres_for_a_crs_in_feet() {
 fn baseline_outputs_are_byte_identical_across_runs() {
     let job = common::default_job();
     let d = job.path();
-    let text = std::fs::read_to_string(d.join("pipeline.toml")).unwrap();
-    let text = text.replace("[baseline]\nenabled = false", "[baseline]\nenabled = true");
-    assert!(text.contains("[baseline]\nenabled = true"), "{text}");
-    std::fs::write(d.join("pipeline.toml"), &text).unwrap();
+    common::edit_pipeline(
+        d,
+        "[baseline]\nenabled = false",
+        "[baseline]\nenabled = true",
+    );
     let r = terratile(d, &["run", "-q", "--json"]);
     r.ok();
     let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();

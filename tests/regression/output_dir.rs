@@ -24,6 +24,23 @@ fn write(dir: &Path, rel: &str, text: &str) {
     std::fs::write(p, text).unwrap();
 }
 
+/// `dir/p.toml` reading the job's `a.las`, with `extra` TOML appended.
+fn a_las_pipeline(dir: &Path, extra: &str) {
+    write(
+        dir,
+        "p.toml",
+        &format!("[input]\npaths=[\"a.las\"]\n{extra}"),
+    );
+}
+
+/// A job with a generated `a.las` of `points` points and a `p.toml` reading it, with `extra`
+/// TOML appended.
+fn a_las_job(points: u64, extra: &str) -> tempfile::TempDir {
+    let root = job(points, "a.las");
+    a_las_pipeline(root.path(), extra);
+    root
+}
+
 /// Every file under `dir` with its bytes, to show that a refused run changed nothing.
 fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
     walk(dir)
@@ -105,12 +122,7 @@ fn output_dir_dot_dotdot_empty_or_the_pipeline_dir_was_replaced() {
 fn output_dir_of_unrelated_files_was_replaced() {
     // A directory of a user's files was replaced whole. Only a directory holding terratile's
     // marker, an empty one or a new one may be replaced.
-    let root = job(2_000, "a.las");
-    write(
-        root.path(),
-        "p.toml",
-        "[input]\npaths=[\"a.las\"]\n[output]\ndir=\"mine\"\n",
-    );
+    let root = a_las_job(2_000, "[output]\ndir=\"mine\"\n");
     write(root.path(), "mine/notes.txt", "a user's notes\n");
     let before = snapshot(root.path());
     let r = terratile(root.path(), &["run", "p.toml"]);
@@ -118,10 +130,10 @@ fn output_dir_of_unrelated_files_was_replaced() {
     assert_eq!(snapshot(root.path()), before, "{}", r.context());
     // An empty directory is taken, and the output carries the marker; the next run replaces it.
     std::fs::remove_file(root.path().join("mine/notes.txt")).unwrap();
-    terratile(root.path(), &["run", "-q", "p.toml"]).ok();
+    common::run_p_toml(root.path()).ok();
     assert_complete_output(&root.path().join("mine"), "");
     write(root.path(), "mine/stale.txt", "left from before\n");
-    let r = terratile(root.path(), &["run", "-q", "p.toml"]);
+    let r = common::run_p_toml(root.path());
     r.ok();
     assert!(
         !root.path().join("mine/stale.txt").exists(),
@@ -131,11 +143,7 @@ fn output_dir_of_unrelated_files_was_replaced() {
     assert!(!root.path().join(".mine.lock").exists(), "{}", r.context());
     // A file in place of the directory.
     write(root.path(), "f.txt", "a user's file\n");
-    write(
-        root.path(),
-        "p.toml",
-        "[input]\npaths=[\"a.las\"]\n[output]\ndir=\"f.txt\"\n",
-    );
+    a_las_pipeline(root.path(), "[output]\ndir=\"f.txt\"\n");
     terratile(root.path(), &["run", "p.toml"]).input_error(&["f.txt", "is a file"]);
     assert_eq!(
         std::fs::read(root.path().join("f.txt")).unwrap(),
@@ -147,10 +155,9 @@ fn output_dir_of_unrelated_files_was_replaced() {
 fn asset_input_or_pipeline_inside_the_output_dir_was_deleted() {
     // An asset model (or the pipeline file) kept inside a terratile-written output directory
     // was deleted with it by the next run.
-    let root = job(2_000, "a.las");
+    let root = a_las_job(2_000, "");
     let p = root.path();
-    write(p, "p.toml", "[input]\npaths=[\"a.las\"]\n");
-    terratile(p, &["run", "-q", "p.toml"]).ok();
+    common::run_p_toml(p).ok();
     write(
         p,
         "out/rock.obj",
@@ -158,11 +165,7 @@ fn asset_input_or_pipeline_inside_the_output_dir_was_deleted() {
     );
     let extent = "[[assets]]\ninput = \"out/rock.obj\"\noutput = \"rock.ply\"\n\
                   place = { x = 0.0, y = 0.0 }\n";
-    write(
-        p,
-        "p.toml",
-        &format!("[input]\npaths=[\"a.las\"]\n{extent}"),
-    );
+    a_las_pipeline(p, extent);
     let before = snapshot(p);
     let r = terratile(p, &["run", "p.toml"]);
     r.input_error(&["out", "holds the asset input", "rock.obj"]);
@@ -208,10 +211,9 @@ fn asset_output_overwrote_a_terrain_tile() {
     let root = job(2_000, "a.las");
     let p = root.path();
     write(p, "rock.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
-    write(
+    a_las_pipeline(
         p,
-        "p.toml",
-        "[input]\npaths=[\"a.las\"]\n[output]\nmeshes = [\"ply\", \"glb\"]\n\
+        "[output]\nmeshes = [\"ply\", \"glb\"]\n\
          [[assets]]\ninput = \"rock.obj\"\n\
          output = \"meshes/tile_000_000.ply\"\nplace = { x = 0.0, y = 0.0 }\n",
     );
@@ -229,13 +231,8 @@ fn asset_output_overwrote_a_terrain_tile() {
 fn baseline_report_named_like_a_written_directory_named_the_staging_path() {
     // `baseline.report = "tiles"` failed after the work with an error naming the staging
     // directory (`.out.tmp-PID/tiles`). Now an up-front config error naming the key.
-    let root = job(2_000, "a.las");
+    let root = a_las_job(2_000, "[baseline]\nenabled = true\nreport = \"tiles\"\n");
     let p = root.path();
-    write(
-        p,
-        "p.toml",
-        "[input]\npaths=[\"a.las\"]\n[baseline]\nenabled = true\nreport = \"tiles\"\n",
-    );
     let r = terratile(p, &["run", "p.toml"]);
     r.input_error(&["p.toml:", "baseline.report", "tiles", "output.exr"]);
     assert!(!r.stderr.contains(".tmp-"), "{}", r.context());
@@ -304,14 +301,9 @@ fn wait_for_staging(dir: &Path, child: &mut Child) -> bool {
 fn interrupted_run_left_its_staging_directory() {
     // SIGINT/SIGTERM during a run left `.out.tmp-PID` (up to 1.1 GB). Now the handler removes
     // what this process created and exits 130/143; the previous output stays.
-    let root = job(1_500_000, "a.las");
+    let root = a_las_job(1_500_000, "[output]\npreview_size = 4096\n");
     let p = root.path();
-    write(
-        p,
-        "p.toml",
-        "[input]\npaths=[\"a.las\"]\n[output]\npreview_size = 4096\n",
-    );
-    terratile(p, &["run", "-q", "p.toml"]).ok();
+    common::run_p_toml(p).ok();
     let before = snapshot(&p.join("out"));
     for (sig, code) in [("TERM", 143), ("INT", 130)] {
         // Signalled while reading (staging exists from the start) and again later.
@@ -350,12 +342,11 @@ fn killed_swap_left_no_output_directory() {
     // The swap was two renames: kill -9 between them left no output at all. Now one
     // renameat2(RENAME_EXCHANGE) on Linux: whenever the run is killed, a whole output (old or
     // new) is in place, and the next run clears the dead run's staging.
-    let root = job(400_000, "a.las");
+    let root = a_las_job(400_000, "");
     let p = root.path();
-    write(p, "p.toml", "[input]\npaths=[\"a.las\"]\n");
-    terratile(p, &["run", "-q", "p.toml"]).ok();
+    common::run_p_toml(p).ok();
     let t = Instant::now();
-    terratile(p, &["run", "-q", "p.toml"]).ok();
+    common::run_p_toml(p).ok();
     let run_ms = t.elapsed().as_millis() as u64;
     for step in 0..8 {
         let mut child = spawn_run(p, "p.toml");
@@ -366,7 +357,7 @@ fn killed_swap_left_no_output_directory() {
         let _ = child.wait();
         assert_complete_output(&p.join("out"), &format!("killed at step {step}"));
     }
-    let r = terratile(p, &["run", "-q", "p.toml"]);
+    let r = common::run_p_toml(p);
     r.ok();
     no_temporaries(p, &r.context());
     assert_complete_output(&p.join("out"), &r.context());
@@ -376,10 +367,9 @@ fn killed_swap_left_no_output_directory() {
 fn stale_staging_of_dead_runs_was_never_removed() {
     // `.out.tmp-PID` directories and `convert`'s `.NAME.tmp-PID` files of killed runs stayed
     // forever. A run now removes those of dead processes, and nothing else.
-    let root = job(2_000, "a.las");
+    let root = a_las_job(2_000, "");
     let p = root.path();
-    write(p, "p.toml", "[input]\npaths=[\"a.las\"]\n");
-    terratile(p, &["run", "-q", "p.toml"]).ok();
+    common::run_p_toml(p).ok();
     let dead = {
         let mut c = Command::new("true").spawn().unwrap();
         let pid = c.id();
@@ -403,7 +393,7 @@ fn stale_staging_of_dead_runs_was_never_removed() {
     for f in stale.iter().chain(&kept) {
         write(p, f, "x");
     }
-    let r = terratile(p, &["run", "-q", "p.toml"]);
+    let r = common::run_p_toml(p);
     r.ok();
     for f in &stale[..2] {
         let top = f.split('/').next().unwrap();
@@ -423,9 +413,8 @@ fn stale_staging_of_dead_runs_was_never_removed() {
 fn concurrent_runs_into_one_directory_mixed() {
     // Two runs into one directory could fail with "Directory not empty" or mix. Now a lock:
     // the second fails cleanly with one line while the first holds it.
-    let root = job(2_000, "a.las");
+    let root = a_las_job(2_000, "");
     let p = root.path();
-    write(p, "p.toml", "[input]\npaths=[\"a.las\"]\n");
     // Held by another process (this test): refused before any work, nothing touched.
     {
         let lock = std::fs::File::create(p.join(".out.lock")).unwrap();
@@ -434,14 +423,13 @@ fn concurrent_runs_into_one_directory_mixed() {
         r.input_error(&["out", "another terratile run"]);
         assert!(!p.join("out").exists(), "{}", r.context());
         drop(lock);
-        terratile(p, &["run", "-q", "p.toml"]).ok();
+        common::run_p_toml(p).ok();
     }
 
     // Two real processes at once, several times: each exits 0, or 2 with the one lock line; the
     // output is always whole.
-    let root = job(1_000_000, "a.las");
+    let root = a_las_job(1_000_000, "");
     let p = root.path();
-    write(p, "p.toml", "[input]\npaths=[\"a.las\"]\n");
     let mut refused = 0;
     for _ in 0..3 {
         let a = spawn_run(p, "p.toml");

@@ -13,11 +13,12 @@ fn write(dir: &Path, name: &str, bytes: impl AsRef<[u8]>) {
 
 /// A pipeline reading `input`, writing no meshes, with `extra` TOML appended.
 fn pipeline(dir: &Path, input: &str, extra: &str) {
-    write(
-        dir,
-        "p.toml",
-        format!("[input]\npaths = [\"{input}\"]\n[output]\ndir = \"out\"\nmeshes = []\n{extra}"),
-    );
+    common::write_pipeline(dir, input, &format!("meshes = []\n{extra}"));
+}
+
+/// The same within a memory budget (`--max-memory`).
+fn run_within(dir: &Path, budget: &str) -> Run {
+    terratile(dir, &["--max-memory", budget, "run", "-q", "p.toml"])
 }
 
 fn info(dir: &Path, file: &str) -> Run {
@@ -100,7 +101,7 @@ fn las_scale_1e308_is_rejected_at_the_scale_field() {
     write(d.path(), "s.las", corpus::las14(10, None, None, 1e308, 0.0));
     info(d.path(), "s.las").input_error(&["s.las: byte 131:", "x scale factor"]);
     pipeline(d.path(), "s.las", "");
-    terratile(d.path(), &["run", "-q", "p.toml"])
+    common::run_p_toml(d.path())
         .input_error(&["s.las: byte 131:"])
         .left_nothing("out");
 }
@@ -185,7 +186,7 @@ fn directory_input_is_refused_clearly() {
     std::fs::create_dir(d.path().join("dir.las")).unwrap();
     info(d.path(), "dir.las").input_error(&["dir.las: is a directory"]);
     pipeline(d.path(), "dir.las", "");
-    terratile(d.path(), &["run", "-q", "p.toml"]).input_error(&["input.paths", "is a directory"]);
+    common::run_p_toml(d.path()).input_error(&["input.paths", "is a directory"]);
 }
 
 // `resample.size = [46000, 46000]` on 2,500 points allocated tens of GB and aborted.
@@ -194,7 +195,7 @@ fn resample_size_46000_is_refused_by_the_memory_estimate() {
     let d = tempfile::tempdir().unwrap();
     write(d.path(), "a.xyz", corpus::xyz_grid(2500));
     pipeline(d.path(), "a.xyz", "[resample]\nsize = [46000, 46000]\n");
-    terratile(d.path(), &["--max-memory", "8GiB", "run", "-q", "p.toml"])
+    run_within(d.path(), "8GiB")
         .input_error(&[
             "p.toml:7:1: resample.size:",
             "memory budget of 8.00 GiB",
@@ -209,17 +210,17 @@ fn max_memory_refuses_a_run_that_needs_more() {
     let d = tempfile::tempdir().unwrap();
     write(d.path(), "a.xyz", corpus::xyz_grid(40_000));
     pipeline(d.path(), "a.xyz", "");
-    terratile(d.path(), &["--max-memory", "64KiB", "run", "-q", "p.toml"])
+    run_within(d.path(), "64KiB")
         .input_error(&[
             "p.toml:",
             "memory budget of 65536 bytes",
             "raise --max-memory",
         ])
         .left_nothing("out");
-    let r = terratile(d.path(), &["--max-memory", "lots", "run", "-q", "p.toml"]);
+    let r = run_within(d.path(), "lots");
     assert_eq!(r.code, 2, "{}", r.context());
     assert!(r.stderr.contains("`lots` is not a size"), "{}", r.context());
-    terratile(d.path(), &["--max-memory", "1GiB", "run", "-q", "p.toml"]).ok();
+    run_within(d.path(), "1GiB").ok();
 }
 
 // `cell_size = 0.02` and `denoise.voxel_size = 0.025` on autzen_trim aborted after
@@ -232,11 +233,11 @@ fn tiny_cells_and_voxels_on_a_real_survey_are_refused() {
     let d = tempfile::tempdir().unwrap();
     let f = f.display().to_string();
     pipeline(d.path(), &f, "[resample]\ncell_size = 0.02\n");
-    terratile(d.path(), &["--max-memory", "8GiB", "run", "-q", "p.toml"])
+    run_within(d.path(), "8GiB")
         .input_error(&["p.toml:7:1: resample.cell_size:"])
         .left_nothing("out");
     pipeline(d.path(), &f, "[denoise]\nvoxel_size = 0.025\n");
-    terratile(d.path(), &["--max-memory", "8GiB", "run", "-q", "p.toml"])
+    run_within(d.path(), "8GiB")
         .input_error(&["p.toml:7:1: denoise.voxel_size:", "noise removal's voxels"])
         .left_nothing("out");
 }
@@ -254,7 +255,7 @@ fn one_far_away_point_keeps_denoise_small() {
         );
         pipeline(d.path(), "a.xyz", "");
         let t = std::time::Instant::now();
-        terratile(d.path(), &["--max-memory", "1GiB", "run", "-q", "p.toml"]).ok();
+        run_within(d.path(), "1GiB").ok();
         assert!(t.elapsed().as_secs() < 20, "{far}: {:?}", t.elapsed());
     }
 }
@@ -292,7 +293,7 @@ fn zero_point_las_names_the_file() {
     let d = tempfile::tempdir().unwrap();
     write(d.path(), "z.las", corpus::las14(0, None, None, 0.01, 0.0));
     pipeline(d.path(), "z.las", "");
-    let r = terratile(d.path(), &["run", "-q", "p.toml"]);
+    let r = common::run_p_toml(d.path());
     r.input_error(&["p.toml:2:1: input.paths:", "z.las: 0 points"]);
     assert!(!r.stderr.contains("class filter"), "{}", r.context());
 }
@@ -309,14 +310,14 @@ fn empty_selection_names_the_pipeline_key() {
         "p.toml",
         p.replace("[input]\n", "[input]\nmax_points = 0\n"),
     );
-    terratile(d.path(), &["run", "-q", "p.toml"])
+    common::run_p_toml(d.path())
         .input_error(&["p.toml:2:1: input.max_points: 0: must be at least 1"]);
     write(
         d.path(),
         "p.toml",
         p.replace("[input]\n", "[input]\nkeep_classes = [31]\n"),
     );
-    terratile(d.path(), &["run", "-q", "p.toml"]).input_error(&[
+    common::run_p_toml(d.path()).input_error(&[
         "p.toml:2:1: input.keep_classes:",
         "keeps none of the 400 points",
         "a.las",
@@ -334,14 +335,14 @@ fn degenerate_points_name_the_pipeline_key() {
         let d = tempfile::tempdir().unwrap();
         write(d.path(), "a.xyz", text);
         pipeline(d.path(), "a.xyz", "");
-        terratile(d.path(), &["run", "-q", "p.toml"]).input_error(&[
+        common::run_p_toml(d.path()).input_error(&[
             "p.toml:",
             "denoise.voxel_size",
             "zero-width range",
         ]);
         // Without denoise, resample names the pipeline file and the stage.
         pipeline(d.path(), "a.xyz", "[denoise]\nenabled = false\n");
-        terratile(d.path(), &["run", "-q", "p.toml"]).input_error(&[
+        common::run_p_toml(d.path()).input_error(&[
             "p.toml:",
             "p.toml: resample: ",
             "one line or one spot",
@@ -355,10 +356,9 @@ fn too_small_voxels_and_cells_name_the_key() {
     let d = tempfile::tempdir().unwrap();
     write(d.path(), "a.xyz", corpus::xyz_grid(1600));
     pipeline(d.path(), "a.xyz", "[denoise]\nvoxel_size = 1e-9\n");
-    terratile(d.path(), &["run", "-q", "p.toml"])
-        .input_error(&["p.toml:7:1: denoise.voxel_size:", "too small"]);
+    common::run_p_toml(d.path()).input_error(&["p.toml:7:1: denoise.voxel_size:", "too small"]);
     pipeline(d.path(), "a.xyz", "[resample]\ncell_size = 1e-9\n");
-    terratile(d.path(), &["run", "-q", "p.toml"]).input_error(&["p.toml:7:1: resample.cell_size:"]);
+    common::run_p_toml(d.path()).input_error(&["p.toml:7:1: resample.cell_size:"]);
 }
 
 // One non-UTF-8 byte in an XYZ said "neither LASF nor text at byte 0".
@@ -381,23 +381,19 @@ fn config_arrays_with_extra_elements_are_refused() {
     let d = tempfile::tempdir().unwrap();
     write(d.path(), "a.xyz", corpus::xyz_grid(1600));
     pipeline(d.path(), "a.xyz", "[resample]\nsize = [64, 64, 99999]\n");
-    terratile(d.path(), &["run", "-q", "p.toml"]).input_error(&[
-        "p.toml:7:",
-        "resample.size",
-        "invalid length 3",
-    ]);
+    common::run_p_toml(d.path()).input_error(&["p.toml:7:", "resample.size", "invalid length 3"]);
     pipeline(
         d.path(),
         "a.xyz",
         "[extract]\nviewpoint = [1.0, 2.0, 3.0, 7.0]\n",
     );
-    terratile(d.path(), &["run", "-q", "p.toml"]).input_error(&[
+    common::run_p_toml(d.path()).input_error(&[
         "p.toml:7:",
         "extract.viewpoint",
         "invalid length 4",
     ]);
     pipeline(d.path(), "a.xyz", "[resample]\nsize = [64]\n");
-    terratile(d.path(), &["run", "-q", "p.toml"]).input_error(&["resample.size", "length 1"]);
+    common::run_p_toml(d.path()).input_error(&["resample.size", "length 1"]);
 }
 
 /// The point records of a LAS file (format 0–5 layout), with the class bits cleared.
@@ -424,7 +420,7 @@ fn noise_las_keeps_the_input_point_format() {
         let input = corpus::las_format3(3000, 5, compressed);
         write(d.path(), "a.las", &input);
         pipeline(d.path(), "a.las", "[denoise]\nwrite_removed = true\n");
-        terratile(d.path(), &["run", "-q", "p.toml"]).ok();
+        common::run_p_toml(d.path()).ok();
         let noise = std::fs::read(d.path().join("out/noise.las")).unwrap();
         let (format, removed) = records(&noise);
         assert_eq!(format, 3, "compressed {compressed}");
