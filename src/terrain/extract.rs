@@ -83,29 +83,20 @@ impl Default for ExtractParams {
 impl ExtractParams {
     /// Checks the parameters; errors name the parameter.
     pub fn validate(&self) -> Result<()> {
-        if !(self.tolerance.is_finite() && self.tolerance > 0.0) {
-            return Err(Error::param(
-                "extract",
-                "tolerance",
-                self.tolerance,
-                "must be > 0 metres",
-            ));
-        }
-        if !(self.desired_resolution_c.is_finite() && self.desired_resolution_c > 0.0) {
-            return Err(Error::param(
-                "extract",
+        let (tol, c, skirt) = (self.tolerance, self.desired_resolution_c, self.skirt_depth);
+        for (key, v, in_range, why) in [
+            ("tolerance", tol, tol > 0.0, "must be > 0 metres"),
+            (
                 "desired_resolution_c",
-                self.desired_resolution_c,
+                c,
+                c > 0.0,
                 "Röttger's c must be > 0",
-            ));
-        }
-        if !(self.skirt_depth.is_finite() && self.skirt_depth >= 0.0) {
-            return Err(Error::param(
-                "extract",
-                "skirt_depth",
-                self.skirt_depth,
-                "must be ≥ 0 metres",
-            ));
+            ),
+            ("skirt_depth", skirt, skirt >= 0.0, "must be ≥ 0 metres"),
+        ] {
+            if !(v.is_finite() && in_range) {
+                return Err(Error::param("extract", key, v, why));
+            }
         }
         if let Some(v) = self.viewpoint {
             if !v.iter().all(|c| c.is_finite()) {
