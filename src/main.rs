@@ -225,6 +225,13 @@ struct SimplifyArgs {
     /// shares no vertex with (exact predicates through a box hierarchy).
     #[arg(long)]
     check_intersections: bool,
+    /// QEM: also contract vertex pairs closer than D (model units) that share no edge,
+    /// joining separate parts (default 0: off).
+    #[arg(long, value_name = "D", allow_negative_numbers = true)]
+    pair_distance: Option<f64>,
+    /// QEM: collapse across UV seams and colour/normal discontinuities (default: keep them).
+    #[arg(long)]
+    collapse_seams: bool,
     /// QEM: weight the cost by saliency: none (default), mesh, image or hybrid.
     #[arg(long, value_enum)]
     saliency: Option<SaliencyArg>,
@@ -877,6 +884,8 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
         }),
         lock_border: a.lock_border.then_some(true),
         check_intersections: a.check_intersections.then_some(true),
+        pair_distance: a.pair_distance,
+        collapse_seams: a.collapse_seams.then_some(true),
         max_error: None,
         max_error_pct: None,
         saliency: a.saliency.map(|s| {

@@ -866,3 +866,200 @@ fn saliency_table() {
         }
     }
 }
+
+#[test]
+fn qem_refuses_bad_meshes_and_pair_distances() {
+    let d = tempfile::tempdir().unwrap();
+    let cases = [
+        (
+            "index.obj",
+            format!("{}f 1 2 999\n", grid_obj(2, "")),
+            "index.obj",
+        ),
+        (
+            "nan.obj",
+            grid_obj(2, "").replacen("v 0 0", "v nan 0", 1),
+            "nan.obj",
+        ),
+        (
+            "empty.obj",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\n".to_string(),
+            "triangles",
+        ),
+    ];
+    for (name, text, needle) in &cases {
+        std::fs::write(d.path().join(name), text).unwrap();
+        let r = common::terratile(
+            d.path(),
+            &[
+                "simplify", name, "out.obj", "--method", "qem", "--ratio", "0.5",
+            ],
+        );
+        r.input_error(&[needle]);
+        r.left_nothing("out.obj");
+    }
+    std::fs::write(d.path().join("m.obj"), grid_obj(12, "")).unwrap();
+    for (args, needle) in [
+        (
+            &["--method", "qem", "--ratio", "0.5", "--pair-distance", "-1"][..],
+            "pair_distance",
+        ),
+        (
+            &[
+                "--method",
+                "qem",
+                "--ratio",
+                "0.5",
+                "--pair-distance",
+                "nan",
+            ][..],
+            "pair_distance",
+        ),
+        // Every vertex within reach of every other: more candidate pairs than allowed.
+        (
+            &[
+                "--method",
+                "qem",
+                "--ratio",
+                "0.5",
+                "--pair-distance",
+                "100",
+            ][..],
+            "candidate vertex pairs",
+        ),
+        (
+            &["--ratio", "0.5", "--pair-distance", "0.1"][..],
+            "pair_distance",
+        ),
+        (
+            &["--ratio", "0.5", "--collapse-seams"][..],
+            "collapse_seams",
+        ),
+    ] {
+        let mut a = vec!["simplify", "m.obj", "out.obj"];
+        a.extend_from_slice(args);
+        let r = common::terratile(d.path(), &a);
+        r.input_error(&[needle]);
+        r.left_nothing("out.obj");
+    }
+}
+
+/// The border edges of `m` (edges of one triangle) as position pairs.
+fn border_segments(m: &TriMesh) -> Vec<[glam::Vec3; 2]> {
+    let adj = Adjacency::new(m);
+    adj.edge_faces
+        .boundary_edges()
+        .map(|e| adj.edge_faces.edge(e).map(|v| m.positions[v as usize]))
+        .collect()
+}
+
+/// The distance from `p` to the nearest of `segs`.
+fn to_segments(p: glam::Vec3, segs: &[[glam::Vec3; 2]]) -> f64 {
+    let p = p.as_dvec3();
+    segs.iter()
+        .map(|[a, b]| {
+            let (a, b) = (a.as_dvec3(), b.as_dvec3());
+            let e = b - a;
+            let t = if e.length_squared() > 0.0 {
+                ((p - a).dot(e) / e.length_squared()).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            (a + e * t - p).length()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// Borders under QEM: with `lock_border` every border edge is kept exactly (same segments,
+/// same length); with the default boundary quadrics and an error bound E, every output
+/// border vertex lies within E of the input's border (the README's bound), and the border
+/// length changes little. On the bumpy grid and on bunny's holes.
+#[test]
+fn qem_borders_move_within_the_error_bound() {
+    let grid: TriMesh = {
+        let d = tempfile::tempdir().unwrap();
+        std::fs::write(d.path().join("g.obj"), grid_obj(40, "")).unwrap();
+        io::read(&d.path().join("g.obj")).unwrap()
+    };
+    let mut meshes = vec![("grid", grid)];
+    if let Some(b) = load("bunny.obj") {
+        meshes.push(("bunny", b));
+    }
+    let key = |s: &[glam::Vec3; 2]| {
+        let mut k = s.map(|p| p.to_array().map(f32::to_bits));
+        k.sort_unstable();
+        k
+    };
+    let length =
+        |segs: &[[glam::Vec3; 2]]| -> f64 { segs.iter().map(|[a, b]| a.distance(*b) as f64).sum() };
+    for (name, m) in &meshes {
+        let segs_in = border_segments(m);
+        let len_in = length(&segs_in);
+        let diag = m.diagonal();
+        // Locked: the same border segments.
+        let mut p = SimplifyParams::ratio(Method::Qem, 0.05);
+        p.lock_border = Some(true);
+        let s = simplify(m, &p).unwrap().mesh;
+        let mut a: Vec<_> = segs_in.iter().map(key).collect();
+        let mut b: Vec<_> = border_segments(&s).iter().map(key).collect();
+        a.sort_unstable();
+        b.sort_unstable();
+        assert_eq!(a, b, "{name}: lock_border keeps every border edge");
+        // Free, with an error bound.
+        for pct in [0.05, 0.2, 1.0] {
+            let e = pct * 0.01 * diag;
+            let mut p = SimplifyParams::ratio(Method::Qem, 0.01);
+            p.max_error_pct = Some(pct);
+            let r = simplify(m, &p).unwrap();
+            let out = border_segments(&r.mesh);
+            let moved = out
+                .iter()
+                .flatten()
+                .map(|&v| to_segments(v, &segs_in))
+                .fold(0.0, f64::max);
+            let len = length(&out);
+            println!(
+                "{name} E = {pct} %: {} triangles, border vertices within {:.3} E of the \
+                 input border, border length {:.4} × the input's",
+                r.mesh.triangle_count(),
+                moved / e,
+                len / len_in
+            );
+            assert!(moved <= e * (1.0 + 1e-9), "{name} {pct} %: {moved} > {e}");
+            assert!((len / len_in - 1.0).abs() < 0.1, "{name} {pct} %");
+        }
+    }
+}
+
+/// spot's UV seams stay seams under QEM (the seam vertices keep one output vertex per UV
+/// copy), and with `collapse_seams` they are collapsed across like any vertex: one output
+/// vertex per position, and the collapse goes further.
+#[test]
+fn qem_keeps_spot_uv_seams_unless_told() {
+    let Some(spot) = load("spot.obj") else { return };
+    let run = |collapse: bool| {
+        let mut p = SimplifyParams::ratio(Method::Qem, 0.05);
+        p.collapse_seams = collapse.then_some(true);
+        simplify(&spot, &p).unwrap().mesh
+    };
+    let kept = run(false);
+    let split = |m: &TriMesh| {
+        m.weld_map()
+            .iter()
+            .enumerate()
+            .filter(|&(i, &r)| r as usize != i)
+            .count()
+    };
+    assert!(split(&kept) > 0, "seam vertices kept apart");
+    let merged = run(true);
+    check_output(&spot, &merged, "qem collapse_seams");
+    assert_eq!(split(&merged), 0, "no seam copies left");
+    assert!(
+        merged.triangle_count() < kept.triangle_count(),
+        "{} vs {}",
+        merged.triangle_count(),
+        kept.triangle_count()
+    );
+    let uv = merged.uvs.as_ref().unwrap();
+    assert!(uv.iter().all(|t| t.is_finite()));
+}

@@ -46,6 +46,8 @@ pub fn simplify(mesh: &mesh::TriMesh, params: &SimplifyParams) -> Result<Simplif
         cost: qem::Cost::default(),
         check_intersections: params.check_intersections.unwrap_or(false),
         weights: None,
+        pair_distance: params.pair_distance.unwrap_or(0.0),
+        collapse_seams: params.collapse_seams.unwrap_or(false),
     };
     let mut p = p;
     if let Some(kind) = params.saliency {

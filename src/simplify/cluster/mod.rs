@@ -170,6 +170,13 @@ pub struct SimplifyParams {
     /// QEM with image or hybrid saliency: image side in pixels (default 256, 16–4096).
     #[serde(default)]
     pub saliency_view_size: Option<u32>,
+    /// QEM: also contract vertex pairs closer than this (model units) that share no edge;
+    /// 0 (default): off.
+    #[serde(default)]
+    pub pair_distance: Option<f64>,
+    /// QEM: collapse across UV seams and colour/normal discontinuities (default false).
+    #[serde(default)]
+    pub collapse_seams: Option<bool>,
 }
 
 impl SimplifyParams {
@@ -213,6 +220,8 @@ impl SimplifyParams {
             saliency_h_min: None,
             saliency_views: None,
             saliency_view_size: None,
+            pair_distance: None,
+            collapse_seams: None,
         }
     }
 
@@ -363,6 +372,8 @@ impl SimplifyParams {
             ("saliency_h_min", self.saliency_h_min.is_some()),
             ("saliency_views", self.saliency_views.is_some()),
             ("saliency_view_size", self.saliency_view_size.is_some()),
+            ("pair_distance", self.pair_distance.is_some()),
+            ("collapse_seams", self.collapse_seams.is_some()),
         ];
         let clustering_keys = [
             ("cell_size", self.cell_size.is_some()),
@@ -391,6 +402,7 @@ impl SimplifyParams {
         for (name, e) in [
             ("max_error", self.max_error),
             ("max_error_pct", self.max_error_pct),
+            ("pair_distance", self.pair_distance),
         ] {
             if let Some(e) = e {
                 if !(e.is_finite() && e >= 0.0) {

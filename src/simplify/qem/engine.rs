@@ -145,6 +145,21 @@ pub struct Collapse<'m> {
     guard: Option<super::guard::Guard>,
     /// The input's closest-point hierarchy, for the fold-over half of that check.
     orig_bvh: Option<crate::mesh::Bvh>,
+    // Vertex pairs (`params.pair_distance`): heap slot `3 × faces + i` is pair i.
+    /// Per pair: its two ends, renamed as their vertices are collapsed.
+    pub(crate) pair_ends: Vec<[u32; 2]>,
+    /// Per vertex: its first pair end (`2i + k`: end k of pair i), or NONE.
+    pair_head: Vec<u32>,
+    /// Per pair end: the next pair end of the same vertex.
+    pair_next: Vec<u32>,
+    /// Per vertex: a contraction of a vertex pair made it (two fans joined at one vertex:
+    /// not a manifold there, so it is never moved again).
+    joined: Vec<bool>,
+    /// Whether `pair_distance` gave more candidate pairs than [`super::pairs`] allows.
+    pub(crate) pair_overflow: bool,
+    /// With an error bound and free borders: the input's border edges (as zero-area
+    /// triangles), so that no border vertex is placed further than the bound from them.
+    border_bvh: Option<crate::mesh::Bvh>,
 }
 
 /// The dense faces with three distinct corners, and the index of each in
@@ -245,6 +260,27 @@ fn add_border_planes(quad: &mut [Quadric], pos: &[DVec3], faces: &[[u32; 3]], ef
     }
 }
 
+/// The border edges of `prep`'s welded mesh as zero-area triangles (a, b, b) for a
+/// closest-point hierarchy; `None` without border.
+fn border_edges(prep: &Prepared<'_>, ef: &EdgeFaces) -> Option<crate::mesh::Bvh> {
+    let indices: Vec<[u32; 3]> = ef
+        .edges()
+        .iter()
+        .enumerate()
+        .filter(|&(e, _)| ef.faces(e as u32).len() == 1)
+        .map(|(_, &[a, b])| [a, b, b])
+        .collect();
+    if indices.is_empty() {
+        return None;
+    }
+    let m = TriMesh {
+        positions: prep.dense_pos.clone(),
+        indices,
+        ..TriMesh::default()
+    };
+    Some(crate::mesh::Bvh::new(&m))
+}
+
 /// Attribute seams: a welded vertex whose input copies differ in an attribute keeps all its
 /// copies and is never moved (seams are not collapsed across).
 fn lock_seams(prep: &Prepared<'_>, locked: &mut [bool]) {
@@ -294,7 +330,9 @@ impl<'m> Collapse<'m> {
         let (border, mut locked) = manifold(n, &faces, &ef);
         let non_manifold = locked.iter().filter(|&&l| l).count();
         add_border_planes(&mut quad, &pos, &faces, &ef);
-        lock_seams(prep, &mut locked);
+        if !params.collapse_seams {
+            lock_seams(prep, &mut locked);
+        }
         let source: Vec<u32> = prep.active.clone();
         fn pick<T: Copy>(a: &[T], source: &[u32]) -> Vec<T> {
             source.iter().map(|&v| a[v as usize]).collect()
@@ -344,7 +382,19 @@ impl<'m> Collapse<'m> {
             steps: Vec::new(),
             guard: None,
             orig_bvh: None,
+            pair_ends: Vec::new(),
+            pair_head: vec![NONE; n],
+            pair_next: Vec::new(),
+            joined: vec![false; n],
+            pair_overflow: false,
+            border_bvh: None,
         };
+        if params.max_error.is_some() && !params.lock_border {
+            c.border_bvh = border_edges(prep, &ef);
+        }
+        if params.pair_distance > 0.0 {
+            c.find_pairs(params.pair_distance);
+        }
         if params.check_intersections {
             let mut g = super::guard::Guard::default();
             g.build(c.faces.len(), |_| true, |f| c.face_box(f));
@@ -378,14 +428,22 @@ impl<'m> Collapse<'m> {
                 .expect("an edge's face holds it");
             canon.push((corner, a.min(b), a.max(b)));
         }
+        let base = self.pair_base();
+        canon.extend(
+            self.pair_ends
+                .iter()
+                .enumerate()
+                .map(|(i, &[a, b])| (base + i as u32, a, b)),
+        );
         let c = &*self;
         let entries: Vec<(u128, u32)> = canon
             .par_iter()
             .with_min_len(4096)
-            .filter_map(|&(corner, a, b)| c.candidate(a, b).map(|x| (key(x.cost, a, b), corner)))
+            .filter_map(|&(slot, a, b)| c.candidate(a, b).map(|x| (key(x.cost, a, b), slot)))
             .collect();
-        self.refused = vec![false; self.faces.len() * 3];
-        self.heap = IndexedHeap::from_entries(self.faces.len() * 3, entries);
+        let slots = base as usize + self.pair_ends.len();
+        self.refused = vec![false; slots];
+        self.heap = IndexedHeap::from_entries(slots, entries);
     }
 
     /// The vertices of corner `c`'s edge.
@@ -394,6 +452,66 @@ impl<'m> Collapse<'m> {
         let (f, k) = (c as usize / 3, c as usize % 3);
         let t = self.faces[f];
         (t[k], t[(k + 1) % 3])
+    }
+
+    /// The first heap slot of the vertex pairs (the slots below are face corners).
+    #[inline]
+    fn pair_base(&self) -> u32 {
+        3 * self.faces.len() as u32
+    }
+
+    /// The vertices of heap slot `slot`: a corner's edge or a vertex pair.
+    #[inline]
+    fn slot_edge(&self, slot: u32) -> (u32, u32) {
+        match slot.checked_sub(self.pair_base()) {
+            Some(i) => {
+                let [u, v] = self.pair_ends[i as usize];
+                (u, v)
+            }
+            None => self.corner_edge(slot),
+        }
+    }
+
+    /// The candidate vertex pairs closer than `d` (see [`super::pairs`]) and their
+    /// per-vertex lists; sets `pair_overflow` instead when there are too many.
+    fn find_pairs(&mut self, d: f64) {
+        let cap = super::pairs::MAX_PAIRS_PER_VERTEX * self.pos.len();
+        let adjacent = |u: u32, v: u32| {
+            let mut c = self.head[u as usize];
+            while c != NONE {
+                if self.faces[c as usize / 3].contains(&v) {
+                    return true;
+                }
+                c = self.next[c as usize];
+            }
+            false
+        };
+        let eligible = |v: u32| !self.locked[v as usize];
+        let Some(pairs) = super::pairs::close_pairs(&self.pos, eligible, adjacent, d, cap) else {
+            self.pair_overflow = true;
+            return;
+        };
+        self.pair_next = vec![NONE; 2 * pairs.len()];
+        for (i, ends) in pairs.iter().enumerate() {
+            for (k, &v) in ends.iter().enumerate() {
+                self.pair_next[2 * i + k] = self.pair_head[v as usize];
+                self.pair_head[v as usize] = (2 * i + k) as u32;
+            }
+        }
+        self.pair_ends = pairs;
+    }
+
+    /// Moves `g`'s pair ends to `s` (renamed), after a collapse of g into s.
+    fn splice_pairs(&mut self, s: u32, g: u32) {
+        let mut e = self.pair_head[g as usize];
+        while e != NONE {
+            let nxt = self.pair_next[e as usize];
+            self.pair_ends[e as usize / 2][e as usize % 2] = s;
+            self.pair_next[e as usize] = self.pair_head[s as usize];
+            self.pair_head[s as usize] = e;
+            e = nxt;
+        }
+        self.pair_head[g as usize] = NONE;
     }
 
     /// A fresh visit mark (two values: `e` and `e + 1`).
@@ -503,6 +621,22 @@ impl<'m> Collapse<'m> {
         self.guard = Some(guard);
     }
 
+    /// An error when `pair_distance` gave more candidate pairs than allowed.
+    pub fn pairs_ok(&self) -> crate::error::Result<()> {
+        if self.pair_overflow {
+            return Err(crate::error::Error::param(
+                "simplify",
+                "pair_distance",
+                self.params.pair_distance,
+                format!(
+                    "gives more than {} candidate vertex pairs per vertex; choose a smaller distance",
+                    super::pairs::MAX_PAIRS_PER_VERTEX
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     /// Triangles now.
     pub fn triangles(&self) -> usize {
         self.tris
@@ -529,7 +663,7 @@ impl<'m> Collapse<'m> {
     /// border vertices).
     fn candidate(&self, a: u32, b: u32) -> Option<Candidate> {
         let (ua, ub) = (a as usize, b as usize);
-        if self.locked[ua] || self.locked[ub] {
+        if self.locked[ua] || self.locked[ub] || self.joined[ua] || self.joined[ub] {
             return None;
         }
         let q = self.merged(a, b);
@@ -578,7 +712,7 @@ impl<'m> Collapse<'m> {
     /// Puts the edge of canonical corner `corner` in the heap with its current cost (or
     /// takes it out when it may not be collapsed).
     fn push(&mut self, corner: u32) {
-        let (u, v) = self.corner_edge(corner);
+        let (u, v) = self.slot_edge(corner);
         let (a, b) = (u.min(v), u.max(v));
         match self.candidate(a, b) {
             Some(c) => self.heap.set(corner, key(c.cost, a, b)),
@@ -633,7 +767,55 @@ impl<'m> Collapse<'m> {
         let placed = self.place_two_mappings(a, b, c, &fan[..na], &fan[na..]);
         let ok = placed && self.valid_fans(a, b, c, &fan[..na], &fan[na..]);
         self.fan = fan;
-        ok && !self.intersects(a, b, c)
+        ok && self.border_within_bound(a, b, c.p) && !self.intersects(a, b, c)
+    }
+
+    /// With an error bound E and free borders: whether the vertex left by collapsing (a, b)
+    /// to `p` is off the border or within E of the input's border (at the f32 point the
+    /// output will hold). The quadric error alone bounds the root mean square distance to
+    /// the merged planes, not a border vertex's distance to the border: on bunny's holes
+    /// border vertices went up to 3.2 E away without this check.
+    fn border_within_bound(&self, a: u32, b: u32, p: DVec3) -> bool {
+        let (Some(bvh), Some(e)) = (&self.border_bvh, self.params.max_error) else {
+            return true;
+        };
+        if !(self.border[a as usize] || self.border[b as usize]) {
+            return true;
+        }
+        let p = p.as_vec3().as_dvec3();
+        bvh.closest(p, None, e * e)
+            .is_some_and(|h| h.dist2 <= e * e)
+    }
+
+    /// Whether contracting the vertex pair (a, b) to `c` passes the checks: the pair shares
+    /// no edge and no neighbour (so no edge gains a third face and no triangle is repeated:
+    /// the two fans only meet at the new vertex), the error bound, no flip, no zero area,
+    /// and the intersection check. The placement is the optimal one whatever
+    /// `params.placement` says: the two local mappings need one link polygon around an
+    /// edge, and a pair has two.
+    fn valid_pair(&mut self, a: u32, b: u32, c: &Candidate) -> bool {
+        if a == b || self.params.max_error.is_some_and(|e| error(&c.q, c.p) > e) {
+            return false;
+        }
+        let mut fan = std::mem::take(&mut self.fan);
+        fan.clear();
+        self.each_face(a, |f| fan.push((f as u32, self.faces[f])));
+        let na = fan.len();
+        self.each_face(b, |f| fan.push((f as u32, self.faces[f])));
+        let e = self.next_epoch();
+        self.mark[a as usize] = e;
+        for (_, t) in &fan[..na] {
+            for &u in t {
+                self.mark[u as usize] = e;
+            }
+        }
+        let apart = self.mark[b as usize] != e
+            && fan[na..]
+                .iter()
+                .all(|(_, t)| t.iter().all(|&u| self.mark[u as usize] != e));
+        let ok = apart && self.no_flip(a, b, c, &fan[..na], &fan[na..]);
+        self.fan = fan;
+        ok && self.border_within_bound(a, b, c.p) && !self.intersects(a, b, c)
     }
 
     /// With the two-local-mappings placement (and neither endpoint pinned): moves `c.p` to
@@ -737,6 +919,19 @@ impl<'m> Collapse<'m> {
                 return false;
             }
         }
+        self.no_flip(a, b, c, fa, fb)
+    }
+
+    /// The flip and zero-area checks on the faces of a and b that survive, with a and b
+    /// moved to `c.p`.
+    fn no_flip(
+        &self,
+        a: u32,
+        b: u32,
+        c: &Candidate,
+        fa: &[(u32, [u32; 3])],
+        fb: &[(u32, [u32; 3])],
+    ) -> bool {
         if self.checks.flips || self.checks.zero_area {
             for (v, fan) in [(a, fa), (b, fb)] {
                 for (_, t) in fan {
@@ -782,6 +977,7 @@ impl<'m> Collapse<'m> {
             uv[us] = uv[us].lerp(uv[ug], t);
         }
         // Faces of g: those on the edge die, the others move to s.
+        let dead_before = self.dead.len();
         let mut cnr = self.head[ug];
         let mut moved = NONE;
         while cnr != NONE {
@@ -825,6 +1021,9 @@ impl<'m> Collapse<'m> {
                 }
             }
         }
+        // No face died: a vertex pair was contracted.
+        self.joined[us] |= self.dead.len() == dead_before;
+        self.splice_pairs(s, g);
         self.pos[us] = c.p;
         self.quad[us] = c.q;
         self.border[us] |= self.border[ug];
@@ -893,6 +1092,7 @@ impl<'m> Collapse<'m> {
             }
         }
         self.half = half;
+        self.update_pairs(s);
         self.refused_at[s as usize] = 0;
         let mut ring = std::mem::take(&mut self.ring);
         self.neighbours(s, &mut ring);
@@ -916,9 +1116,54 @@ impl<'m> Collapse<'m> {
                 }
                 c = self.next[c as usize];
             }
+            let mut e = self.pair_head[w as usize];
+            while e != NONE {
+                let slot = self.pair_base() + e / 2;
+                if self.refused[slot as usize] {
+                    self.refused[slot as usize] = false;
+                    self.push(slot);
+                }
+                e = self.pair_next[e as usize];
+            }
             self.refused_at[w as usize] = 0;
         }
         self.ring = ring;
+    }
+
+    /// After a collapse into `s`: its vertex pairs get a new cost; a pair now of s with
+    /// itself leaves the heap and s's list, and of two pairs with the same ends the one of
+    /// least slot stays in the heap.
+    fn update_pairs(&mut self, s: u32) {
+        let base = self.pair_base();
+        let mut half = std::mem::take(&mut self.half);
+        half.clear();
+        let (mut prev, mut e) = (NONE, self.pair_head[s as usize]);
+        while e != NONE {
+            let nxt = self.pair_next[e as usize];
+            let [u, v] = self.pair_ends[e as usize / 2];
+            let slot = base + e / 2;
+            self.refused[slot as usize] = false;
+            if u == v {
+                self.heap.remove(slot);
+                match prev {
+                    NONE => self.pair_head[s as usize] = nxt,
+                    p => self.pair_next[p as usize] = nxt,
+                }
+            } else {
+                half.push((u ^ v ^ s, slot));
+                prev = e;
+            }
+            e = nxt;
+        }
+        half.sort_unstable();
+        for (i, &(x, slot)) in half.iter().enumerate() {
+            if i > 0 && half[i - 1].0 == x {
+                self.heap.remove(slot);
+            } else {
+                self.push(slot);
+            }
+        }
+        self.half = half;
     }
 
     /// The heap-driven loop: collapse the least-cost valid edge until `target` triangles
@@ -932,7 +1177,11 @@ impl<'m> Collapse<'m> {
             let Some(mut c) = self.candidate(a, b) else {
                 continue;
             };
-            if self.valid(a, b, &mut c) {
+            let ok = match corner >= self.pair_base() {
+                true => self.valid_pair(a, b, &c),
+                false => self.valid(a, b, &mut c),
+            };
+            if ok {
                 self.collapse(a, b, &c);
                 self.update(a);
             } else {
@@ -959,8 +1208,18 @@ impl<'m> Collapse<'m> {
             }
             edges.sort_unstable();
             edges.dedup();
+            let n_edges = edges.len();
+            let mut pairs: Vec<[u32; 2]> = self
+                .pair_ends
+                .iter()
+                .filter(|[u, v]| u != v)
+                .map(|&[u, v]| [u.min(v), u.max(v)])
+                .collect();
+            pairs.sort_unstable();
+            pairs.dedup();
+            edges.extend(pairs);
             let mut best: Option<(u64, u32, u32, Candidate)> = None;
-            for &[a, b] in &edges {
+            for (i, &[a, b]) in edges.iter().enumerate() {
                 let Some(mut c) = self.candidate(a, b) else {
                     continue;
                 };
@@ -968,7 +1227,11 @@ impl<'m> Collapse<'m> {
                 if best.as_ref().is_some_and(|x| (x.0, x.1, x.2) <= key) {
                     continue;
                 }
-                if self.valid(a, b, &mut c) {
+                let ok = match i >= n_edges {
+                    true => self.valid_pair(a, b, &c),
+                    false => self.valid(a, b, &mut c),
+                };
+                if ok {
                     best = Some((key.0, a, b, c));
                 }
             }
@@ -1101,6 +1364,7 @@ pub fn simplify_slow(mesh: &TriMesh, params: &QemParams) -> crate::error::Result
     super::check(mesh, params)?;
     let prep = Prepared::new(mesh);
     let mut c = Collapse::new(&prep, params);
+    c.pairs_ok()?;
     c.run_slow(params.triangles as usize);
     Ok(c.finish())
 }

@@ -38,6 +38,7 @@
 mod engine;
 mod guard;
 mod heap;
+mod pairs;
 pub mod tlm;
 
 pub use engine::{simplify_slow, Checks, Collapse, CollapseStep};
@@ -129,6 +130,13 @@ pub struct QemParams {
     /// an edge is multiplied by the mean H of its endpoints, and the collapsed vertex takes
     /// that mean. A welded vertex takes the largest H of its copies. `None`: plain QEM.
     pub weights: Option<std::sync::Arc<[f64]>>,
+    /// Also contract vertex pairs that share no edge but lie closer than this, in model
+    /// units (Garland & Heckbert's pair contraction: it joins separate parts); 0: off.
+    pub pair_distance: f64,
+    /// Collapse across UV seams and colour or normal discontinuities (their vertices then
+    /// take interpolated attributes and the discontinuity is lost); false: seam vertices
+    /// are never moved.
+    pub collapse_seams: bool,
 }
 
 impl QemParams {
@@ -144,6 +152,8 @@ impl QemParams {
             cost: Cost::Quadric,
             check_intersections: false,
             weights: None,
+            pair_distance: 0.0,
+            collapse_seams: false,
         }
     }
 }
@@ -184,6 +194,7 @@ pub fn simplify(mesh: &TriMesh, params: &QemParams) -> Result<QemResult> {
     check(mesh, params)?;
     let prep = Prepared::new(mesh);
     let mut c = Collapse::new(&prep, params);
+    c.pairs_ok()?;
     c.run_fast(params.triangles as usize);
     Ok(c.finish())
 }
@@ -196,6 +207,7 @@ pub fn simplify_logged(
     check(mesh, params)?;
     let prep = Prepared::new(mesh);
     let mut c = Collapse::new(&prep, params);
+    c.pairs_ok()?;
     c.record = true;
     c.run_fast(params.triangles as usize);
     let steps = std::mem::take(&mut c.steps);
@@ -236,6 +248,15 @@ pub(crate) fn check(mesh: &TriMesh, params: &QemParams) -> Result<()> {
                 "must be finite numbers > 0",
             ));
         }
+    }
+    let d = params.pair_distance;
+    if !(d.is_finite() && d >= 0.0) {
+        return Err(Error::param(
+            "simplify",
+            "pair_distance",
+            d,
+            "must be a number >= 0 (0: no pair contraction)",
+        ));
     }
     if let Some(e) = params.max_error {
         if !(e.is_finite() && e >= 0.0) {

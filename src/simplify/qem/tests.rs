@@ -384,3 +384,133 @@ fn saliency_weights_keep_the_twin_and_spare_the_salient_part() {
     };
     assert!(simplify(&sphere(4), &bad).is_err());
 }
+
+/// Two bumpy grids side by side, 0.02 apart across x = 1.
+fn two_grids() -> TriMesh {
+    let mut m = grid(6);
+    let base = m.positions.len() as u32;
+    let right = grid(6);
+    m.positions.extend(
+        right
+            .positions
+            .iter()
+            .map(|p| *p + Vec3::new(1.02, 0.0, 0.0)),
+    );
+    m.indices
+        .extend(right.indices.iter().map(|t| t.map(|i| i + base)));
+    m
+}
+
+/// The connected parts of `m` (vertices joined by its triangles; unused vertices aside).
+fn parts(m: &TriMesh) -> usize {
+    let mut root: Vec<u32> = (0..m.vertex_count() as u32).collect();
+    fn find(r: &mut [u32], mut v: u32) -> u32 {
+        while r[v as usize] != v {
+            r[v as usize] = r[r[v as usize] as usize];
+            v = r[v as usize];
+        }
+        v
+    }
+    for t in &m.indices {
+        for k in 1..3 {
+            let (a, b) = (find(&mut root, t[0]), find(&mut root, t[k]));
+            root[a.max(b) as usize] = a.min(b);
+        }
+    }
+    let mut used: Vec<u32> = m
+        .indices
+        .iter()
+        .flatten()
+        .map(|&v| find(&mut root, v))
+        .collect();
+    used.sort_unstable();
+    used.dedup();
+    used.len()
+}
+
+#[test]
+fn pair_contraction_joins_separate_parts() {
+    let m = two_grids();
+    assert_eq!(parts(&m), 2);
+    for placement in [
+        Placement::Optimal,
+        Placement::Endpoint,
+        Placement::TwoLocalMappings,
+    ] {
+        let off = simplify(&m, &params(30, placement)).unwrap();
+        assert_eq!(parts(&off.mesh), 2, "{placement}");
+        let p = QemParams {
+            pair_distance: 0.05,
+            ..params(30, placement)
+        };
+        let on = simplify(&m, &p).unwrap();
+        assert_eq!(parts(&on.mesh), 1, "{placement}");
+        assert!(on.mesh.triangle_count() <= 30, "{placement}");
+        // The contraction keeps every triangle: a join is a vertex shared by both sides.
+        let xs = |x: f32| {
+            on.mesh.indices.iter().any(|t| {
+                t.iter().all(|&v| {
+                    let px = on.mesh.positions[v as usize].x;
+                    if x < 1.0 {
+                        px <= 1.011
+                    } else {
+                        px >= 1.009
+                    }
+                })
+            })
+        };
+        assert!(xs(0.0) && xs(2.0), "{placement}");
+    }
+    // Pairs further apart than the distance are not candidates.
+    let p = QemParams {
+        pair_distance: 0.01,
+        ..params(30, Placement::Optimal)
+    };
+    assert_eq!(parts(&simplify(&m, &p).unwrap().mesh), 2);
+}
+
+#[test]
+fn pair_contraction_keeps_the_slow_twin() {
+    let m = two_grids();
+    for placement in [
+        Placement::Optimal,
+        Placement::Endpoint,
+        Placement::TwoLocalMappings,
+    ] {
+        for (target, d, check_intersections) in
+            [(40u64, 0.05, false), (20, 0.2, false), (30, 0.05, true)]
+        {
+            let p = QemParams {
+                pair_distance: d,
+                check_intersections,
+                ..params(target, placement)
+            };
+            let (fast, slow) = fast_and_slow(&m, &p, target);
+            assert!(!fast.pair_ends.is_empty());
+            assert_eq!(fast.log, slow.log, "{placement} {target} {d}");
+            let (a, b) = (fast.finish(), slow.finish());
+            assert_eq!(a.mesh.positions, b.mesh.positions);
+            assert_eq!(a.mesh.indices, b.mesh.indices);
+        }
+    }
+}
+
+#[test]
+fn pair_distance_is_checked() {
+    let m = two_grids();
+    for d in [-0.1, f64::NAN, f64::INFINITY] {
+        let p = QemParams {
+            pair_distance: d,
+            ..params(30, Placement::Optimal)
+        };
+        let e = simplify(&m, &p).unwrap_err();
+        assert!(e.to_string().contains("pair_distance"), "{e}");
+    }
+    // Every vertex within reach of every other: more pairs than allowed, an error.
+    let p = QemParams {
+        pair_distance: 10.0,
+        ..params(30, Placement::Optimal)
+    };
+    let e = simplify(&m, &p).unwrap_err();
+    assert!(e.to_string().contains("candidate vertex pairs"), "{e}");
+}
