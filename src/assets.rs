@@ -38,6 +38,10 @@ pub struct AssetConfig {
     /// `threshold`), as for `terratile simplify`. Absent: the mesh is placed as it is.
     #[serde(default)]
     pub simplify: Option<SimplifyParams>,
+    /// Also write the placed mesh as progressive triangle strips (a `.tps` stream, and one
+    /// level as a glTF `TRIANGLE_STRIP` if asked). Absent: no strips.
+    #[serde(default)]
+    pub strips: Option<crate::simplify::strips::asset::AssetStrips>,
     /// Where it goes on the terrain.
     pub place: Placement,
     /// Refuse a model that is read with a warning by default (unusable texture coordinates,
@@ -108,6 +112,8 @@ pub struct AssetReport {
     pub seconds: f64,
     /// What the reader noticed in the model (dropped attributes, skipped faces).
     pub warnings: Vec<String>,
+    /// The progressive strips written, when `strips` is set.
+    pub strips: Option<crate::simplify::strips::format::BuildReport>,
 }
 
 impl Placement {
@@ -213,6 +219,10 @@ pub fn run_asset(
         std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
     }
     mesh::io::write(&placed, &out)?;
+    let strips = match &cfg.strips {
+        Some(s) => Some(s.write(&placed, &cfg.input, out_dir)?),
+        None => None,
+    };
     Ok(AssetReport {
         input: cfg.input.clone(),
         output: cfg.output.clone(),
@@ -224,6 +234,7 @@ pub fn run_asset(
         on_terrain: heightfield.is_some(),
         seconds: t.elapsed().as_secs_f64(),
         warnings,
+        strips,
     })
 }
 
@@ -263,18 +274,25 @@ pub fn validate(assets: &[AssetConfig], base_dir: &Path) -> Result<()> {
                 format!("{} does not exist", input.display()),
             ));
         }
-        if a.output.is_absolute()
-            || a.output
-                .components()
-                .any(|c| matches!(c, std::path::Component::ParentDir))
-        {
+        if !inside(&a.output) {
             return Err(Error::key(
                 format!("{key}.output"),
                 "must be a relative path inside the output directory",
             ));
         }
+        if let Some(s) = &a.strips {
+            s.validate(&format!("{key}.strips"), inside)?;
+        }
     }
     Ok(())
+}
+
+/// Whether `path` is relative and stays inside the directory it is joined to.
+fn inside(path: &Path) -> bool {
+    !path.is_absolute()
+        && !path
+            .components()
+            .any(|c| matches!(c, std::path::Component::ParentDir))
 }
 
 #[cfg(test)]
@@ -354,6 +372,7 @@ mod tests {
             input: "c.obj".into(),
             output: "out/c.ply".into(),
             simplify: None,
+            strips: None,
             place: Placement {
                 x: 2.0,
                 y: 1.5,

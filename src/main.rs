@@ -184,7 +184,8 @@ struct StripsArgs {
 
 #[derive(clap::Subcommand, Debug)]
 enum StripsCommand {
-    /// Write the mesh of one level of a stream (OBJ or PLY by the extension).
+    /// Write the mesh of one level of a stream (OBJ or PLY by the extension; .glb: one
+    /// TRIANGLE_STRIP primitive).
     Decode {
         /// The stream (.tps).
         input: PathBuf,

@@ -6,3 +6,4 @@ mod mesh_input;
 mod messages_outputs;
 mod output_dir;
 mod point_input;
+mod strips;

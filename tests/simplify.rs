@@ -602,7 +602,7 @@ fn qem_table() {
 const TETRA: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n";
 
 /// A bumpy open grid as OBJ, with `extra` appended.
-fn grid_obj(n: usize, extra: &str) -> String {
+pub(crate) fn grid_obj(n: usize, extra: &str) -> String {
     let mut s = String::new();
     for j in 0..=n {
         for i in 0..=n {

@@ -3,10 +3,10 @@
 
 use crate::common;
 use terratile::mesh::{io, TriMesh};
-use terratile::simplify::strips::format;
 use terratile::simplify::strips::measure::{even_levels, gpu_indices};
 use terratile::simplify::strips::progressive::engine_input;
 use terratile::simplify::strips::stripify::{acmr, triangle_set};
+use terratile::simplify::strips::{figure, format};
 use terratile::simplify::strips::{
     progressive, stripify, unstripify, Decoder, Encoding, Join, ProgressiveParams, StripParams,
     RESTART,
@@ -200,6 +200,18 @@ fn the_cli_builds_and_decodes_and_refuses_bad_input() {
             assert_eq!(m.triangle_count(), t);
         }
     }
+    // A .glb is one TRIANGLE_STRIP primitive.
+    let r = common::terratile(
+        d,
+        &["strips", "decode", "cow.tps", "--level", "100", "l.glb"],
+    );
+    assert_eq!(r.code, 0, "{r:?}");
+    let (mode, tris) = gltf_triangles(&std::fs::read(d.join("l.glb")).unwrap());
+    assert_eq!(mode, gltf::mesh::Mode::TriangleStrip);
+    assert_eq!(
+        tris.len(),
+        io::read(&d.join("l.ply")).unwrap().triangle_count()
+    );
     let r = common::terratile(
         d,
         &["strips", "decode", "cow.tps", "--level", "999999", "x.obj"],
@@ -248,6 +260,11 @@ fn paper_table() {
             .iter()
             .map(|r| r.dtfs as f64 / r.triangles as f64)
             .collect();
+        // Strips drawn as separate calls: no restart indices.
+        let sep: Vec<f64> = rows
+            .iter()
+            .map(|r| (r.dtfs - r.dtfs_restarts) as f64 / r.triangles as f64)
+            .collect();
         println!(
             "{name} | {} | {n:.2} | {e:.2} | {:.1} % | {bn} | {be} | {:.1} % | {:.1} % | {:.1} % | {:.2} | {:.2}",
             p.splits.len(),
@@ -258,13 +275,205 @@ fn paper_table() {
             per.iter().sum::<f64>() / per.len() as f64,
             per.iter().cloned().fold(0.0, f64::max),
         );
+        println!(
+            "  without restarts: DTFS vs list {:.1} %, idx/tri mean {:.2} max {:.2}",
+            100.0 * (1.0 - (s(|r| r.dtfs) - s(|r| r.dtfs_restarts)) / s(|r| r.list)),
+            sep.iter().sum::<f64>() / sep.len() as f64,
+            sep.iter().cloned().fold(0.0, f64::max),
+        );
         if name == "bunny.obj" {
+            let png = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/strips_fig4.png");
+            figure::write_fig4(&rows, "bunny", &png).unwrap();
+            println!("  Fig. 4: {}", png.display());
             for r in &rows {
                 println!(
-                    "  {} {} {} {} {} {}",
-                    r.level, r.triangles, r.unfiltered, r.stss, r.dtfs, r.list
+                    "  {} {} {} {} {} {} {}",
+                    r.level, r.triangles, r.unfiltered, r.stss, r.dtfs, r.dtfs_restarts, r.list
                 );
             }
+        }
+    }
+}
+
+/// Triangles of a glb's first primitive as position triples (glTF's y-up back to z-up),
+/// read with the `gltf` crate, which also checks the document; and the primitive's mode.
+fn gltf_triangles(glb: &[u8]) -> (gltf::mesh::Mode, Vec<[[u32; 3]; 3]>) {
+    let g = gltf::Gltf::from_slice(glb).unwrap();
+    let blob = g.blob.as_deref().unwrap();
+    let p = g.meshes().next().unwrap().primitives().next().unwrap();
+    let r = p.reader(|_| Some(blob));
+    let pos: Vec<[f32; 3]> = r.read_positions().unwrap().collect();
+    let idx: Vec<u32> = r.read_indices().unwrap().into_u32().collect();
+    assert!(!idx.contains(&RESTART));
+    let key = |v: u32| {
+        let [x, y, z] = pos[v as usize];
+        [x, -z, y].map(|c| (c + 0.0).to_bits())
+    };
+    let tris = unstripify(&idx).into_iter().map(|t| t.map(key)).collect();
+    (p.mode(), tris)
+}
+
+/// Triangles as position triples, each rotated to start at its least corner, sorted.
+fn by_position(mut tris: Vec<[[u32; 3]; 3]>) -> Vec<[[u32; 3]; 3]> {
+    for t in &mut tris {
+        let k = (0..3).min_by_key(|&k| t[k]).unwrap();
+        t.rotate_left(k);
+    }
+    tris.sort_unstable();
+    tris
+}
+
+#[test]
+fn a_level_writes_as_a_gltf_triangle_strip_that_reads_back() {
+    let Some(m) = load("cow.obj") else { return };
+    let p = progressive(&m, &ProgressiveParams::default()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    for level in [0, 1000, p.splits.len()] {
+        let glb = format::glb_at(&p, level, Encoding::Encoded, "cow", 1.0).unwrap();
+        let want = p.mesh_at(level, Encoding::Encoded);
+        let key = |v: u32| {
+            want.positions[v as usize]
+                .to_array()
+                .map(|c| (c + 0.0).to_bits())
+        };
+        let want = by_position(want.indices.iter().map(|t| t.map(key)).collect());
+        // The gltf crate.
+        let (mode, got) = gltf_triangles(&glb);
+        assert_eq!(mode, gltf::mesh::Mode::TriangleStrip, "level {level}");
+        assert_eq!(by_position(got), want, "level {level}");
+        // terratile's own glb reader.
+        let path = dir.path().join(format!("l{level}.glb"));
+        std::fs::write(&path, &glb).unwrap();
+        let back = io::read(&path).unwrap();
+        let key = |v: u32| {
+            let q = back.positions[v as usize];
+            [q.x, q.y, q.z].map(|c| (c + 0.0).to_bits())
+        };
+        let got = by_position(back.indices.iter().map(|t| t.map(key)).collect());
+        assert_eq!(got.len(), want.len(), "level {level}");
+    }
+}
+
+#[test]
+fn strips_in_an_asset_write_the_stream_and_a_strip_glb() {
+    let dir = common::default_job();
+    let d = dir.path();
+    std::fs::write(d.join("m.obj"), crate::simplify::grid_obj(16, "")).unwrap();
+    let base = std::fs::read_to_string(d.join("pipeline.toml")).unwrap();
+    let entry = |strips: &str| {
+        format!(
+            "{base}\n[[assets]]\ninput = \"m.obj\"\noutput = \"assets/m.ply\"\n\
+             strips = {strips}\nplace = {{ x = 513050.0, y = 5403100.0, up = \"z\" }}\n"
+        )
+    };
+    for (bad, needle) in [
+        (
+            r#"{ output = "s.tps", base_ratio = 1.0 }"#,
+            "assets[0].strips.base_ratio",
+        ),
+        (r#"{ output = "s.obj" }"#, "assets[0].strips.output"),
+        (r#"{ output = "../s.tps" }"#, "assets[0].strips.output"),
+        (
+            r#"{ output = "s.tps", glb = "s.gltf" }"#,
+            "assets[0].strips.glb",
+        ),
+        (
+            r#"{ output = "s.tps", level = 3 }"#,
+            "assets[0].strips.level",
+        ),
+        (r#"{ output = "s.tps", encoding = "fancy" }"#, "encoding"),
+    ] {
+        std::fs::write(d.join("pipeline.toml"), entry(bad)).unwrap();
+        common::terratile(d, &["run", "-q"])
+            .input_error(&[needle])
+            .left_nothing("out");
+    }
+    std::fs::write(
+        d.join("pipeline.toml"),
+        entry(r#"{ output = "assets/m.tps", glb = "assets/m_strip.glb", level = 0 }"#),
+    )
+    .unwrap();
+    let r = common::terratile(d, &["run", "--json", "-q"]);
+    let v: serde_json::Value = serde_json::from_str(&r.ok().stdout).unwrap();
+    let s = &v["assets"][0]["strips"];
+    assert_eq!(s["triangles"], 512, "{}", r.stdout);
+    let splits = s["splits"].as_u64().unwrap() as usize;
+    assert!(splits > 200, "{s}");
+    // The stream decodes to the placed mesh; the glb holds the base level as a strip.
+    let bytes = std::fs::read(d.join("out/assets/m.tps")).unwrap();
+    let (p, _) = format::decode(&bytes, std::path::Path::new("m.tps")).unwrap();
+    let placed = io::read(&d.join("out/assets/m.ply")).unwrap();
+    let full = p.mesh_at(splits, Encoding::Encoded);
+    assert_eq!(full.triangle_count(), placed.triangle_count());
+    let glb = std::fs::read(d.join("out/assets/m_strip.glb")).unwrap();
+    let (mode, tris) = gltf_triangles(&glb);
+    assert_eq!(mode, gltf::mesh::Mode::TriangleStrip);
+    assert_eq!(tris.len(), p.mesh_at(0, Encoding::Encoded).triangle_count());
+    // A level past the stream: an error naming the asset, nothing left.
+    std::fs::write(
+        d.join("pipeline.toml"),
+        entry(r#"{ output = "assets/m2.tps", glb = "assets/m2.glb", level = 100000 }"#),
+    )
+    .unwrap();
+    let r = common::terratile(d, &["run", "-q"]);
+    assert_eq!(r.code, 2, "{}", r.context());
+    assert!(r.stderr.contains("strips.level 100000"), "{}", r.stderr);
+    assert!(!d.join("out/assets/m2.tps").exists());
+}
+
+#[test]
+fn fig4_draws_every_series() {
+    let dir = tempfile::tempdir().unwrap();
+    let obj = dir.path().join("g.obj");
+    std::fs::write(&obj, crate::simplify::grid_obj(20, "")).unwrap();
+    let m = io::read(&obj).unwrap();
+    let p = progressive(&m, &ProgressiveParams::default()).unwrap();
+    let rows = gpu_indices(&p, &even_levels(&p, 11), Join::Restart);
+    let png = figure::fig4_png(&rows, "grid").unwrap();
+    let img = image::load_from_memory(&png).unwrap().to_rgb8();
+    assert_eq!(img.dimensions(), (900, 600));
+    // Each series' colour is on the canvas (its legend and its line).
+    for c in [[40, 140, 60], [120, 120, 120], [30, 90, 200], [200, 40, 40]] {
+        let n = img.pixels().filter(|p| p.0 == c).count();
+        assert!(n > 100, "{c:?}: {n} pixels");
+    }
+}
+
+/// The triangles of `m` by position, sorted (see [`by_position`]).
+fn position_set(m: &TriMesh) -> Vec<[[u32; 3]; 3]> {
+    let key = |v: u32| {
+        m.positions[v as usize]
+            .to_array()
+            .map(|c| (c + 0.0).to_bits())
+    };
+    by_position(m.indices.iter().map(|t| t.map(key)).collect())
+}
+
+#[test]
+fn a_level_is_the_engines_mesh_after_n_minus_k_collapses_on_real_meshes() {
+    use terratile::simplify::qem;
+    for name in ["cow.obj", "bunny.obj", "dragon_10k.obj"] {
+        let Some(m) = load(name) else { return };
+        let params = ProgressiveParams::default();
+        let p = progressive(&m, &params).unwrap();
+        let (canon, qp) = engine_input(&m, &params);
+        let n = p.splits.len();
+        for k in [0, 1, n / 10, n / 2, n - 1, n] {
+            let ours = p.mesh_at(k, Encoding::Encoded);
+            let r = qem::simplify(
+                &canon,
+                &qem::QemParams {
+                    triangles: ours.triangle_count() as u64,
+                    ..qp.clone()
+                },
+            )
+            .unwrap();
+            assert_eq!(r.report.collapses, n - k, "{name} level {k}");
+            assert_eq!(
+                position_set(&ours),
+                position_set(&r.mesh),
+                "{name} level {k}"
+            );
         }
     }
 }

@@ -1,7 +1,7 @@
 //! In-process measurements behind `terratile bench`: each compares terratile against a
 //! reference measured in the same run, so the ratio means something on a noisy machine.
 
-mod plot;
+pub(crate) mod plot;
 mod read;
 mod table1;
 mod terrain;

@@ -12,8 +12,8 @@ use embedded_graphics::primitives::{Circle, Line, PrimitiveStyle, Rectangle, Tri
 use embedded_graphics::text::{Alignment, Text};
 use std::path::Path;
 
-/// An `image` buffer as an embedded-graphics target.
-struct Canvas(image::RgbImage);
+/// An `image` buffer as an embedded-graphics target (also drawn on by the strips figure).
+pub(crate) struct Canvas(pub(crate) image::RgbImage);
 
 impl OriginDimensions for Canvas {
     fn size(&self) -> Size {

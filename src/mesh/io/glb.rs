@@ -582,6 +582,11 @@ fn triangulate(mode: Mode, corners: &[u32]) -> (Vec<[u32; 3]>, usize) {
         }
         Mode::TriangleStrip => {
             for (k, w) in corners.windows(3).enumerate() {
+                // A repeated index is how a strip swaps or joins strips (glTF has no
+                // restart index): that triangle draws nothing and is not the mesh's.
+                if w[0] == w[1] || w[1] == w[2] || w[0] == w[2] {
+                    continue;
+                }
                 triangles.push(if k % 2 == 0 {
                     [w[0], w[1], w[2]]
                 } else {

@@ -21,13 +21,37 @@ const UNSIGNED_INT: u32 = 5125;
 /// `mesh` (z up, in units of `metres_per_unit` metres) as a .glb file named `name` inside,
 /// positions in metres.
 pub fn glb_bytes(mesh: &TriMesh, name: &str, metres_per_unit: f64) -> Result<Vec<u8>> {
+    let list: Vec<u32> = mesh.indices.iter().flatten().copied().collect();
+    glb_primitive(mesh, &list, TRIANGLES, name, metres_per_unit)
+}
+
+/// glTF's primitive mode for a triangle list.
+pub const TRIANGLES: u32 = 4;
+/// glTF's primitive mode for a triangle strip (no restart index: glTF forbids the maximum
+/// index value, so strips are joined by repeated indices).
+pub const TRIANGLE_STRIP: u32 = 5;
+
+/// [`glb_bytes`] with the primitive's `indices` and `mode` given ([`TRIANGLES`] or
+/// [`TRIANGLE_STRIP`]); `mesh.indices` is not used.
+pub fn glb_primitive(
+    mesh: &TriMesh,
+    indices: &[u32],
+    mode: u32,
+    name: &str,
+    metres_per_unit: f64,
+) -> Result<Vec<u8>> {
     let n = mesh.positions.len();
-    if n == 0 || mesh.indices.is_empty() {
+    if indices.contains(&u32::MAX) {
+        return Err(Error::Internal(format!(
+            "glb: mesh `{name}` has a restart index, which glTF forbids"
+        )));
+    }
+    if n == 0 || indices.is_empty() {
         return Err(Error::Internal(format!("glb: mesh `{name}` is empty")));
     }
     let y_up = |v: glam::Vec3| [v.x, v.z, -v.y];
     let m = metres_per_unit as f32;
-    let mut bin: Vec<u8> = Vec::with_capacity(n * 24 + mesh.indices.len() * 12);
+    let mut bin: Vec<u8> = Vec::with_capacity(n * 24 + indices.len() * 4);
     let mut min = [f32::INFINITY; 3];
     let mut max = [f32::NEG_INFINITY; 3];
     for p in &mesh.positions {
@@ -60,23 +84,21 @@ pub fn glb_bytes(mesh: &TriMesh, name: &str, metres_per_unit: f64) -> Result<Vec
         attributes.insert("NORMAL".into(), json!(accessors.len() - 1));
     }
     let start = bin.len();
-    for t in &mesh.indices {
-        for i in t {
-            bin.extend_from_slice(&i.to_le_bytes());
-        }
+    for i in indices {
+        bin.extend_from_slice(&i.to_le_bytes());
     }
     views.push(json!({"buffer": 0, "byteOffset": start, "byteLength": bin.len() - start, "target": ELEMENT_ARRAY_BUFFER}));
     accessors.push(json!({
         "bufferView": views.len() - 1, "componentType": UNSIGNED_INT,
-        "count": mesh.indices.len() * 3, "type": "SCALAR",
+        "count": indices.len(), "type": "SCALAR",
     }));
-    let indices = accessors.len() - 1;
+    let index_accessor = accessors.len() - 1;
     let doc = json!({
         "asset": {"version": "2.0", "generator": concat!("terratile ", env!("CARGO_PKG_VERSION"))},
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "name": name}],
-        "meshes": [{"name": name, "primitives": [{"attributes": attributes, "indices": indices, "mode": 4}]}],
+        "meshes": [{"name": name, "primitives": [{"attributes": attributes, "indices": index_accessor, "mode": mode}]}],
         "accessors": accessors,
         "bufferViews": views,
         "buffers": [{"byteLength": bin.len()}],

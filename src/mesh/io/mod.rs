@@ -22,7 +22,7 @@ mod glb_write;
 pub mod obj;
 pub mod ply;
 
-pub use glb_write::{glb_bytes, glb_container};
+pub use glb_write::{glb_bytes, glb_container, glb_primitive, TRIANGLES, TRIANGLE_STRIP};
 
 use super::TriMesh;
 use crate::error::{Error, Result};

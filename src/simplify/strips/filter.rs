@@ -3,17 +3,24 @@
 //!
 //! - DTFS, degenerate-triangle-free scanning (the progressive-strips paper's filter): scan
 //!   the consecutive triples, keep only those with three distinct vertices, and rebuild
-//!   strips from them: a triangle that continues the output through its last edge adds one
-//!   vertex (the regular case {a, b, c, f}), one that continues through the other edge of
-//!   the last vertex adds a swap and a vertex (the swap case {a, b, c, b, f}), any other
-//!   starts a new strip (the split case). The cases are decided on oriented triangles, so
-//!   each triangle is drawn with its orientation.
+//!   strips from them. A triangle across the output's last edge [b c] continues it: the
+//!   regular case {a, b, c, f} leaves the edge [c f], the swap case {a, b, c, b, f} the
+//!   edge [b f], chosen by the triangle after it (the paper tells the two apart by the
+//!   triples' parity in the input; on oriented triangles the same triangle is drawn either
+//!   way and only the outgoing edge differs). Any other triangle starts a new strip (the
+//!   split case), in the rotation and parity that let the most of the next few triangles
+//!   continue it, joined by a single repeated vertex where the output ends with one of its
+//!   corners (our addition: the paper always ends the strip). Each triangle is drawn with
+//!   its orientation.
 //! - STSS (after El-Sana, Azanli and Varshney's skip strips, the filter the paper compares
 //!   against): keep the strip as it is but cut out each run of consecutive degenerate
 //!   triangles where cutting saves indices (a restart, or two joining indices, instead of
 //!   the run), keeping the orientation of what follows.
 
 use super::stripify::{Join, RESTART};
+
+/// How many of the following triangles a split looks at to choose how the new strip starts.
+const START_LOOKAHEAD: usize = 8;
 
 /// Appends strips triangle by triangle: the regular, swap and split cases.
 struct Builder {
@@ -32,6 +39,30 @@ fn follows(t: [u32; 3], x: u32, y: u32, parity: u32) -> Option<u32> {
     (0..3).find_map(|k| (t[k] == p && t[(k + 1) % 3] == q).then_some(t[(k + 2) % 3]))
 }
 
+/// A strip's end: its last two vertices and the parity of its next triangle.
+type Tail = ([u32; 2], u32);
+
+/// Whether `t` can be the strip's next triangle: it lies across the last edge, oriented.
+#[inline]
+fn takes(t: [u32; 3], ([x, y], parity): Tail) -> Option<u32> {
+    follows(t, x, y, parity)
+}
+
+/// The indices that continue a strip ending in `tail` with `t`, and the new end; None for
+/// a split. `t` lies across the last edge [x y] and adds z. The regular case writes z and
+/// leaves the edge [y z]; the swap case writes x z (x repeated) and leaves [x z]: the same
+/// triangle, the other outgoing edge. The swap is taken when `next` lies across [x z] and
+/// not across [y z].
+#[inline]
+fn continue_with(t: [u32; 3], tail: Tail, next: Option<[u32; 3]>) -> Option<(Tail, usize)> {
+    let ([x, y], parity) = tail;
+    let z = takes(t, tail)?;
+    let regular = ([y, z], parity ^ 1);
+    let swap = ([x, z], parity);
+    let swapped = next.is_some_and(|n| takes(n, regular).is_none() && takes(n, swap).is_some());
+    Some(if swapped { (swap, 2) } else { (regular, 1) })
+}
+
 impl Builder {
     fn new(join: Join, capacity: usize) -> Builder {
         Builder {
@@ -41,39 +72,96 @@ impl Builder {
         }
     }
 
+    /// Appends `t`; `ahead` are the triangles that follow it (they choose between the
+    /// regular and the swap case, and how a new strip starts).
     #[inline]
-    fn push(&mut self, t: [u32; 3]) {
-        if let Some(([x, y], parity)) = self.tail {
-            if let Some(z) = follows(t, x, y, parity) {
-                // Regular: one vertex.
-                self.out.push(z);
-                self.tail = Some(([y, z], parity ^ 1));
-                return;
-            }
-            if let Some(z) = follows(t, y, x, parity ^ 1) {
-                // Swap: x repeated, then the vertex.
-                self.out.extend([x, z]);
-                self.tail = Some(([x, z], parity));
+    fn push(&mut self, t: [u32; 3], ahead: &[[u32; 3]]) {
+        if let Some(tail) = self.tail {
+            if let Some((next, n)) = continue_with(t, tail, ahead.first().copied()) {
+                if n == 2 {
+                    // Swap: the strip's second-last vertex repeated.
+                    self.out.push(tail.0[0]);
+                }
+                self.out.push(next.0[1]);
+                self.tail = Some(next);
                 return;
             }
         }
-        // Split: a new strip.
-        let [a, b, c] = t;
-        match (self.join, self.tail) {
-            (_, None) => {
-                self.out.extend([a, b, c]);
-                self.tail = Some(([b, c], 1));
+        self.split(t, ahead);
+    }
+
+    /// The split case: a new strip drawing `t`. Any rotation of `t` may start it, at either
+    /// parity (the odd one costs a repeated first vertex); the paper rebuilds the new strip
+    /// from the triple as it stands in the input, which keeps the input's own continuation.
+    /// Trying the six starts against the next few triangles finds that one and the others.
+    fn split(&mut self, t: [u32; 3], ahead: &[[u32; 3]]) {
+        let ahead = &ahead[..ahead.len().min(START_LOOKAHEAD)];
+        let mut best: Option<(usize, usize, [u32; 3], u32)> = None;
+        for k in 0..3 {
+            let r = [t[k], t[(k + 1) % 3], t[(k + 2) % 3]];
+            for q in 0..2 {
+                let seq = if q == 0 {
+                    [r[0], r[1], r[2]]
+                } else {
+                    [r[1], r[0], r[2]]
+                };
+                let mut cost = self.pads(seq[0], q).1;
+                let mut tail = ([seq[1], seq[2]], q ^ 1);
+                let mut covered = 0;
+                for (i, &a) in ahead.iter().enumerate() {
+                    match continue_with(a, tail, ahead.get(i + 1).copied()) {
+                        Some((next, n)) => {
+                            tail = next;
+                            cost += n;
+                            covered += 1;
+                        }
+                        None => break,
+                    }
+                }
+                // Most triangles continued, then fewest indices.
+                let better = best
+                    .is_none_or(|(c, k, _, _)| (covered, usize::MAX - cost) > (c, usize::MAX - k));
+                if better {
+                    best = Some((covered, cost, seq, q));
+                }
             }
+        }
+        let (_, _, seq, q) = best.expect("six starts tried");
+        let (pads, n) = self.pads(seq[0], q);
+        self.out.extend_from_slice(&pads[..n]);
+        self.out.extend(seq);
+        self.tail = Some(([seq[1], seq[2]], q ^ 1));
+    }
+
+    /// The indices written before a new strip whose first triangle `first, …` is drawn at
+    /// parity `q`, and how many: a restart or two repeated indices to join it (none when the
+    /// strip already ends with `first`), and a repeated first vertex where the parity needs
+    /// one.
+    fn pads(&self, first: u32, q: u32) -> ([u32; 4], usize) {
+        let mut pads = [0; 4];
+        let mut n = 0;
+        // The parity the new strip's first triangle lands at without a repeated first vertex.
+        let lands = match (self.join, self.tail) {
+            (_, None) => 0,
+            // The strip ends with the new one's first vertex: written once more, it makes
+            // the joining triangles degenerate by itself (no restart, no second index).
+            (_, Some(([_, y], parity))) if y == first => parity,
             (Join::Restart, Some(_)) => {
-                self.out.extend([RESTART, a, b, c]);
-                self.tail = Some(([b, c], 1));
+                pads[0] = RESTART;
+                n = 1;
+                0
             }
             (Join::Degenerate, Some(([_, y], parity))) => {
-                let (e0, e1) = if parity == 1 { (c, b) } else { (b, c) };
-                self.out.extend([y, a, a, e0, e1]);
-                self.tail = Some(([e0, e1], parity ^ 1));
+                pads[..2].copy_from_slice(&[y, first]);
+                n = 2;
+                parity
             }
+        };
+        if lands != q {
+            pads[n] = first;
+            n += 1;
         }
+        (pads, n)
     }
 }
 
@@ -89,19 +177,12 @@ pub fn join_of(strip: &[u32]) -> Join {
 /// DTFS: the non-degenerate triangles of `strip`, in order, rebuilt into strips joined by
 /// `join`. Writes into `out` (cleared), so that a renderer can reuse one buffer.
 pub fn dtfs_into(strip: &[u32], join: Join, out: &mut Vec<u32>) {
-    let mut b = Builder {
-        out: std::mem::take(out),
-        join,
-        tail: None,
-    };
-    b.out.clear();
-    super::stripify::each_triangle(strip, |t| b.push(t));
-    *out = b.out;
+    dtfs_window_into(strip, join, 1, &mut Vec::new(), out);
 }
 
 /// DTFS with a look-ahead: the next triangle is the first of the next `window` surviving
-/// ones that continues the output (regular, then swap), else the next one starts a new
-/// strip. Window 1 is [`dtfs_into`].
+/// ones that continues the output, else the next one starts a new strip. Window 1 is
+/// [`dtfs_into`].
 pub fn dtfs_window_into(
     strip: &[u32],
     join: Join,
@@ -121,20 +202,16 @@ pub fn dtfs_window_into(
     let mut i = 0;
     while i < scratch.len() {
         let end = (i + window).min(scratch.len());
-        let pick = b.tail.and_then(|([x, y], parity)| {
-            let w = &scratch[i..end];
-            w.iter()
-                .position(|&t| follows(t, x, y, parity).is_some())
-                .or_else(|| {
-                    w.iter()
-                        .position(|&t| follows(t, y, x, parity ^ 1).is_some())
-                })
+        let pick = b.tail.and_then(|tail| {
+            scratch[i..end]
+                .iter()
+                .position(|&t| takes(t, tail).is_some())
         });
         // Keep the order of the others: move the pick to the front of the window.
         if let Some(k) = pick {
             scratch[i..=i + k].rotate_right(1);
         }
-        b.push(scratch[i]);
+        b.push(scratch[i], &scratch[i + 1..]);
         i += 1;
     }
     *out = b.out;

@@ -530,15 +530,22 @@ pub fn build_file(
     let p = super::progressive(&mesh, params)?;
     let bytes = encode(&p, encoding);
     crate::fsutil::write_bytes_atomic(output, &bytes)?;
-    Ok(BuildReport {
-        triangles: p.triangles,
-        base_vertices: p.base_vertices,
-        vertices: p.vertices.vertex_count(),
-        splits: p.splits.len(),
-        strip_len: p.base.len(),
-        mean_updates: p.mean_updates(),
-        bytes: bytes.len(),
-    })
+    Ok(BuildReport::of(&p, bytes.len()))
+}
+
+impl BuildReport {
+    /// The report of `p` written as `bytes` bytes.
+    pub fn of(p: &Progressive, bytes: usize) -> BuildReport {
+        BuildReport {
+            triangles: p.triangles,
+            base_vertices: p.base_vertices,
+            vertices: p.vertices.vertex_count(),
+            splits: p.splits.len(),
+            strip_len: p.base.len(),
+            mean_updates: p.mean_updates(),
+            bytes,
+        }
+    }
 }
 
 /// A level of a stream: a number of splits, or all of them.
@@ -555,12 +562,52 @@ pub fn parse_level(text: &str, splits: usize) -> Result<usize> {
 }
 
 /// Decodes the stream at `input` to `level` (see [`parse_level`]) and writes that mesh to
-/// `output` (OBJ or PLY by its extension); returns (level, triangles).
+/// `output`: OBJ or PLY by its extension, or for `.glb` one `TRIANGLE_STRIP` primitive (see
+/// [`glb_at`]); returns (level, triangles).
 pub fn decode_file(input: &Path, level: &str, output: &Path) -> Result<(usize, usize)> {
     let bytes = std::fs::read(input).map_err(|e| Error::io(input, e))?;
     let (p, encoding) = decode(&bytes, input)?;
     let l = parse_level(level, p.splits.len())?;
     let m = p.mesh_at(l, encoding);
-    crate::mesh::io::write(&m, output)?;
+    if output.extension().and_then(|e| e.to_str()) == Some("glb") {
+        let name = output
+            .file_stem()
+            .map_or("mesh".into(), |s| s.to_string_lossy());
+        crate::fsutil::write_bytes_atomic(output, &glb_at(&p, l, encoding, &name, 1.0)?)?;
+    } else {
+        crate::mesh::io::write(&m, output)?;
+    }
     Ok((l, m.triangle_count()))
+}
+
+/// The mesh of `p` at `level` as a glTF binary with one `TRIANGLE_STRIP` primitive (mode 5):
+/// the vertices present at that level and the decoded strip after DTFS. glTF forbids the
+/// restart index, so strips are joined by repeated indices. Positions scaled by
+/// `metres_per_unit`, turned y-up as the other glTF files.
+pub fn glb_at(
+    p: &Progressive,
+    level: usize,
+    encoding: Encoding,
+    name: &str,
+    metres_per_unit: f64,
+) -> Result<Vec<u8>> {
+    let mut d = super::Decoder::new(p, encoding);
+    d.set_level(level);
+    let n = d.vertex_count();
+    let v = &p.vertices;
+    let vertices = crate::mesh::TriMesh {
+        positions: v.positions[..n].to_vec(),
+        indices: Vec::new(),
+        normals: v.normals.as_ref().map(|a| a[..n].to_vec()),
+        colors: None,
+        uvs: None,
+    };
+    let strip = super::filter::dtfs(d.strip(), super::Join::Degenerate);
+    crate::mesh::io::glb_primitive(
+        &vertices,
+        &strip,
+        crate::mesh::io::TRIANGLE_STRIP,
+        name,
+        metres_per_unit,
+    )
 }

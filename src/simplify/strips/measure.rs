@@ -3,7 +3,7 @@
 
 use super::filter::{dtfs_into, stss};
 use super::progressive::{Decoder, Encoding, Progressive};
-use super::stripify::{each_triangle, Join};
+use super::stripify::{each_triangle, Join, RESTART};
 use serde::Serialize;
 
 /// Indices a renderer sends at one level.
@@ -17,8 +17,10 @@ pub struct LevelIndices {
     pub unfiltered: usize,
     /// After STSS.
     pub stss: usize,
-    /// After DTFS.
+    /// After DTFS (restarts included).
     pub dtfs: usize,
+    /// The restarts among them (what separate draw calls per strip would not send).
+    pub dtfs_restarts: usize,
     /// A triangle list of the same triangles (3 per triangle).
     pub list: usize,
 }
@@ -40,6 +42,7 @@ pub fn gpu_indices(p: &Progressive, levels: &[usize], join: Join) -> Vec<LevelIn
                 unfiltered: d.strip().len(),
                 stss: stss(d.strip(), join).len(),
                 dtfs: buf.len(),
+                dtfs_restarts: buf.iter().filter(|&&v| v == RESTART).count(),
                 list: 3 * triangles,
             }
         })

@@ -8,6 +8,8 @@
 //! - [`filter`]: DTFS and STSS, which drop what collapsed strips no longer draw.
 //! - [`format`]: the `.tps` stream.
 
+pub mod asset;
+pub mod figure;
 pub mod filter;
 pub mod format;
 pub mod measure;
