@@ -2,6 +2,7 @@
 //! saliency"): what the shape says ([`mesh`]: curvature and Lee et al.'s mesh saliency).
 //! The per-vertex maps become the weight H of [`crate::simplify::qem::QemParams::weights`].
 
+pub(crate) mod grid;
 pub mod hybrid;
 pub mod image;
 pub mod itti;
