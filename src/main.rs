@@ -228,9 +228,13 @@ struct SimplifyArgs {
     /// QEM: weight the cost by saliency: none (default), mesh, image or hybrid.
     #[arg(long, value_enum)]
     saliency: Option<SaliencyArg>,
-    /// QEM with saliency: the least weight H, in (0, 1] (default 0.1).
+    /// QEM with saliency: the least weight H, in (0, 1] (default 0.05).
     #[arg(long, value_name = "H", allow_negative_numbers = true)]
     h_min: Option<f64>,
+    /// QEM with saliency: how the weights enter: quadric (default; Lee et al.'s weighted
+    /// quadrics) or cost (An's thesis: the cost times the mean weight).
+    #[arg(long, value_enum)]
+    saliency_rule: Option<SaliencyRuleArg>,
     /// QEM with image or hybrid saliency: N, the camera angles 2πk/N (default 36).
     #[arg(long, value_name = "N")]
     views: Option<u32>,
@@ -292,6 +296,12 @@ enum SaliencyArg {
     Mesh,
     Image,
     Hybrid,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum SaliencyRuleArg {
+    Quadric,
+    Cost,
 }
 
 #[derive(ValueEnum, Debug, Clone, Copy)]
@@ -899,6 +909,10 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
             }
         }),
         saliency_h_min: a.h_min,
+        saliency_rule: a.saliency_rule.map(|r| match r {
+            SaliencyRuleArg::Quadric => terratile::simplify::qem::WeightRule::Quadric,
+            SaliencyRuleArg::Cost => terratile::simplify::qem::WeightRule::Cost,
+        }),
         saliency_views: a.views,
         saliency_view_size: a.view_size,
     };

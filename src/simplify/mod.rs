@@ -46,6 +46,7 @@ pub fn simplify(mesh: &mesh::TriMesh, params: &SimplifyParams) -> Result<Simplif
         cost: qem::Cost::default(),
         check_intersections: params.check_intersections.unwrap_or(false),
         weights: None,
+        weight_rule: params.saliency_rule.unwrap_or(qem::WeightRule::Quadric),
     };
     let mut p = p;
     if let Some(kind) = params.saliency {

@@ -106,6 +106,31 @@ pub enum Cost {
     Distance,
 }
 
+/// How per-vertex saliency weights H ([`QemParams::weights`]) enter the collapse order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WeightRule {
+    /// An's thesis (eq. 4.1–4.2): C(e) = Q(e) · (H_a + H_b) / 2, and the collapsed vertex
+    /// keeps that mean.
+    #[default]
+    Cost,
+    /// Lee, Varshney & Jacobs ("Mesh Saliency", 2005): every vertex's quadric is multiplied
+    /// by its H before any collapse, so the merged quadrics carry the weight of every plane
+    /// they hold (a salient region keeps its weight however its vertices merge, where the
+    /// mean of eq. 4.2 dilutes it with each unsalient neighbour), and the placement leans
+    /// to the salient planes too.
+    Quadric,
+}
+
+impl std::fmt::Display for WeightRule {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            WeightRule::Cost => "cost",
+            WeightRule::Quadric => "quadric",
+        })
+    }
+}
+
 /// Parameters of a quadric edge collapse.
 #[derive(Debug, Clone, PartialEq)]
 pub struct QemParams {
@@ -129,6 +154,8 @@ pub struct QemParams {
     /// an edge is multiplied by the mean H of its endpoints, and the collapsed vertex takes
     /// that mean. A welded vertex takes the largest H of its copies. `None`: plain QEM.
     pub weights: Option<std::sync::Arc<[f64]>>,
+    /// How `weights` enter the order (the cost, as the thesis, or the quadrics).
+    pub weight_rule: WeightRule,
 }
 
 impl QemParams {
@@ -144,6 +171,7 @@ impl QemParams {
             cost: Cost::Quadric,
             check_intersections: false,
             weights: None,
+            weight_rule: WeightRule::Cost,
         }
     }
 }

@@ -230,6 +230,44 @@ pub fn mesh_saliency(mesh: &TriMesh) -> MeshSaliency {
     }
 }
 
+/// `values` (per input vertex) averaged with Gaussian weights e^{−d²/(2σ²)} over the points
+/// of the welded surface within 2σ, σ = `sigma_eps` · ε (the same neighbourhoods as Lee's
+/// G(σ)); welded copies take the largest of their values first. Parallel over vertices.
+pub fn smooth(mesh: &TriMesh, values: &[f64], sigma_eps: f64) -> Vec<f64> {
+    let w = Welded::new(mesh);
+    let mut x = vec![f64::NEG_INFINITY; w.pos.len()];
+    for (v, &d) in w.of.iter().enumerate() {
+        if d != u32::MAX {
+            x[d as usize] = x[d as usize].max(values[v]);
+        }
+    }
+    let sigma = sigma_eps * eps(&w.pos);
+    if sigma <= 0.0 {
+        return w.spread(&x);
+    }
+    let grid = Grid::new(&w.pos, 2.0 * sigma);
+    let xs: Vec<f64> = grid.items.iter().map(|&i| x[i as usize]).collect();
+    let inv = -1.0 / (2.0 * sigma * sigma);
+    let sorted: Vec<f64> = grid
+        .pts
+        .par_iter()
+        .map(|&p| {
+            let (mut num, mut den) = (0.0, 0.0);
+            grid.each_within(p, 2.0 * sigma, |u, d2| {
+                let g = (d2 * inv).exp();
+                num += g * xs[u];
+                den += g;
+            });
+            num / den
+        })
+        .collect();
+    let mut out = vec![0.0f64; w.pos.len()];
+    for (&i, g) in grid.items.iter().zip(sorted) {
+        out[i as usize] = g;
+    }
+    w.spread(&out)
+}
+
 /// ε in model units: 0.3 % of the bbox diagonal of `pos`.
 pub(crate) fn eps(pos: &[DVec3]) -> f64 {
     let (lo, hi) = pos.iter().fold(
