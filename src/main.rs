@@ -126,6 +126,10 @@ enum Command {
         /// 100,000,000).
         #[arg(long, value_name = "N")]
         samples: Option<u64>,
+        /// Also render the original coloured by each vertex's distance to the simplified
+        /// surface (blue 0 → red at the 99th percentile), front and back, into this new PNG.
+        #[arg(long, value_name = "OUT.png")]
+        heatmap: Option<PathBuf>,
         /// Refuse files that are read with a warning by default (unusable texture
         /// coordinates, normals or colours; faces with fewer than 3 vertices).
         #[arg(long)]
@@ -750,10 +754,19 @@ fn run(cli: Cli) -> Result<()> {
             original,
             simplified,
             samples,
+            heatmap,
             strict,
             check_folds,
             json,
         } => {
+            if let Some(out) = &heatmap {
+                if out.exists() {
+                    return Err(Error::Usage(format!(
+                        "{}: the heatmap file exists (terratile does not overwrite it)",
+                        out.display()
+                    )));
+                }
+            }
             let params = terratile::mesh::HausdorffParams {
                 samples: samples.unwrap_or(0),
             };
@@ -768,10 +781,32 @@ fn run(cli: Cli) -> Result<()> {
             for w in &r.warnings {
                 eprintln!("terratile: warning: {}", one_line(w));
             }
+            let heat = match &heatmap {
+                Some(out) => {
+                    let load = |p: &PathBuf| terratile::mesh::io::read_surface_with(p, &read);
+                    let (a, b) = (load(&original)?.0, load(&simplified)?.0);
+                    Some(terratile::simplify::saliency::pictures::write_heatmap(
+                        &a, &b, 512, out,
+                    )?)
+                }
+                None => None,
+            };
             if json {
-                print_json(&r)?;
+                match &heat {
+                    Some(h) => print_json(&serde_json::json!({ "compare": r, "heatmap": h }))?,
+                    None => print_json(&r)?,
+                }
             } else {
                 out!("{r}");
+                if let Some(h) = &heat {
+                    out!(
+                        "heatmap {}: red at {:.6}, vertex distance max {:.6}, mean {:.6}",
+                        h.file.display(),
+                        h.red_at,
+                        h.max,
+                        h.mean
+                    );
+                }
             }
         }
         Command::Saliency {

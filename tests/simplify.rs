@@ -919,3 +919,33 @@ fn salient_fifth(m: &TriMesh, h: &[f64]) -> TriMesh {
     }
     salient
 }
+
+#[test]
+fn compare_heatmap_draws_the_error_and_never_overwrites() {
+    // A bumpy grid against its plain QEM simplification: the PNG is written, the JSON
+    // names it with the distances, and a second run refuses to overwrite it (exit 2).
+    let d = tempfile::tempdir().unwrap();
+    std::fs::write(d.path().join("m.obj"), grid_obj(12, "")).unwrap();
+    let mut m = io::read(&d.path().join("m.obj")).unwrap();
+    for p in &mut m.positions {
+        p.z = (3.0 * p.x).sin() * (2.0 * p.y).cos();
+    }
+    io::write(&m, &d.path().join("m.obj")).unwrap();
+    let s = simplify(&m, &SimplifyParams::ratio(Method::Qem, 0.2)).unwrap();
+    io::write(&s.mesh, &d.path().join("s.obj")).unwrap();
+    let args = ["compare", "m.obj", "s.obj", "--heatmap", "h.png", "--json"];
+    let r = common::terratile(d.path(), &args);
+    r.ok();
+    let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+    let (mean, max) = (
+        v["heatmap"]["mean"].as_f64().unwrap(),
+        v["heatmap"]["max"].as_f64().unwrap(),
+    );
+    assert!(mean > 0.0 && max >= mean, "{}", r.stdout);
+    assert!(v["compare"]["error"].is_object(), "{}", r.stdout);
+    let png = std::fs::read(d.path().join("h.png")).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
+    let r = common::terratile(d.path(), &args);
+    r.input_error(&["h.png", "exists"]);
+    assert_eq!(std::fs::read(d.path().join("h.png")).unwrap(), png);
+}
