@@ -799,7 +799,7 @@ fn run(cli: Cli) -> Result<()> {
             } else {
                 out!("{r}");
                 if let Some(h) = &heat {
-                    out!(
+                    outln!(
                         "heatmap {}: red at {:.6}, vertex distance max {:.6}, mean {:.6}",
                         h.file.display(),
                         h.red_at,
