@@ -126,6 +126,10 @@ enum Command {
         /// 100,000,000).
         #[arg(long, value_name = "N")]
         samples: Option<u64>,
+        /// Also render the original coloured by each vertex's distance to the simplified
+        /// surface (blue 0 → red at the 99th percentile), front and back, into this new PNG.
+        #[arg(long, value_name = "OUT.png")]
+        heatmap: Option<PathBuf>,
         /// Refuse files that are read with a warning by default (unusable texture
         /// coordinates, normals or colours; faces with fewer than 3 vertices).
         #[arg(long)]
@@ -236,9 +240,13 @@ struct SimplifyArgs {
     /// QEM: weight the cost by saliency: none (default), mesh, image or hybrid.
     #[arg(long, value_enum)]
     saliency: Option<SaliencyArg>,
-    /// QEM with saliency: the least weight H, in (0, 1] (default 0.1).
+    /// QEM with saliency: the least weight H, in (0, 1] (default 0.05).
     #[arg(long, value_name = "H", allow_negative_numbers = true)]
     h_min: Option<f64>,
+    /// QEM with saliency: how the weights enter: quadric (default; Lee et al.'s weighted
+    /// quadrics) or cost (An's thesis: the cost times the mean weight).
+    #[arg(long, value_enum)]
+    saliency_rule: Option<SaliencyRuleArg>,
     /// QEM with image or hybrid saliency: N, the camera angles 2πk/N (default 36).
     #[arg(long, value_name = "N")]
     views: Option<u32>,
@@ -300,6 +308,12 @@ enum SaliencyArg {
     Mesh,
     Image,
     Hybrid,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum SaliencyRuleArg {
+    Quadric,
+    Cost,
 }
 
 #[derive(ValueEnum, Debug, Clone, Copy)]
@@ -754,10 +768,19 @@ fn run(cli: Cli) -> Result<()> {
             original,
             simplified,
             samples,
+            heatmap,
             strict,
             check_folds,
             json,
         } => {
+            if let Some(out) = &heatmap {
+                if out.exists() {
+                    return Err(Error::Usage(format!(
+                        "{}: the heatmap file exists (terratile does not overwrite it)",
+                        out.display()
+                    )));
+                }
+            }
             let params = terratile::mesh::HausdorffParams {
                 samples: samples.unwrap_or(0),
             };
@@ -772,7 +795,33 @@ fn run(cli: Cli) -> Result<()> {
             for w in &r.warnings {
                 eprintln!("terratile: warning: {}", one_line(w));
             }
-            print_report(json, &r)?;
+            let heat = match &heatmap {
+                Some(out) => {
+                    let load = |p: &PathBuf| terratile::mesh::io::read_surface_with(p, &read);
+                    let (a, b) = (load(&original)?.0, load(&simplified)?.0);
+                    Some(terratile::simplify::saliency::pictures::write_heatmap(
+                        &a, &b, 512, out,
+                    )?)
+                }
+                None => None,
+            };
+            if json {
+                match &heat {
+                    Some(h) => print_json(&serde_json::json!({ "compare": r, "heatmap": h }))?,
+                    None => print_json(&r)?,
+                }
+            } else {
+                out!("{r}");
+                if let Some(h) = &heat {
+                    outln!(
+                        "heatmap {}: red at {:.6}, vertex distance max {:.6}, mean {:.6}",
+                        h.file.display(),
+                        h.red_at,
+                        h.max,
+                        h.mean
+                    );
+                }
+            }
         }
         Command::Saliency {
             input,
@@ -899,6 +948,10 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
             }
         }),
         saliency_h_min: a.h_min,
+        saliency_rule: a.saliency_rule.map(|r| match r {
+            SaliencyRuleArg::Quadric => terratile::simplify::qem::WeightRule::Quadric,
+            SaliencyRuleArg::Cost => terratile::simplify::qem::WeightRule::Cost,
+        }),
         saliency_views: a.views,
         saliency_view_size: a.view_size,
     };

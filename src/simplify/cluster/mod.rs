@@ -161,9 +161,12 @@ pub struct SimplifyParams {
     /// QEM: weight the cost by `none` (default), `mesh`, `image` or `hybrid` saliency.
     #[serde(default)]
     pub saliency: Option<crate::simplify::saliency::Saliency>,
-    /// QEM with saliency: the least weight, in (0, 1] (default 0.1).
+    /// QEM with saliency: the least weight, in (0, 1] (default 0.05).
     #[serde(default)]
     pub saliency_h_min: Option<f64>,
+    /// QEM with saliency: how the weights enter, `quadric` (default) or `cost` (the thesis).
+    #[serde(default)]
+    pub saliency_rule: Option<crate::simplify::qem::WeightRule>,
     /// QEM with image or hybrid saliency: views N (angles 2πk/N; default 36, at least 2).
     #[serde(default)]
     pub saliency_views: Option<u32>,
@@ -218,6 +221,7 @@ impl SimplifyParams {
             max_error_pct: None,
             saliency: None,
             saliency_h_min: None,
+            saliency_rule: None,
             saliency_views: None,
             saliency_view_size: None,
             pair_distance: None,
@@ -370,6 +374,7 @@ impl SimplifyParams {
             ("max_error_pct", self.max_error_pct.is_some()),
             ("saliency", self.saliency.is_some()),
             ("saliency_h_min", self.saliency_h_min.is_some()),
+            ("saliency_rule", self.saliency_rule.is_some()),
             ("saliency_views", self.saliency_views.is_some()),
             ("saliency_view_size", self.saliency_view_size.is_some()),
             ("pair_distance", self.pair_distance.is_some()),

@@ -337,7 +337,14 @@ impl<'m> Collapse<'m> {
         fn pick<T: Copy>(a: &[T], source: &[u32]) -> Vec<T> {
             source.iter().map(|&v| a[v as usize]).collect()
         }
-        let weight = saliency_weights(prep, params, n);
+        let mut weight = saliency_weights(prep, params, n);
+        if params.weight_rule == super::WeightRule::Quadric {
+            // The weights live in the quadrics from here on; the cost is Q(e) alone.
+            for (q, &w) in quad.iter_mut().zip(&weight) {
+                *q = *q * w;
+            }
+            weight = Vec::new();
+        }
         let diag = prep.bounds.diagonal();
         let tris = faces.len();
         let mut c = Collapse {

@@ -107,6 +107,31 @@ pub enum Cost {
     Distance,
 }
 
+/// How per-vertex saliency weights H ([`QemParams::weights`]) enter the collapse order.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WeightRule {
+    /// An's thesis (eq. 4.1–4.2): C(e) = Q(e) · (H_a + H_b) / 2, and the collapsed vertex
+    /// keeps that mean.
+    #[default]
+    Cost,
+    /// Lee, Varshney & Jacobs ("Mesh Saliency", 2005): every vertex's quadric is multiplied
+    /// by its H before any collapse, so the merged quadrics carry the weight of every plane
+    /// they hold (a salient region keeps its weight however its vertices merge, where the
+    /// mean of eq. 4.2 dilutes it with each unsalient neighbour), and the placement leans
+    /// to the salient planes too.
+    Quadric,
+}
+
+impl std::fmt::Display for WeightRule {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            WeightRule::Cost => "cost",
+            WeightRule::Quadric => "quadric",
+        })
+    }
+}
+
 /// Parameters of a quadric edge collapse.
 #[derive(Debug, Clone, PartialEq)]
 pub struct QemParams {
@@ -137,6 +162,8 @@ pub struct QemParams {
     /// take interpolated attributes and the discontinuity is lost); false: seam vertices
     /// are never moved.
     pub collapse_seams: bool,
+    /// How `weights` enter the order (the cost, as the thesis, or the quadrics).
+    pub weight_rule: WeightRule,
 }
 
 impl QemParams {
@@ -154,6 +181,7 @@ impl QemParams {
             weights: None,
             pair_distance: 0.0,
             collapse_seams: false,
+            weight_rule: WeightRule::Cost,
         }
     }
 }

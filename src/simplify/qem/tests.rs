@@ -352,15 +352,21 @@ fn saliency_weights_keep_the_twin_and_spare_the_salient_part() {
         let cx = m.bounds().unwrap().center().x;
         let heavy = |p: Vec3| if p.x > cx { 1.0 } else { 0.05 };
         let w: Vec<f64> = m.positions.iter().map(|&p| heavy(p)).collect();
-        for placement in [Placement::Optimal, Placement::Endpoint] {
+        let rules = [super::WeightRule::Cost, super::WeightRule::Quadric];
+        for (placement, rule) in [Placement::Optimal, Placement::Endpoint]
+            .into_iter()
+            .flat_map(|p| rules.map(|r| (p, r)))
+        {
             let p = QemParams {
                 weights: Some(w.clone().into()),
+                weight_rule: rule,
                 ..params(target, placement)
             };
             let (fast, slow) = fast_and_slow(&m, &p, target);
-            assert_eq!(fast.log, slow.log, "{placement}");
+            assert_eq!(fast.log, slow.log, "{placement} {rule}");
             let ones = QemParams {
                 weights: Some(vec![1.0; m.vertex_count()].into()),
+                weight_rule: rule,
                 ..params(target, placement)
             };
             let plain = simplify(&m, &params(target, placement)).unwrap();
@@ -375,7 +381,7 @@ fn saliency_weights_keep_the_twin_and_spare_the_salient_part() {
                     .filter(|p| heavy(**p) == 1.0)
                     .count()
             };
-            assert!(kept(&weighted) > kept(&plain), "{placement}");
+            assert!(kept(&weighted) > kept(&plain), "{placement} {rule}");
         }
     }
     let bad = QemParams {

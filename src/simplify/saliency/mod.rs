@@ -2,6 +2,7 @@
 //! saliency"): what the shape says ([`mesh`]: curvature and Lee et al.'s mesh saliency).
 //! The per-vertex maps become the weight H of [`crate::simplify::qem::QemParams::weights`].
 
+pub(crate) mod grid;
 pub mod hybrid;
 pub mod image;
 pub mod itti;
@@ -38,9 +39,9 @@ impl std::fmt::Display for Saliency {
     }
 }
 
-/// The default lower end of the weights H ∈ [h_min, 1]: the least salient edge costs a
-/// tenth of the most salient one at the same quadric error.
-pub const H_MIN: f64 = 0.1;
+/// The default lower end of the weights H ∈ [h_min, 1]: the least salient vertex's planes
+/// count a twentieth of the most salient one's.
+pub const H_MIN: f64 = 0.05;
 
 /// Refuses h_min outside (0, 1].
 pub fn check_h_min(h_min: f64) -> Result<()> {
@@ -75,13 +76,7 @@ pub struct Maps {
 pub fn maps(mesh: &TriMesh, views: &image::ViewParams) -> Result<Maps> {
     let m = mesh::mesh_saliency(mesh);
     let image = image::image_saliency(mesh, views)?;
-    let (hybrid, class) = hybrid::hybrid(
-        &m.curvature,
-        &m.saliency,
-        &image.max,
-        &image.min,
-        &image.mean,
-    );
+    let (hybrid, class) = hybrid_map(mesh, &m, &image);
     Ok(Maps {
         curvature: m.curvature,
         mesh_saliency: m.saliency,
@@ -89,6 +84,23 @@ pub fn maps(mesh: &TriMesh, views: &image::ViewParams) -> Result<Maps> {
         hybrid,
         class,
     })
+}
+
+/// The hybrid of the maps (classes and ranges of [`hybrid::hybrid`]) smoothed over
+/// σ = [`hybrid::SMOOTH`] · ε, and the classes.
+fn hybrid_map(
+    mesh: &TriMesh,
+    m: &mesh::MeshSaliency,
+    image: &image::ImageSaliency,
+) -> (Vec<f64>, Vec<u8>) {
+    let (h, class) = hybrid::hybrid(
+        &m.curvature,
+        &m.saliency,
+        &image.max,
+        &image.min,
+        &image.mean,
+    );
+    (mesh::smooth(mesh, &h, hybrid::SMOOTH), class)
 }
 
 /// The weights H ∈ [h_min, 1] of `kind` for `mesh` (`None`: plain QEM, also when the
@@ -205,8 +217,7 @@ pub fn saliency_file(
     let t = std::time::Instant::now();
     let img = image::image_saliency(&m, views)?;
     let image_seconds = t.elapsed().as_secs_f64();
-    let (hybrid, class) =
-        hybrid::hybrid(&ms.curvature, &ms.saliency, &img.max, &img.min, &img.mean);
+    let (hybrid, class) = hybrid_map(&m, &ms, &img);
     let maps = Maps {
         curvature: ms.curvature,
         mesh_saliency: ms.saliency,

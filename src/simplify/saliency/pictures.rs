@@ -155,3 +155,59 @@ pub fn write_png(mesh: &TriMesh, values: &[f64], size: usize, out: &Path) -> Res
         })?;
     crate::fsutil::write_bytes_atomic(out, &bytes)
 }
+
+/// What `terratile compare --heatmap` drew.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Heatmap {
+    /// The PNG written.
+    pub file: std::path::PathBuf,
+    /// The distance shown red (the 99th percentile of the vertices' distances), in model
+    /// units; 0 is blue.
+    pub red_at: f64,
+    /// The largest and the mean distance of the original's vertices to the other surface.
+    pub max: f64,
+    /// The mean.
+    pub mean: f64,
+}
+
+/// Renders `original` coloured by the distance of each of its vertices to the surface of
+/// `simplified` (Metro's error map, An's thesis Fig. 5.8 and 5.9), front and back, into the
+/// PNG `out`, which must not exist (a user's file is never overwritten).
+pub fn write_heatmap(
+    original: &TriMesh,
+    simplified: &TriMesh,
+    size: usize,
+    out: &Path,
+) -> Result<Heatmap> {
+    use rayon::prelude::*;
+    if out.exists() {
+        return Err(Error::Usage(format!(
+            "{}: the heatmap file exists (terratile does not overwrite it)",
+            out.display()
+        )));
+    }
+    if original.triangle_count() == 0 || simplified.triangle_count() == 0 {
+        return Err(Error::Data {
+            stage: "compare",
+            message: "a mesh without triangles has no error map".into(),
+        });
+    }
+    let bvh = crate::mesh::Bvh::new(simplified);
+    let d: Vec<f64> = original
+        .positions
+        .par_iter()
+        .map(|p| {
+            bvh.closest(p.as_dvec3(), None, f64::INFINITY)
+                .map_or(0.0, |h| h.dist2.sqrt())
+        })
+        .collect();
+    write_png(original, &d, size, out)?;
+    let mut sorted = d.clone();
+    sorted.sort_by(f64::total_cmp);
+    Ok(Heatmap {
+        file: out.to_path_buf(),
+        red_at: sorted[((sorted.len() as f64 - 1.0) * 0.99) as usize],
+        max: sorted.last().copied().unwrap_or(0.0),
+        mean: d.iter().sum::<f64>() / d.len().max(1) as f64,
+    })
+}
