@@ -584,9 +584,12 @@ struct ClassifyArgs {
     /// Largest window radius, metres (default 18).
     #[arg(long, value_name = "M")]
     window: Option<f64>,
-    /// Slope tolerance, rise over run (default 0.25).
+    /// Slope tolerance, rise over run (default 0.15).
     #[arg(long)]
     slope: Option<f64>,
+    /// Hysteresis slope: an object region needs a cell cut this steeply (default 0.3).
+    #[arg(long)]
+    sure_slope: Option<f64>,
     /// Elevation threshold, metres (default 0.5).
     #[arg(long, value_name = "M")]
     threshold: Option<f64>,
@@ -601,6 +604,7 @@ fn classify(a: ClassifyArgs, progress: &dyn Progress) -> Result<()> {
         cell_size: a.cell_size,
         window: a.window,
         slope: a.slope,
+        sure_slope: a.sure_slope,
         threshold: a.threshold,
         scalar: a.scalar,
         ..Default::default()

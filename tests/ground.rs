@@ -35,7 +35,7 @@ fn score(p: &Path) -> (Scores, f64) {
 }
 
 /// Mean kappa and total error over the eight samples, one default parameter set. The bars
-/// are what the defaults reach today (mean kappa 83.8 %, total error 4.47 %), so that a
+/// are what the defaults reach today (mean kappa 84.8 %, total error 4.10 %), so that a
 /// change that makes them worse fails; the target (kappa ≥ 88 %) is not reached yet.
 #[test]
 fn isprs_scores() {
@@ -61,8 +61,8 @@ fn isprs_scores() {
         100.0 * kappa,
         100.0 * total
     );
-    assert!(kappa >= 0.835, "mean kappa {kappa}");
-    assert!(total <= 0.05, "mean total error {total}");
+    assert!(kappa >= 0.845, "mean kappa {kappa}");
+    assert!(total <= 0.045, "mean total error {total}");
 }
 
 /// `terratile classify` writes the input's records in order with only the class changed,

