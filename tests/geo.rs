@@ -8,6 +8,8 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+mod qmesh;
+
 /// The Python interpreter of `target/geo-py/venv`, with rasterio, rio-cogeo and pyproj,
 /// built on first use; None (after saying why) when that is impossible.
 fn python_env() -> Option<PathBuf> {
