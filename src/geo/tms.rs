@@ -101,12 +101,13 @@ pub fn tile_bounds(z: u32, x: u32, y: u32) -> [f64; 4] {
     ]
 }
 
-/// The level whose lattice spacing is nearest (in ratio) the grid's spacing of `cell_m`
-/// metres: the spacing of level z is about 2πR/(2·2^z·64) north–south.
+/// The finest level whose lattice is not finer than the grid's spacing of `cell_m` metres
+/// (between 1 and 2 cells per lattice step: no invented detail, and a quarter of the samples
+/// of the next level): the spacing of level z is about 2πR/(2·2^z·64) north–south.
 pub fn finest_level(cell_m: f64) -> u32 {
     let metres_per_degree = WGS84_A * std::f64::consts::PI / 180.0;
     let z0 = tile_degrees(0) / TILE_INTERVALS as f64 * metres_per_degree;
-    let z = (z0 / cell_m).log2().round();
+    let z = (z0 / cell_m).log2().floor();
     if z.is_finite() {
         z.clamp(0.0, f64::from(MAX_LEVEL)) as u32
     } else {
@@ -441,9 +442,9 @@ mod tests {
         // 22.5° tiles: −123.1 is in column 2, 44° in row 5.
         assert_eq!((r.x, r.y), ([2, 2], [5, 5]));
         assert_eq!(tile_range(0, [10.0, 10.0, 11.0, 11.0]).x, [0, 1]);
-        // ~1 m spacing is level 16 or 17 (2πR/(2·2^z·64)).
-        let z = finest_level(1.0);
-        assert!((16..=17).contains(&z), "{z}");
+        // 1 m: level 18 has 1.19 m steps (2πR/(2·2^z·64)), level 19 0.60 m.
+        assert_eq!(finest_level(1.0), 18);
+        assert_eq!(finest_level(1.2), 17);
         assert_eq!(finest_level(1e9), 0);
     }
 

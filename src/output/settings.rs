@@ -40,6 +40,9 @@ pub struct OutputConfig {
     /// Write `dem.tif`, the whole heightfield as one Cloud-Optimized GeoTIFF (default false).
     #[serde(default)]
     pub geotiff: bool,
+    /// Write `geotiff/tile_CCC_RRR.tif`, each tile's valid extent as a GeoTIFF (default false).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub geotiff_tiles: bool,
     /// Write `terrain/`, a Cesium quantized-mesh tileset (default false; needs the CRS).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub quantized_mesh: bool,
@@ -93,6 +96,7 @@ impl Default for OutputConfig {
             wireframe: true,
             meshes: default_meshes(),
             geotiff: false,
+            geotiff_tiles: false,
             quantized_mesh: false,
             quantized_mesh_tolerance: default_qmesh_tolerance(),
             preview_size: default_preview_size(),

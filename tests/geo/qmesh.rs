@@ -487,3 +487,54 @@ fn quantized_mesh_without_crs_is_refused() {
         .input_error(&["output.quantized_mesh", "[input] crs"])
         .left_nothing("out");
 }
+
+/// The default job reduced to its XYZ file (which states no CRS) with `[input] crs = CODE`
+/// and `extra` under `[output]`.
+fn xyz_job(code: &str, extra: &str) -> tempfile::TempDir {
+    let d = default_job();
+    let p = d.path().join("pipeline.toml");
+    let text = std::fs::read_to_string(&p)
+        .unwrap()
+        .replacen("\"fixtures/*.las\", ", "", 1)
+        .replacen("[input]\n", &format!("[input]\ncrs = \"{code}\"\n"), 1)
+        .replacen("[output]\n", &format!("[output]\n{extra}"), 1);
+    std::fs::write(&p, text).unwrap();
+    d
+}
+
+/// A CRS the reprojection cannot handle (New Zealand Map Grid: proj4rs has no `nzmg`):
+/// `quantized_mesh` is refused in one line naming the CRS and the key, nothing written.
+#[test]
+fn quantized_mesh_with_unsupported_crs_is_refused() {
+    let d = xyz_job("EPSG:27200", "quantized_mesh = true\n");
+    terratile(d.path(), &["run", "--quiet"])
+        .input_error(&[
+            "output.quantized_mesh",
+            "EPSG:27200",
+            "nzmg",
+            "cannot be reprojected",
+        ])
+        .left_nothing("out");
+}
+
+/// The same CRS with only the GeoTIFF asked: the documented fallback, the outputs that need no
+/// reprojection are written, and the manifest says why there are no WGS 84 figures.
+#[test]
+fn unsupported_crs_still_writes_the_geotiff_and_says_why() {
+    let d = xyz_job("EPSG:27200", "");
+    let p = d.path().join("pipeline.toml");
+    let text =
+        std::fs::read_to_string(&p)
+            .unwrap()
+            .replacen("geotiff = false", "geotiff = true", 1);
+    std::fs::write(&p, text).unwrap();
+    terratile(d.path(), &["run", "--quiet"]).ok();
+    let out = d.path().join("out");
+    assert!(out.join("dem.tif").is_file());
+    let m: Value =
+        serde_json::from_slice(&std::fs::read(out.join("manifest.json")).unwrap()).unwrap();
+    let g = &m["geographic"];
+    assert!(g["wgs84_bounds"].is_null(), "{g}");
+    let why = g["unsupported"].as_str().unwrap();
+    assert!(why.contains("EPSG:27200") && why.contains("nzmg"), "{why}");
+}
