@@ -15,33 +15,26 @@ use std::process::Command;
 const A: f64 = 6_378_137.0;
 const F: f64 = 1.0 / 298.257_223_563;
 
-/// `target/geo-node/node_modules` with the decoder, installed on first use; None (after
-/// saying why) without node or npm.
-fn node_env() -> Option<PathBuf> {
-    let root = repo().join("target/geo-node");
+/// `target/DIR/node_modules` with npm package `spec` (`name@version`), installed on first
+/// use; None (after saying why) without npm or the registry.
+fn npm_env(dir: &str, spec: &str) -> Option<PathBuf> {
+    let root = repo().join("target").join(dir);
     let modules = root.join("node_modules");
-    if modules
-        .join("@here/quantized-mesh-decoder/package.json")
-        .is_file()
-    {
+    let name = &spec[..spec.rfind('@').unwrap_or(spec.len())];
+    if modules.join(name).join("package.json").is_file() {
         return Some(modules);
     }
     let _ = std::fs::create_dir_all(&root);
     let _ = std::fs::write(root.join("package.json"), b"{\"private\": true}\n");
     let o = Command::new("npm")
         .current_dir(&root)
-        .args([
-            "install",
-            "--no-audit",
-            "--no-fund",
-            "@here/quantized-mesh-decoder@1.2.8",
-        ])
+        .args(["install", "--no-audit", "--no-fund", spec])
         .output();
     match o {
         Ok(o) if o.status.success() => Some(modules),
         Ok(o) => {
             eprintln!(
-                "skipping: npm install @here/quantized-mesh-decoder failed: {}",
+                "skipping: npm install {spec} failed: {}",
                 String::from_utf8_lossy(&o.stderr)
             );
             None
@@ -51,6 +44,107 @@ fn node_env() -> Option<PathBuf> {
             None
         }
     }
+}
+
+/// Height of the decoded mesh `d` at (lon, lat) inside it (barycentric), None if no
+/// triangle holds the point.
+fn mesh_height_at(d: &Decoded, lon: f64, lat: f64) -> Option<f64> {
+    let s = d.bounds[2] - d.bounds[0];
+    let (x, y) = (
+        (lon - d.bounds[0]) / s * 32767.0,
+        (lat - d.bounds[1]) / s * 32767.0,
+    );
+    d.triangles.iter().find_map(|t| {
+        let p = t.map(|k| [d.uv[k][0] as f64, d.uv[k][1] as f64, d.pos[k][2]]);
+        let det =
+            (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
+        let l1 = ((x - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (y - p[0][1])) / det;
+        let l2 = ((p[1][0] - p[0][0]) * (y - p[0][1]) - (x - p[0][0]) * (p[1][1] - p[0][1])) / det;
+        let l0 = 1.0 - l1 - l2;
+        (l0 >= -1e-9 && l1 >= -1e-9 && l2 >= -1e-9)
+            .then(|| l0 * p[0][2] + l1 * p[1][2] + l2 * p[2][2])
+    })
+}
+
+/// CesiumJS (its `CesiumTerrainProvider` and `sampleTerrainMostDetailed`, under Node) at 100
+/// random points over the grid: the height of our decoded finest-level mesh there (within
+/// 1 mm), and (printed) how far that is from our heightfield.
+fn check_cesium(terrain: &Path, dec: &[Decoded], levels: u32, fd: &Field, tolerance: f64) {
+    let Some(modules) = npm_env("cesium-node", "@cesium/engine@26.3.0") else {
+        return;
+    };
+    let finest: Vec<&Decoded> = dec.iter().filter(|d| d.z + 1 == levels).collect();
+    let (w, s) = (
+        finest
+            .iter()
+            .map(|d| d.bounds[0])
+            .fold(f64::INFINITY, f64::min),
+        finest
+            .iter()
+            .map(|d| d.bounds[1])
+            .fold(f64::INFINITY, f64::min),
+    );
+    let (e, n) = (
+        finest
+            .iter()
+            .map(|d| d.bounds[2])
+            .fold(f64::NEG_INFINITY, f64::max),
+        finest
+            .iter()
+            .map(|d| d.bounds[3])
+            .fold(f64::NEG_INFINITY, f64::max),
+    );
+    let mut rng = terratile::SplitMix64::new(17);
+    let mut pts = Vec::new();
+    while pts.len() < 100 {
+        let lon = rng.range(w, e);
+        let lat = rng.range(s, n);
+        if let Some(grid) = fd.at(lon, lat) {
+            let tile = finest
+                .iter()
+                .find(|d| {
+                    lon >= d.bounds[0]
+                        && lon < d.bounds[2]
+                        && lat >= d.bounds[1]
+                        && lat < d.bounds[3]
+                })
+                .expect("a finest tile over the grid");
+            let mesh = mesh_height_at(tile, lon, lat).expect("covered");
+            pts.push((lon, lat, mesh, grid, tile.step));
+        }
+    }
+    let file = terrain.with_file_name("points.json");
+    let list: Vec<[f64; 2]> = pts.iter().map(|p| [p.0, p.1]).collect();
+    std::fs::write(&file, serde_json::to_vec(&list).unwrap()).unwrap();
+    let o = Command::new("node")
+        .arg(repo().join("tests/geo/cesium_sample.mjs"))
+        .arg(&modules)
+        .arg(terrain)
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(r["hasVertexNormals"], true);
+    let heights = r["heights"].as_array().unwrap();
+    assert_eq!(heights.len(), pts.len());
+    let (mut worst_mesh, mut worst_grid): (f64, f64) = (0.0, 0.0);
+    for (h, p) in heights.iter().zip(&pts) {
+        let h = h.as_f64().unwrap();
+        worst_mesh = worst_mesh.max((h - p.2).abs());
+        worst_grid = worst_grid.max((h - p.3).abs());
+        assert!(
+            (h - p.2).abs() <= 1e-3 + p.4,
+            "CesiumJS {h} m at ({}, {}), our mesh {} m",
+            p.0,
+            p.1,
+            p.2
+        );
+    }
+    eprintln!(
+        "CesiumJS sampleTerrainMostDetailed at 100 points: within {worst_mesh:.4} m of our decoded mesh, \
+         {worst_grid:.3} m of the heightfield (mesh tolerance {tolerance} m at the lattice points)"
+    );
 }
 
 fn ecef(lon: f64, lat: f64, h: f64) -> [f64; 3] {
@@ -335,9 +429,11 @@ fn mesh_heights(d: &Decoded) -> BTreeMap<[u64; 2], f64> {
 }
 
 /// One survey through `quantized_mesh = true`, decoded and checked.
-fn check_tileset(file: &str, crs: terratile::points::Crs, tolerance: f64) {
+fn check_tileset(file: &str, crs: terratile::points::Crs, tolerance: f64, cesium: bool) {
     let Some(input) = data_file(file) else { return };
-    let Some(modules) = node_env() else { return };
+    let Some(modules) = npm_env("geo-node", "@here/quantized-mesh-decoder@1.2.8") else {
+        return;
+    };
     let d = tempfile::tempdir().unwrap();
     let toml = format!(
         "[input]\npaths = [{:?}]\n[output]\ndir = \"out\"\npng = false\nraw = false\n\
@@ -437,6 +533,9 @@ fn check_tileset(file: &str, crs: terratile::points::Crs, tolerance: f64) {
         }
     }
     assert!(checked > 0);
+    if cesium {
+        check_cesium(&out.join("terrain"), &dec, levels, &fd, tolerance);
+    }
     eprintln!(
         "{file}: {} tiles, {levels} levels, {on} vertices on the grid, {shared} shared edges, \
          {checked} lattice points of the finest level, worst {worst:.3} m (tolerance {tolerance} m)",
@@ -462,14 +561,14 @@ fn quantized_mesh_decodes_and_matches_autzen() {
         }),
         vertical: None,
     };
-    check_tileset("lidar/autzen_trim.las", crs, 0.5);
+    check_tileset("lidar/autzen_trim.las", crs, 0.5, true);
 }
 
 /// UTM zone by EPSG code.
 #[test]
 fn quantized_mesh_decodes_and_matches_csite4() {
     let crs = terratile::geo::crs_from_key("EPSG:32632").unwrap();
-    check_tileset("lidar/CSite4_orig-utm.laz", crs, 0.25);
+    check_tileset("lidar/CSite4_orig-utm.laz", crs, 0.25, false);
 }
 
 /// `quantized_mesh` on data without a CRS: one line naming the key, exit 2, nothing written.
