@@ -8,6 +8,8 @@
 //!   tree included.
 //! - `mesh_encoding`: the same survey's tile meshes (0.5 m) encoded as binary PLY, OBJ and
 //!   GLB, all tiles: what each mesh format adds to a run.
+//! - `quantized_mesh`: the Cesium tileset of the same survey (levels resampled, triangulated at
+//!   0.5 m, then every tile encoded and gzipped), against the EXR tiles' encoding as reference.
 
 mod common;
 
@@ -190,11 +192,46 @@ fn mesh_encoding(c: &mut Criterion) {
     g.finish();
 }
 
+fn quantized_mesh(c: &mut Criterion) {
+    let Some(set) = real_set("CSite4_orig-utm.laz", 257) else {
+        return;
+    };
+    let qt = build(&set, &QuadtreeParams::default()).expect("d2");
+    let ts = terratile::geo::tms::tileset(&set, 0.5).expect("tileset");
+    eprintln!(
+        "quantized_mesh: {} levels, {} tiles",
+        ts.levels.len(),
+        ts.tiles.len()
+    );
+    let mut g = c.benchmark_group("quantized_mesh");
+    g.sample_size(10);
+    g.bench_function("exr_tiles_reference", |b| {
+        b.iter(|| {
+            for t in 0..set.tiles.len() {
+                black_box(encode_tile(&set, &qt, t, ExrCompression::None).expect("encode"));
+            }
+        })
+    });
+    g.bench_function("tileset", |b| {
+        b.iter(|| black_box(terratile::geo::tms::tileset(&set, 0.5).expect("tileset")))
+    });
+    g.bench_function("encode_tiles", |b| {
+        b.iter(|| {
+            ts.tiles
+                .iter()
+                .map(|t| black_box(terratile::output::qmesh::encode_tile(t)).len())
+                .sum::<usize>()
+        })
+    });
+    g.finish();
+}
+
 criterion_group!(
     benches,
     d2_vs_decode,
     exr_compression,
     extraction,
-    mesh_encoding
+    mesh_encoding,
+    quantized_mesh
 );
 criterion_main!(benches);

@@ -8,12 +8,15 @@ use serde_json::Value;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+mod qmesh;
+
 /// The Python interpreter of `target/geo-py/venv`, with rasterio, rio-cogeo and pyproj,
 /// built on first use; None (after saying why) when that is impossible.
 fn python_env() -> Option<PathBuf> {
     let root = repo().join("target/geo-py");
     let py = root.join("venv/bin/python");
-    let ready = root.join("venv/.terratile-ready");
+    // The marker names the package set: a new package makes older environments install it.
+    let ready = root.join("venv/.terratile-ready-jsonschema");
     if ready.is_file() {
         return Some(py);
     }
@@ -45,6 +48,7 @@ fn python_env() -> Option<PathBuf> {
             "rasterio",
             "rio-cogeo",
             "pyproj",
+            "jsonschema",
         ])
         .output();
     match pip {
@@ -60,10 +64,27 @@ fn python_env() -> Option<PathBuf> {
     }
 }
 
+/// Asserts that every manifest in `manifests` is valid against docs/manifest.schema.json
+/// (through the Python environment's `jsonschema`).
+pub(crate) fn assert_schema_valid(py: &Path, manifests: &[PathBuf]) {
+    let o = Command::new(py)
+        .arg(repo().join("tests/geo/validate_manifest.py"))
+        .arg(repo().join("docs/manifest.schema.json"))
+        .args(manifests)
+        .output()
+        .unwrap();
+    assert!(
+        o.status.success(),
+        "manifest not valid against docs/manifest.schema.json:\n{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
 /// Runs terratile on `input` with the GeoTIFF on and returns the output directory.
 fn run_geo(dir: &Path, input: &Path, extra: &str) -> PathBuf {
     let toml = format!(
-        "[input]\npaths = [{:?}]\n{extra}\n[output]\ndir = \"out\"\ngeotiff = true\nraw = false\n\
+        "[input]\npaths = [{:?}]\n{extra}\n[output]\ndir = \"out\"\ngeotiff = true\ngeotiff_tiles = true\nraw = false\n\
          relief = false\nwireframe = false\nmeshes = []\n",
         input.to_str().unwrap()
     );
@@ -130,6 +151,7 @@ fn check_survey(file: &str, extra: &str, expected_crs: &str) {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let r: Value = serde_json::from_slice(&o.stdout).unwrap();
     let ctx = format!("{file}: {r:#}");
+    assert_schema_valid(&py, &[out.join("manifest.json")]);
     // The manifest's WGS 84 bounds hold the GeoTIFF's extent, reprojected.
     let b: Vec<f64> = m["geographic"]["wgs84_bounds"]
         .as_array()
@@ -181,6 +203,38 @@ fn check_survey(file: &str, extra: &str, expected_crs: &str) {
         differ, 0,
         "{file}: {differ} values differ from the EXR tiles"
     );
+    // Every per-tile GeoTIFF: the tile's valid extent of the grid, bit for bit (the `tiff`
+    // crate's decoder), at the tile's place (ModelTiepoint: its north-west pixel corner).
+    for mt in m["tiles"].as_array().unwrap() {
+        let path = out.join(mt["files"]["tif"].as_str().unwrap());
+        let mut dec = tiff::decoder::Decoder::new(std::fs::File::open(&path).unwrap()).unwrap();
+        let (w, h) = dec.dimensions().unwrap();
+        let n = |k: &str, i: usize| mt[k][i].as_u64().unwrap() as usize;
+        assert_eq!([w as usize, h as usize], [n("valid", 0), n("valid", 1)]);
+        let tie = dec
+            .get_tag_f64_vec(tiff::tags::Tag::ModelTiepointTag)
+            .unwrap();
+        let west = f(&g["corner"][0]) + n("grid_offset", 0) as f64 * cx;
+        let north = f(&g["corner"][1]) + (n("grid_offset", 1) + h as usize) as f64 * cy;
+        assert_eq!((tie[3], tie[4]), (west, north), "{}", path.display());
+        let tiff::decoder::DecodingResult::F32(v) = dec.read_image().unwrap() else {
+            panic!("{}: not f32", path.display())
+        };
+        for j in 0..h as usize {
+            // Both north row first; the tile's north row is grid row (from the north)
+            // rows − (offset + h).
+            let gr = nrows - (n("grid_offset", 1) + h as usize) + j;
+            for i in 0..w as usize {
+                let want = exr[gr * cols + n("grid_offset", 0) + i];
+                assert_eq!(
+                    v[j * w as usize + i].to_bits(),
+                    want.to_bits(),
+                    "{}",
+                    path.display()
+                );
+            }
+        }
+    }
     // Every PNG heightmap lands where the manifest puts its tile.
     let tiles = r["tiles"].as_array().unwrap();
     assert_eq!(tiles.len(), m["tiles"].as_array().unwrap().len());
@@ -231,6 +285,45 @@ fn geotiff_mtm_with_holes() {
         "lidar/Topography.laz",
         "[fill]\nfallback = \"nodata\"\nradius = 2\n",
         "EPSG:2949",
+    );
+}
+
+/// The default job's manifest (no real data needed), with and without meshes, satisfies the
+/// schema; a manifest missing a required field or with a wrong type does not (the check
+/// can fail).
+#[test]
+fn manifest_schema_validates_written_manifests() {
+    let Some(py) = python_env() else { return };
+    let d = default_job();
+    terratile(d.path(), &["run", "--quiet"]).ok();
+    let good = d.path().join("out/manifest.json");
+    let mut m: Value = serde_json::from_slice(&std::fs::read(&good).unwrap()).unwrap();
+    let e = default_job();
+    let p = e.path().join("pipeline.toml");
+    let text = std::fs::read_to_string(&p)
+        .unwrap()
+        .replacen("meshes = [\"glb\"]", "meshes = []", 1)
+        .replacen("wireframe = true", "wireframe = false", 1)
+        .replacen("exr = true", "exr = false", 1);
+    std::fs::write(&p, text).unwrap();
+    terratile(e.path(), &["run", "--quiet"]).ok();
+    assert_schema_valid(&py, &[good.clone(), e.path().join("out/manifest.json")]);
+    m.as_object_mut().unwrap().remove("grid");
+    m["tiling"]["exr_channel_info"][0]["sample_type"] = Value::from("f16");
+    let bad = d.path().join("bad.json");
+    std::fs::write(&bad, serde_json::to_vec(&m).unwrap()).unwrap();
+    let o = Command::new(&py)
+        .arg(repo().join("tests/geo/validate_manifest.py"))
+        .arg(repo().join("docs/manifest.schema.json"))
+        .arg(&bad)
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        !o.status.success()
+            && said.contains("'grid' is a required property")
+            && said.contains("sample_type"),
+        "{said}"
     );
 }
 

@@ -11,6 +11,8 @@
 //! for NAD83(CSRS) (see the reference data's notes). `geodesy` (Rust Geodesy) was the
 //! alternative; it has no EPSG table and no WKT reader, so every CRS would be ours to spell.
 
+pub mod tms;
+
 use crate::points::Crs;
 use proj4rs::proj::Proj;
 

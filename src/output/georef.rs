@@ -23,6 +23,43 @@ pub fn dem_geotiff(set: &TileSet) -> Result<Vec<u8>> {
     let grid = set.assemble();
     let values: Vec<f32> = grid.rows().into_iter().rev().flatten().copied().collect();
     drop(grid);
+    let [width, height] = set.samples;
+    cog_of(
+        set,
+        width,
+        height,
+        &values,
+        grid_georef(set),
+        set.holes() > 0,
+    )
+}
+
+/// `geotiff/tile_CCC_RRR.tif` (`geotiff_tiles = true`): tile `t`'s valid extent (no padding)
+/// as a GeoTIFF like `dem.tif`, north row first.
+pub fn tile_geotiff(set: &TileSet, t: usize) -> Result<Vec<u8>> {
+    let tile = &set.tiles[t];
+    let [w, h] = tile.valid;
+    let values: Vec<f32> = (0..h)
+        .rev()
+        .flat_map(|j| (0..w).map(move |i| tile.heights[[j, i]]))
+        .collect();
+    let georef = geotiff::Georef {
+        west: set.corner[0] + tile.origin[0] as f64 * set.cell_size[0],
+        north: set.corner[1] + (tile.origin[1] + h) as f64 * set.cell_size[1],
+        pixel: set.cell_size,
+    };
+    cog_of(set, w, h, &values, georef, tile.holes > 0)
+}
+
+/// A `width × height` raster of `set` (north row first) as a COG in the set's CRS.
+fn cog_of(
+    set: &TileSet,
+    width: usize,
+    height: usize,
+    values: &[f32],
+    georef: geotiff::Georef,
+    nan_nodata: bool,
+) -> Result<Vec<u8>> {
     let crs = set
         .crs
         .as_ref()
@@ -30,14 +67,14 @@ pub fn dem_geotiff(set: &TileSet) -> Result<Vec<u8>> {
         .unwrap_or_default();
     geotiff::encode_cog(
         geotiff::Raster {
-            width: set.samples[0],
-            height: set.samples[1],
-            values: &values,
+            width,
+            height,
+            values,
         },
-        &grid_georef(set),
+        &georef,
         &crs,
         geotiff::Values {
-            nan_nodata: set.holes() > 0,
+            nan_nodata,
             offset: set.z_offset,
         },
     )

@@ -197,8 +197,76 @@ pub struct TilingInfo {
     pub exr_compression: Option<String>,
     /// EXR channels and what they hold.
     pub exr_channels: Vec<String>,
+    /// The same channels, structured: name, sample type, units, what a value means, and in
+    /// which tiles the channel is present.
+    #[serde(default)]
+    pub exr_channel_info: Vec<ExrChannel>,
     /// Scan line order of EXR files.
     pub exr_row_order: String,
+}
+
+/// One EXR channel, for readers that want more than a sentence.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ExrChannel {
+    /// Channel name in the EXR file.
+    pub name: String,
+    /// Sample type (`f32`).
+    pub sample_type: String,
+    /// Units of a value: `crs_units` (the CRS's horizontal unit, `crs.metres_per_unit` m),
+    /// `crs_units_per_sample`, or `none`.
+    pub units: String,
+    /// World value of a sample: `z_offset + value` (height), `value` (d2, mask).
+    pub world: String,
+    /// What the value means.
+    pub meaning: String,
+    /// `every_tile`, or `tiles_with_holes`.
+    pub present: String,
+    /// The value at holes, when the channel has one (`NaN` for height).
+    pub nodata: Option<String>,
+}
+
+impl ExrChannel {
+    fn new(name: &str, units: &str, world: &str, meaning: &str, present: &str) -> ExrChannel {
+        ExrChannel {
+            name: name.into(),
+            sample_type: "f32".into(),
+            units: units.into(),
+            world: world.into(),
+            meaning: meaning.into(),
+            present: present.into(),
+            nodata: None,
+        }
+    }
+
+    /// The channels terratile writes.
+    pub fn all() -> Vec<ExrChannel> {
+        vec![
+            ExrChannel {
+                nodata: Some("NaN".into()),
+                ..ExrChannel::new(
+                    "height",
+                    "crs_units",
+                    "grid.z_offset + value",
+                    "height of the sample",
+                    "every_tile",
+                )
+            },
+            ExrChannel::new(
+                "d2",
+                "crs_units_per_sample",
+                "value",
+                "Röttger's d2 at quadtree node centres (see quadtree.d2), 0 elsewhere",
+                "every_tile",
+            ),
+            ExrChannel::new(
+                "mask",
+                "none",
+                "value",
+                "1 where the sample has data, 0 at a hole",
+                "tiles_with_holes",
+            ),
+        ]
+    }
 }
 
 /// Röttger's constants.
@@ -381,6 +449,7 @@ pub fn build(
                 "d2: f32, Röttger's d2 at node centres (0 elsewhere)".into(),
                 "mask: f32, 1 data / 0 hole (only in tiles with holes)".into(),
             ],
+            exr_channel_info: ExrChannel::all(),
             exr_row_order: "north-first".into(),
         },
         quadtree: QuadtreeInfo {

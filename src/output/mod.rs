@@ -24,6 +24,9 @@
 //! preview/wireframe.png          the CLOD mesh over the relief
 //! heightmaps/tile_CCC_RRR.pgw|.prj|.png.aux.xml  the PNG's world file and CRS
 //! dem.tif                        the whole grid, Cloud-Optimized GeoTIFF (`geotiff = true`)
+//! geotiff/tile_CCC_RRR.tif       one GeoTIFF per tile (`geotiff_tiles = true`)
+//! terrain/layer.json, terrain/{z}/{x}/{y}.terrain  Cesium quantized-mesh tileset
+//!                                (`quantized_mesh = true`; built by `geo::tms`)
 //! ```
 
 pub mod exr;
@@ -32,6 +35,7 @@ pub mod geotiff;
 pub mod heightmap;
 pub mod manifest;
 pub mod preview;
+pub mod qmesh;
 mod settings;
 mod summary;
 mod tile;

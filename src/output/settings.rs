@@ -40,6 +40,19 @@ pub struct OutputConfig {
     /// Write `dem.tif`, the whole heightfield as one Cloud-Optimized GeoTIFF (default false).
     #[serde(default)]
     pub geotiff: bool,
+    /// Write `geotiff/tile_CCC_RRR.tif`, each tile's valid extent as a GeoTIFF (default false).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub geotiff_tiles: bool,
+    /// Write `terrain/`, a Cesium quantized-mesh tileset (default false; needs the CRS).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub quantized_mesh: bool,
+    /// Largest vertical distance, metres, between the tileset's meshes and each level's
+    /// resampled heights (default 0.5).
+    #[serde(
+        default = "default_qmesh_tolerance",
+        skip_serializing_if = "is_default_qmesh_tolerance"
+    )]
+    pub quantized_mesh_tolerance: f64,
     /// Longer side of the preview pictures in pixels (default 2048; small grids are
     /// enlarged at most 4×).
     #[serde(default = "default_preview_size")]
@@ -56,6 +69,14 @@ fn yes() -> bool {
 
 fn default_meshes() -> Vec<MeshFormat> {
     MeshFormat::DEFAULT_TILE.to_vec()
+}
+
+fn default_qmesh_tolerance() -> f64 {
+    crate::terrain::extract::DEFAULT_TOLERANCE_M
+}
+
+fn is_default_qmesh_tolerance(t: &f64) -> bool {
+    *t == default_qmesh_tolerance()
 }
 
 fn default_preview_size() -> usize {
@@ -75,6 +96,9 @@ impl Default for OutputConfig {
             wireframe: true,
             meshes: default_meshes(),
             geotiff: false,
+            geotiff_tiles: false,
+            quantized_mesh: false,
+            quantized_mesh_tolerance: default_qmesh_tolerance(),
             preview_size: default_preview_size(),
         }
     }
@@ -89,6 +113,15 @@ impl OutputConfig {
                 "preview_size",
                 self.preview_size,
                 "must be 16 to 16384 pixels",
+            ));
+        }
+        let t = self.quantized_mesh_tolerance;
+        if !(t.is_finite() && t > 0.0) {
+            return Err(Error::param(
+                "output",
+                "quantized_mesh_tolerance",
+                t,
+                "must be > 0 metres",
             ));
         }
         Ok(())

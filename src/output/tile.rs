@@ -26,6 +26,8 @@ pub enum TileEncoder {
     Prj,
     /// The PNG's GDAL PAM file (`.png.aux.xml`): the same WKT, where GDAL and QGIS look.
     PngAux,
+    /// The tile's valid extent as a Cloud-Optimized GeoTIFF (f32, like `dem.tif`).
+    GeoTiff,
 }
 
 impl TileEncoder {
@@ -47,6 +49,9 @@ impl TileEncoder {
             v.push(TileEncoder::Raw);
         }
         v.extend(out.meshes.iter().map(|&f| TileEncoder::Mesh(f)));
+        if out.geotiff_tiles {
+            v.push(TileEncoder::GeoTiff);
+        }
         v
     }
 
@@ -60,6 +65,7 @@ impl TileEncoder {
             | TileEncoder::Prj
             | TileEncoder::PngAux => "heightmaps",
             TileEncoder::Mesh(_) => "meshes",
+            TileEncoder::GeoTiff => "geotiff",
         }
     }
 
@@ -73,6 +79,7 @@ impl TileEncoder {
             TileEncoder::WorldFile => "pgw",
             TileEncoder::Prj => "prj",
             TileEncoder::PngAux => "png.aux.xml",
+            TileEncoder::GeoTiff => "tif",
         }
     }
 
@@ -95,6 +102,7 @@ impl TileEncoder {
             TileEncoder::Raw => Ok(heightmap::raw_bytes(tile.values(), p.set.tile_size, false)),
             TileEncoder::Mesh(f) => f.encode(tile.mesh()?, &tile.name, tile.metres_per_unit),
             TileEncoder::WorldFile => Ok(super::georef::world_file(p.set, tile.index).into_bytes()),
+            TileEncoder::GeoTiff => super::georef::tile_geotiff(p.set, tile.index),
             TileEncoder::Prj | TileEncoder::PngAux => {
                 let wkt = p
                     .set

@@ -511,6 +511,10 @@ pub fn tile_stages(
         // Refuse before the work: a mesh needs a filled heightfield.
         crate::terrain::extract::check_no_holes(&set)?;
     }
+    if cfg.output.quantized_mesh {
+        // Refuse before the work: the Cesium tileset needs a CRS it can reproject.
+        crate::geo::tms::check(&set)?;
+    }
     let t = Instant::now();
     let qt = quadtree::build(&set, &cfg.quadtree)?;
     reports.push(StageReport {
@@ -540,12 +544,27 @@ pub fn tile_stages(
         quadtree: &qt,
         meshes: meshes.as_ref(),
     };
-    let files = crate::output::write_terrain(dir, &products, &cfg.output, progress)?;
+    let mut files = crate::output::write_terrain(dir, &products, &cfg.output, progress)?;
     reports.push(StageReport {
         stage: "write".into(),
         seconds: t.elapsed().as_secs_f64(),
         figures: vec![("files".into(), files.len().to_string())],
     });
+    if cfg.output.quantized_mesh {
+        let t = Instant::now();
+        let ts = crate::geo::tms::tileset(&set, cfg.output.quantized_mesh_tolerance)?;
+        let written = crate::output::qmesh::write(dir, &ts)?;
+        reports.push(StageReport {
+            stage: "quantized-mesh".into(),
+            seconds: t.elapsed().as_secs_f64(),
+            figures: vec![
+                ("levels".into(), ts.levels.len().to_string()),
+                ("tiles".into(), written.len().saturating_sub(1).to_string()),
+            ],
+        });
+        files.extend(written);
+        files.sort();
+    }
     drop(meshes);
     Ok(TileStages {
         reports,

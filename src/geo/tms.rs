@@ -1,0 +1,461 @@
+//! The terrain of a Cesium tileset: the set's heights resampled onto the tiles of the
+//! geographic TMS tiling scheme (EPSG:4326; level z has 2^(z+1) × 2^z tiles of 180/2^z
+//! degrees, two root tiles, rows counted from the south) and triangulated per level by the
+//! same Röttger quadtree / vertical-tolerance extractor as the tile meshes.
+//!
+//! Each level is made into a [`TileSet`] of its own whose samples are a regular
+//! longitude/latitude lattice, 64 intervals per tileset tile (tile size 65), and whose tiles
+//! are exactly the TMS tiles covering the survey. The quadtree's reconciliation across tile
+//! borders then makes neighbouring tiles of a level split their shared edges alike: shared
+//! edge vertices are identical, no cracks, no T-junctions (see `terrain::extract`).
+//!
+//! Heights: each lattice sample is projected into the input's CRS (proj4rs) and sampled
+//! bilinearly from the filled grid; outside the survey the grid's edge is continued
+//! (coordinates clamped), so tiles that reach past the survey have no cliffs. Heights are the
+//! input's, in metres: orthometric for the surveys here (terratile has no geoid model), which
+//! Cesium draws as if they were ellipsoidal (an offset of the geoid undulation, tens of metres).
+//!
+//! Speed: on small tiles (≤ [`LATTICE_MAX_DEGREES`]) only every [`LATTICE`]-th sample (and
+//! the tile's corners and edges at that spacing) is projected exactly; the others are
+//! bilinear between them. Over ≤ 0.01° a map projection's second derivative (≈ 1/R) makes
+//! that error ≤ L²/(8R) ≈ 0.3 mm for L = 1/8 of the tile, far below a height sample's
+//! influence. Shared border samples are computed from the same border lattice points, so
+//! they are bit-identical in both tiles.
+
+use crate::error::{Error, Result};
+use crate::geo::ToWgs84;
+use crate::terrain::extract::{self, ExtractParams, TileTriangulation};
+use crate::terrain::quadtree::{self, QuadtreeParams};
+use crate::terrain::{Tile, TileSet};
+use ndarray::Array2;
+use rayon::prelude::*;
+
+/// Intervals per tileset tile side (65 samples, Cesium's own heightmap tiles' size).
+pub const TILE_INTERVALS: usize = 64;
+/// Projection lattice step (samples) on small tiles.
+pub const LATTICE: usize = 8;
+/// Largest tile span (degrees) projected through the lattice; larger tiles project every
+/// sample.
+pub const LATTICE_MAX_DEGREES: f64 = 0.01;
+/// The finest level terratile writes (tiles of 180/2^22 degrees, ≈ 4.8 m).
+pub const MAX_LEVEL: u32 = 22;
+/// WGS 84 semi-major axis and flattening.
+const WGS84_A: f64 = 6_378_137.0;
+const WGS84_F: f64 = 1.0 / 298.257_223_563;
+
+/// Tiles of a level covering the survey: inclusive column and row ranges.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TileRange {
+    /// Level.
+    pub z: u32,
+    /// First and last column (east from −180°).
+    pub x: [u32; 2],
+    /// First and last row (north from −90°).
+    pub y: [u32; 2],
+}
+
+/// One tile of the tileset, ready for the encoder.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TerrainTile {
+    /// Level, column, row (TMS: row 0 at the south pole).
+    pub zxy: [u32; 3],
+    /// [west, south, east, north], degrees.
+    pub bounds: [f64; 4],
+    /// Vertex positions as lattice indices (0..=64) east and north within the tile, in the
+    /// order of their first use by `triangles` (what high-water-mark coding needs).
+    pub ij: Vec<[u16; 2]>,
+    /// Vertex heights, metres.
+    pub heights: Vec<f64>,
+    /// Unit vertex normals in the Earth-centred, Earth-fixed frame.
+    pub normals: Vec<[f32; 3]>,
+    /// Triangles, counter-clockwise seen from above.
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// The whole tileset: per level its tile range, and every tile.
+#[derive(Debug, Clone)]
+pub struct Tileset {
+    /// Tile ranges, level 0 first.
+    pub levels: Vec<TileRange>,
+    /// WGS 84 bounds of the survey [west, south, east, north].
+    pub bounds: [f64; 4],
+    /// The tiles, level by level, rows from the south, columns from the west.
+    pub tiles: Vec<TerrainTile>,
+    /// Vertical tolerance the meshes were extracted with, metres.
+    pub tolerance_m: f64,
+}
+
+/// Tile span of level `z`, degrees.
+pub fn tile_degrees(z: u32) -> f64 {
+    180.0 / f64::from(1u32 << z)
+}
+
+/// [west, south, east, north] of tile (z, x, y).
+pub fn tile_bounds(z: u32, x: u32, y: u32) -> [f64; 4] {
+    let s = tile_degrees(z);
+    [
+        -180.0 + f64::from(x) * s,
+        -90.0 + f64::from(y) * s,
+        -180.0 + f64::from(x + 1) * s,
+        -90.0 + f64::from(y + 1) * s,
+    ]
+}
+
+/// The finest level whose lattice is not finer than the grid's spacing of `cell_m` metres
+/// (between 1 and 2 cells per lattice step: no invented detail, and a quarter of the samples
+/// of the next level): the spacing of level z is about 2πR/(2·2^z·64) north–south.
+pub fn finest_level(cell_m: f64) -> u32 {
+    let metres_per_degree = WGS84_A * std::f64::consts::PI / 180.0;
+    let z0 = tile_degrees(0) / TILE_INTERVALS as f64 * metres_per_degree;
+    let z = (z0 / cell_m).log2().floor();
+    if z.is_finite() {
+        z.clamp(0.0, f64::from(MAX_LEVEL)) as u32
+    } else {
+        0
+    }
+}
+
+/// Tiles of level `z` over `bounds` (both root tiles at level 0).
+pub fn tile_range(z: u32, bounds: [f64; 4]) -> TileRange {
+    if z == 0 {
+        return TileRange {
+            z,
+            x: [0, 1],
+            y: [0, 0],
+        };
+    }
+    let s = tile_degrees(z);
+    let (nx, ny) = (2u32 << z, 1u32 << z);
+    let cell =
+        |v: f64, origin: f64, n: u32| (((v - origin) / s).floor().max(0.0) as u32).min(n - 1);
+    TileRange {
+        z,
+        x: [cell(bounds[0], -180.0, nx), cell(bounds[2], -180.0, nx)],
+        y: [cell(bounds[1], -90.0, ny), cell(bounds[3], -90.0, ny)],
+    }
+}
+
+/// WGS 84 bounds of `set`'s outer extent, from 64 points per side of its outline.
+pub fn survey_bounds(set: &TileSet, t: &ToWgs84) -> Option<[f64; 4]> {
+    let [x0, y0] = set.corner;
+    let x1 = x0 + set.samples[0] as f64 * set.cell_size[0];
+    let y1 = y0 + set.samples[1] as f64 * set.cell_size[1];
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for k in 0..=64 {
+        let f = k as f64 / 64.0;
+        let (x, y) = (x0 + f * (x1 - x0), y0 + f * (y1 - y0));
+        for (px, py) in [(x, y0), (x, y1), (x0, y), (x1, y)] {
+            let [lon, lat] = t.forward(px, py)?;
+            b = [b[0].min(lon), b[1].min(lat), b[2].max(lon), b[3].max(lat)];
+        }
+    }
+    Some(b)
+}
+
+/// The error `[output] quantized_mesh` gives when `set` cannot make a tileset (no CRS, a CRS
+/// the reprojection cannot handle, holes); None when it can.
+pub fn check(set: &TileSet) -> Result<ToWgs84> {
+    let key = |m: String| Error::key("output.quantized_mesh", m);
+    let crs = set.crs.as_ref().ok_or_else(|| {
+        key("a Cesium tileset needs the survey's CRS: the input states none; set [input] crs = \"EPSG:n\"".into())
+    })?;
+    let t = ToWgs84::new(crs).map_err(|e| key(format!("{e}; the Cesium tileset needs it")))?;
+    survey_bounds(set, &t)
+        .ok_or_else(|| key("the grid's outline falls outside the CRS's projection".into()))?;
+    let holes = set.holes();
+    if holes > 0 {
+        return Err(key(format!(
+            "the heightfield has {holes} masked hole samples; terrain tiles need a filled heightfield \
+             (choose a fill fallback other than \"nodata\")"
+        )));
+    }
+    Ok(t)
+}
+
+/// The source grid: heights in metres, and where a CRS position falls in it.
+struct Source<'a> {
+    grid: Array2<f32>,
+    set: &'a TileSet,
+    to_wgs84: &'a ToWgs84,
+    unit: f64,
+    bounds: [f64; 4],
+}
+
+impl Source<'_> {
+    /// Fractional grid sample coordinates of (lon, lat), or None outside the projection.
+    fn grid_ij(&self, lon: f64, lat: f64) -> Option<[f64; 2]> {
+        let [x, y] = self.to_wgs84.inverse(lon, lat)?;
+        Some([
+            (x - self.set.corner[0]) / self.set.cell_size[0] - 0.5,
+            (y - self.set.corner[1]) / self.set.cell_size[1] - 0.5,
+        ])
+    }
+
+    /// Height in metres at fractional grid coordinates, bilinear, clamped to the grid.
+    fn height(&self, [fi, fj]: [f64; 2]) -> f64 {
+        let (rows, cols) = self.grid.dim();
+        let fi = fi.clamp(0.0, (cols - 1) as f64);
+        let fj = fj.clamp(0.0, (rows - 1) as f64);
+        let (i0, j0) = ((fi as usize).min(cols - 2), (fj as usize).min(rows - 2));
+        let (di, dj) = (fi - i0 as f64, fj - j0 as f64);
+        let h = |i: usize, j: usize| f64::from(self.grid[[j, i]]);
+        let v = (h(i0, j0) * (1.0 - di) + h(i0 + 1, j0) * di) * (1.0 - dj)
+            + (h(i0, j0 + 1) * (1.0 - di) + h(i0 + 1, j0 + 1) * di) * dj;
+        (self.set.z_offset + v) * self.unit
+    }
+}
+
+/// Heights of tile (z, x, y)'s lattice with a one-sample apron: `(n + 3)²` values, index
+/// `(j + 1) * (n + 3) + (i + 1)` for lattice (i, j), i, j in −1..=n+1.
+fn tile_heights(src: &Source<'_>, z: u32, x: u32, y: u32) -> Vec<f64> {
+    let n = TILE_INTERVALS;
+    let w = n + 3;
+    let step = tile_degrees(z) / n as f64;
+    // Global lattice index → degrees: the same integers in both tiles of a shared border.
+    let gi0 = (x as usize * n) as f64;
+    let gj0 = (y as usize * n) as f64;
+    let lonlat = |i: isize, j: isize| {
+        [
+            -180.0 + (gi0 + i as f64) * step,
+            -90.0 + (gj0 + j as f64) * step,
+        ]
+    };
+    let mut out = vec![0.0; w * w];
+    if tile_degrees(z) <= LATTICE_MAX_DEGREES {
+        let m = n / LATTICE + 1;
+        // A lattice point outside the projection (never the case this close to a survey)
+        // falls back to the grid's centre rather than failing the whole tileset.
+        let centre = [(src.grid.dim().1 / 2) as f64, (src.grid.dim().0 / 2) as f64];
+        let mut lat_ij = vec![[0.0; 2]; m * m];
+        for b in 0..m {
+            for a in 0..m {
+                let [lon, lat] = lonlat((a * LATTICE) as isize, (b * LATTICE) as isize);
+                lat_ij[b * m + a] = src.grid_ij(lon, lat).unwrap_or(centre);
+            }
+        }
+        for j in -1..=(n as isize + 1) {
+            for i in -1..=(n as isize + 1) {
+                // The lattice cell holding (i, j) (apron samples extrapolate the edge cells).
+                let a = ((i.max(0) as usize) / LATTICE).min(m - 2);
+                let b = ((j.max(0) as usize) / LATTICE).min(m - 2);
+                let fa = (i - (a * LATTICE) as isize) as f64 / LATTICE as f64;
+                let fb = (j - (b * LATTICE) as isize) as f64 / LATTICE as f64;
+                let p = |a: usize, b: usize| lat_ij[b * m + a];
+                let mut ij = [0.0; 2];
+                for (k, v) in ij.iter_mut().enumerate() {
+                    *v = (p(a, b)[k] * (1.0 - fa) + p(a + 1, b)[k] * fa) * (1.0 - fb)
+                        + (p(a, b + 1)[k] * (1.0 - fa) + p(a + 1, b + 1)[k] * fa) * fb;
+                }
+                out[(j + 1) as usize * w + (i + 1) as usize] = src.height(ij);
+            }
+        }
+    } else {
+        let [bw, bs, be, bn] = src.bounds;
+        for j in -1..=(n as isize + 1) {
+            for i in -1..=(n as isize + 1) {
+                let [lon, lat] = lonlat(i, j);
+                // Far from the survey the projection may be undefined: clamp to its bounds.
+                let ij = src
+                    .grid_ij(lon.clamp(bw, be), lat.clamp(bs, bn))
+                    .unwrap_or([0.0, 0.0]);
+                out[(j + 1) as usize * w + (i + 1) as usize] = src.height(ij);
+            }
+        }
+    }
+    out
+}
+
+/// Unit normal in ECEF at lattice (i, j) of a tile whose apron heights are `h`.
+fn ecef_normal(h: &[f64], z: u32, bounds: [f64; 4], i: usize, j: usize) -> [f32; 3] {
+    let n = TILE_INTERVALS;
+    let w = n + 3;
+    let step = tile_degrees(z).to_radians() / n as f64;
+    let lon = (bounds[0] + (bounds[2] - bounds[0]) * i as f64 / n as f64).to_radians();
+    let lat = (bounds[1] + (bounds[3] - bounds[1]) * j as f64 / n as f64).to_radians();
+    let e2 = WGS84_F * (2.0 - WGS84_F);
+    let s2 = 1.0 - e2 * lat.sin().powi(2);
+    let prime_vertical = WGS84_A / s2.sqrt();
+    let meridian = WGS84_A * (1.0 - e2) / (s2 * s2.sqrt());
+    let at = |di: isize, dj: isize| {
+        h[(j as isize + 1 + dj) as usize * w + (i as isize + 1 + di) as usize]
+    };
+    let dx = (at(1, 0) - at(-1, 0)) / (2.0 * step * prime_vertical * lat.cos().max(1e-9));
+    let dy = (at(0, 1) - at(0, -1)) / (2.0 * step * meridian);
+    let len = (dx * dx + dy * dy + 1.0).sqrt();
+    let (ne, nn, nu) = (-dx / len, -dy / len, 1.0 / len);
+    let (sl, cl, sp, cp) = (lon.sin(), lon.cos(), lat.sin(), lat.cos());
+    [
+        (-sl * ne - sp * cl * nn + cp * cl * nu) as f32,
+        (cl * ne - sp * sl * nn + cp * sl * nu) as f32,
+        (cp * nn + sp * nu) as f32,
+    ]
+}
+
+/// The level's lattice as a tile set (degrees, metres) and each tile's apron heights.
+fn level_set(src: &Source<'_>, r: &TileRange) -> (TileSet, Vec<Vec<f64>>) {
+    let n = TILE_INTERVALS;
+    let grid = [
+        (r.x[1] - r.x[0] + 1) as usize,
+        (r.y[1] - r.y[0] + 1) as usize,
+    ];
+    let step = tile_degrees(r.z) / n as f64;
+    let aprons: Vec<Vec<f64>> = (0..grid[0] * grid[1])
+        .into_par_iter()
+        .map(|k| {
+            let (col, row) = (k % grid[0], k / grid[0]);
+            tile_heights(src, r.z, r.x[0] + col as u32, r.y[0] + row as u32)
+        })
+        .collect();
+    let tiles = aprons
+        .iter()
+        .enumerate()
+        .map(|(k, h)| {
+            let (col, row) = (k % grid[0], k / grid[0]);
+            let heights =
+                Array2::from_shape_fn((n + 1, n + 1), |(j, i)| h[(j + 1) * (n + 3) + i + 1] as f32);
+            let (lo, hi) = heights
+                .iter()
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |a, &v| {
+                    (a.0.min(v), a.1.max(v))
+                });
+            Tile {
+                col,
+                row,
+                origin: [col * n, row * n],
+                valid: [n + 1, n + 1],
+                heights,
+                holes: 0,
+                z_range: Some([lo, hi]),
+            }
+        })
+        .collect();
+    let set = TileSet {
+        tile_size: n + 1,
+        grid,
+        samples: [grid[0] * n + 1, grid[1] * n + 1],
+        source_samples: [grid[0] * n + 1, grid[1] * n + 1],
+        preset: crate::terrain::Preset::None,
+        corner: [
+            tile_bounds(r.z, r.x[0], r.y[0])[0] - 0.5 * step,
+            tile_bounds(r.z, r.x[0], r.y[0])[1] - 0.5 * step,
+        ],
+        cell_size: [step, step],
+        z_offset: 0.0,
+        crs: None,
+        tiles,
+    };
+    (set, aprons)
+}
+
+/// One triangulated tile as the encoder wants it: vertices renumbered by first use.
+fn terrain_tile(
+    r: &TileRange,
+    set: &TileSet,
+    tri: &TileTriangulation,
+    apron: &[f64],
+) -> TerrainTile {
+    let tile = &set.tiles[tri.tile];
+    let (x, y) = (r.x[0] + tile.col as u32, r.y[0] + tile.row as u32);
+    let bounds = tile_bounds(r.z, x, y);
+    let mut remap = vec![u32::MAX; tri.uv.len()];
+    let mut out = TerrainTile {
+        zxy: [r.z, x, y],
+        bounds,
+        ij: Vec::new(),
+        heights: Vec::new(),
+        normals: Vec::new(),
+        triangles: Vec::with_capacity(tri.triangles.len()),
+    };
+    for f in &tri.triangles {
+        out.triangles.push(f.map(|v| {
+            let slot = &mut remap[v as usize];
+            if *slot == u32::MAX {
+                *slot = out.ij.len() as u32;
+                // No padding in these sets: every vertex is a lattice sample.
+                let [i, j] = tri.uv[v as usize].map(|c| c as usize);
+                out.ij.push([i as u16, j as u16]);
+                out.heights.push(f64::from(tri.z[v as usize]));
+                out.normals.push(ecef_normal(apron, r.z, bounds, i, j));
+            }
+            *slot
+        }));
+    }
+    out
+}
+
+/// The tileset of `set` from level 0 down to the level matching its spacing, every mesh
+/// within `tolerance_m` metres (vertically) of its level's lattice heights.
+pub fn tileset(set: &TileSet, tolerance_m: f64) -> Result<Tileset> {
+    let to_wgs84 = check(set)?;
+    let bounds = survey_bounds(set, &to_wgs84)
+        .ok_or_else(|| Error::Internal("survey bounds after check".into()))?;
+    let unit = set.crs.as_ref().map_or(1.0, |c| c.metres_per_unit());
+    let src = Source {
+        grid: set.assemble(),
+        set,
+        to_wgs84: &to_wgs84,
+        unit,
+        bounds,
+    };
+    let cell_m = set.cell_size[0].min(set.cell_size[1]) * unit;
+    let params = ExtractParams {
+        tolerance: tolerance_m,
+        ..ExtractParams::default()
+    };
+    let mut levels = Vec::new();
+    let mut tiles = Vec::new();
+    for z in 0..=finest_level(cell_m) {
+        let r = tile_range(z, bounds);
+        let (lset, aprons) = level_set(&src, &r);
+        let qt = quadtree::build(&lset, &QuadtreeParams::default())?;
+        let meshes = extract::extract_meshes(&lset, &qt, &params)?;
+        tiles.par_extend(
+            meshes
+                .tiles
+                .par_iter()
+                .map(|tri| terrain_tile(&r, &lset, tri, &aprons[tri.tile])),
+        );
+        levels.push(r);
+    }
+    Ok(Tileset {
+        levels,
+        bounds,
+        tiles,
+        tolerance_m,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiling_scheme() {
+        assert_eq!(tile_bounds(0, 1, 0), [0.0, -90.0, 180.0, 90.0]);
+        assert_eq!(tile_bounds(1, 0, 1), [-180.0, 0.0, -90.0, 90.0]);
+        let r = tile_range(3, [-123.1, 44.0, -123.0, 44.1]);
+        // 22.5° tiles: −123.1 is in column 2, 44° in row 5.
+        assert_eq!((r.x, r.y), ([2, 2], [5, 5]));
+        assert_eq!(tile_range(0, [10.0, 10.0, 11.0, 11.0]).x, [0, 1]);
+        // 1 m: level 18 has 1.19 m steps (2πR/(2·2^z·64)), level 19 0.60 m.
+        assert_eq!(finest_level(1.0), 18);
+        assert_eq!(finest_level(1.2), 17);
+        assert_eq!(finest_level(1e9), 0);
+    }
+
+    #[test]
+    fn normal_of_flat_ground_is_the_ellipsoid_normal() {
+        let h = vec![5.0; (TILE_INTERVALS + 3).pow(2)];
+        let n = ecef_normal(&h, 10, tile_bounds(10, 0, 512), 0, 0);
+        // (−180°, 0°): the normal is −x.
+        assert!(
+            (n[0] + 1.0).abs() < 1e-6 && n[1].abs() < 1e-6 && n[2].abs() < 1e-6,
+            "{n:?}"
+        );
+    }
+}
