@@ -944,7 +944,8 @@ fn read_output(run: &Run, layout: &ShardLayout, k: usize) -> Result<Option<Shard
         vertical_error: Vec::with_capacity(n),
         fill: None,
     };
-    let max = layout.samples[0].max(layout.samples[1]) + t;
+    // Indices, origins and extents are within the grid; holes within a tile.
+    let max = layout.samples[0].max(layout.samples[1]) + t * t;
     for _ in 0..n {
         let mut f = [0usize; 7];
         for v in &mut f {
