@@ -4,7 +4,8 @@
 //! since planning) refused in one line with exit 2; and the Dask driver
 //! (`scale/dask_run.py`) on a LocalCluster of 2 workers, also with a worker killed mid-run,
 //! in a Python environment this test builds under `target/dask-py` from the package
-//! registry (skipped, saying why, when that is impossible).
+//! registry (skipped, saying why, when that is impossible); the Slurm recipe with a
+//! stand-in `sbatch`.
 
 use crate::common::*;
 use std::path::{Path, PathBuf};
@@ -337,4 +338,46 @@ fn dask_survives_a_killed_worker() {
         r.context()
     );
     println!("{}", r.stdout.trim());
+}
+
+#[test]
+fn slurm_recipe_with_a_stand_in_sbatch() {
+    // No Slurm here: a stand-in `sbatch` runs each `--wrap` command at once, for every index
+    // of its `--array` (with SLURM_ARRAY_TASK_ID set), in submission order, which is the
+    // order the `afterok` dependencies impose. It checks the script's plan, phases, indices
+    // and merge, not Slurm itself.
+    let Some(f) = data_file("lidar/CSite4_orig-utm.laz") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    pipeline(d, "run.toml", &f, "out-run", "[tiles]\nsize = 129\n");
+    pipeline(d, "jobs.toml", &f, "out-jobs", "[tiles]\nsize = 129\n");
+    terratile(d, &["run", "run.toml", "--quiet"]).ok();
+    let bin = d.join("bin");
+    std::fs::create_dir(&bin).unwrap();
+    let sbatch = bin.join("sbatch");
+    std::fs::write(
+        &sbatch,
+        "#!/bin/sh\narr=''; wrap=''\nfor a in \"$@\"; do case \"$a\" in --array=*) arr=${a#--array=};; \
+         --wrap=*) wrap=${a#--wrap=};; esac; done\nif [ -n \"$arr\" ]; then i=${arr%-*}; \
+         n=${arr#*-}; while [ $i -le $n ]; do SLURM_ARRAY_TASK_ID=$i sh -c \"$wrap\" >&2 || exit 1; \
+         i=$((i+1)); done; else sh -c \"$wrap\" >&2 || exit 1; fi\necho $$\n",
+    )
+    .unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&sbatch, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let mut cmd = Command::new("sh");
+    let path = format!(
+        "{}:{}",
+        bin.display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
+    cmd.env("PATH", path)
+        .env("TERRATILE", env!("CARGO_BIN_EXE_terratile"))
+        .arg(repo().join("scale/slurm.sh"));
+    let r = run_with(cmd, d, &["jobs.toml", "work", "4"]);
+    r.ok();
+    assert!(r.stdout.contains("4 jobs per phase"), "{}", r.context());
+    same_tree(&d.join("out-run"), &d.join("out-jobs"));
 }
