@@ -107,6 +107,8 @@ fn jobs_match_run_on_csite4() {
         "meshes = []\nwireframe = false\n[fill]\nfallback = \"nodata\"\n",
         9,
     );
+    // Noise removal off (its two phases write empty results) in a 1 × 3 shard grid.
+    check_identical(&f, "[denoise]\nenabled = false\n", 3);
 }
 
 #[test]
@@ -293,6 +295,13 @@ fn dask_case(bin: impl Fn(&Path) -> PathBuf) -> Option<(tempfile::TempDir, Run)>
     let r = run_with(cmd, d, &args);
     r.ok();
     same_tree(&d.join("out-run"), &d.join("out-jobs"));
+    // A job orphaned by a killed worker finishes on its own; wait for it before looking.
+    for _ in 0..1200 {
+        if !d.join("killed").exists() || d.join("killed/done").exists() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
     no_temporaries(d, &r.context());
     Some((dir, r))
 }
@@ -318,6 +327,7 @@ fn dask_survives_a_killed_worker() {
                sleep 0.1\n\
                kill -9 $PPID\n\
                wait\n\
+               touch {mark:?}/done\n\
                exit 1\n\
              fi\n\
              exec {bin:?} \"$@\"\n",
