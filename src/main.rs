@@ -165,6 +165,42 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Plan a sharded run for any job engine: checks the pipeline, counts the inputs'
+    /// points and writes DIR/plan.json (see `shard` and `merge`, and docs/scale.md).
+    Plan {
+        /// The pipeline file.
+        pipeline: PathBuf,
+        /// The work directory (created; shared by every job of the run).
+        #[arg(long, visible_alias = "work", value_name = "DIR")]
+        out: PathBuf,
+        /// Jobs per phase (the largest sx × sy grid of shards within N).
+        #[arg(long, value_name = "N", default_value_t = 4)]
+        shards: usize,
+        /// Print the plan as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Run one job of a planned sharded run: phase count, keep, prepare or finish, job index
+    /// from --index, SLURM_ARRAY_TASK_ID or JOB_COMPLETION_INDEX.
+    Shard {
+        /// The work directory (or its plan.json).
+        plan: PathBuf,
+        /// The phase: count, keep, prepare or finish (in this order, each phase after all
+        /// jobs of the one before).
+        #[arg(long)]
+        phase: String,
+        /// The job index, 0 to jobs − 1.
+        #[arg(long, visible_alias = "id", value_name = "K")]
+        index: Option<usize>,
+    },
+    /// Merge a sharded run (after every finish job): writes the outputs `run` writes.
+    Merge {
+        /// The work directory (or its plan.json).
+        plan: PathBuf,
+        /// Print the summary as JSON.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 #[derive(Args, Debug)]
@@ -842,6 +878,45 @@ fn run(cli: Cli) -> Result<()> {
             let r =
                 terratile::simplify::saliency::saliency_file(&input, &out, &views, picture_size)?;
             print_report(json, &r)?;
+        }
+        Command::Plan {
+            pipeline,
+            out,
+            shards,
+            json,
+        } => {
+            let p = terratile::shard::jobs::plan(&pipeline, &out, shards)?;
+            if json {
+                print_json(&p)?;
+            } else {
+                outln!(
+                    "{}: {} points, {} jobs per phase ({}), then merge",
+                    out.join(terratile::shard::jobs::PLAN_FILE).display(),
+                    p.points,
+                    p.jobs,
+                    p.phases.join(", ")
+                );
+            }
+        }
+        Command::Shard { plan, phase, index } => {
+            let phase = terratile::shard::jobs::Phase::parse(&phase)?;
+            let index = terratile::shard::jobs::job_index(index)?;
+            let r = terratile::shard::jobs::shard(&plan, phase, index)?;
+            outln!("{}", r.display());
+        }
+        Command::Merge { plan, json } => {
+            let m = terratile::shard::jobs::merge_run(&plan)?;
+            if json {
+                print_json(&m)?;
+            } else {
+                outln!(
+                    "{}: {}×{} tiles, {} files",
+                    m.output.display(),
+                    m.tiles[0],
+                    m.tiles[1],
+                    m.files.len()
+                );
+            }
         }
     }
     Ok(())

@@ -22,6 +22,7 @@ mod outputs;
 mod quadtree;
 mod read;
 mod read_fuzz;
+mod shard_jobs;
 mod shard_real;
 mod simplify;
 mod strips;

@@ -29,7 +29,9 @@ use ndarray::s;
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
 
+pub mod jobs;
 pub mod points;
+pub mod store;
 #[cfg(test)]
 mod tests;
 

@@ -122,6 +122,18 @@ impl NodeValues {
         NodeValues { size, levels }
     }
 
+    /// The values of a tile of `size` = 2^k + 1 samples from its levels 1…k (as
+    /// [`level`](Self::level) gives them); None when their number or lengths do not fit.
+    pub fn from_levels(size: usize, levels: Vec<Vec<f32>>) -> Option<NodeValues> {
+        let z = Self::zeros(size);
+        let fits = z.levels.len() == levels.len()
+            && z.levels
+                .iter()
+                .zip(&levels)
+                .all(|(a, b)| a.len() == b.len());
+        fits.then_some(NodeValues { size, levels })
+    }
+
     /// Samples per tile side.
     pub fn size(&self) -> usize {
         self.size

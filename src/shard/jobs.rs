@@ -1,0 +1,1111 @@
+//! The sharded run as separate jobs, for any engine (Dask, Slurm job arrays, Kubernetes
+//! Indexed Jobs, a shell loop): `terratile plan`, `terratile shard`, `terratile merge`.
+//!
+//! A plan (`DIR/plan.json`) fixes what every job must agree on: the pipeline file and the
+//! inputs (with their sizes and modification times, so a job refuses inputs changed since),
+//! the number of all points and their bounds (the noise-removal lattice, from a counting
+//! pass), and a grid of `sx × sy` shards. Every job then runs the very functions of the
+//! in-process sharded run ([`super::points`], [`super::prepare`], [`super::finish`],
+//! [`super::merge`]) on its part and writes its result to `DIR/shards/K/PHASE.bin`
+//! ([`super::store`]), atomically.
+//!
+//! The job graph has four phases of `jobs = sx · sy` jobs each and a merge, because the run
+//! has three global reductions that a job cannot compute alone (see `docs/scale.md`):
+//!
+//! 1. `count`: noise removal's count at every voxel height over a window of voxel columns
+//!    (plus its halo); reduced by every `keep` job to the voxel height (`choose_steps`).
+//! 2. `keep`: the keep flags of the window's own points; reduced by every later job to the
+//!    kept points' bounds and number, which fix the grid (`GridSpec::new`).
+//! 3. `prepare`: a block of tiles: its cells resampled from the kept points of its cells and
+//!    halo, interpolated, and the smooth fill's pyramid up to one cell per tile; reduced by
+//!    every `finish` job to the coarse level (`complete_coarse`).
+//! 4. `finish`: the fill's pull down, the tiles, d2 and the vertical error of the block.
+//! 5. `merge`: d2 and the vertical error across blocks, then meshes and every output file,
+//!    as `terratile run` writes them.
+//!
+//! The reductions are tiny (a few numbers per job) and exact (sums, minima, maxima, a fixed
+//! order), so each consumer recomputes them from the results it reads instead of needing a
+//! reduction job. A job whose index has no window or block (the grid is smaller than the
+//! shard grid) writes an empty result, so every phase is an array of exactly `jobs` jobs.
+//! Each job reads its inputs one file at a time and keeps only the points its window or
+//! block needs: its memory is one input file plus its own points, not the survey.
+
+use super::points::Stages;
+use super::store::{Reader, Writer};
+use super::{complete_coarse, finish, is_smooth, merge, prepare, Prepared, ShardLayout};
+use super::{Shard, ShardOutput};
+use crate::config::LoadedPipeline;
+use crate::error::{Error, Result};
+use crate::points::{self, Bounds, PointCloud, ReadOptions};
+use crate::terrain::denoise::{self, ColumnWindow, DenoiseSettings, Frame};
+use crate::terrain::fill::FillReport;
+use crate::terrain::quadtree::NodeValues;
+use crate::terrain::resample::{self, GridSpec};
+use crate::terrain::tiles::{Preset, Tile};
+use crate::terrain::{CellState, Fallback, Heightfield};
+use crate::NoProgress;
+use ndarray::Array2;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The plan's file name inside the work directory.
+pub const PLAN_FILE: &str = "plan.json";
+const FORMAT: &str = "terratile shard plan 1";
+
+/// The phases of the job graph, in order (each an array of `jobs` jobs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    /// Noise removal's counts per voxel height.
+    Count = 1,
+    /// Noise removal's keep flags.
+    Keep = 2,
+    /// Resampling, interpolation and the fill pyramid of a block of tiles.
+    Prepare = 3,
+    /// The fill's pull down, tiles, d2 and vertical error of a block.
+    Finish = 4,
+}
+
+impl Phase {
+    /// All phases, in order.
+    pub const ALL: [Phase; 4] = [Phase::Count, Phase::Keep, Phase::Prepare, Phase::Finish];
+
+    /// Its name on the command line and in file names.
+    pub fn name(self) -> &'static str {
+        match self {
+            Phase::Count => "count",
+            Phase::Keep => "keep",
+            Phase::Prepare => "prepare",
+            Phase::Finish => "finish",
+        }
+    }
+
+    /// The phase named `s`.
+    pub fn parse(s: &str) -> Result<Phase> {
+        Phase::ALL
+            .into_iter()
+            .find(|p| p.name() == s)
+            .ok_or_else(|| {
+                Error::Usage(format!(
+                    "--phase {}: expected count, keep, prepare or finish",
+                    crate::one_line(s)
+                ))
+            })
+    }
+}
+
+/// An input file as the plan saw it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Stamp {
+    /// The file.
+    pub path: PathBuf,
+    /// Its size in bytes.
+    pub bytes: u64,
+    /// Its modification time, nanoseconds since the Unix epoch.
+    pub modified_ns: u64,
+}
+
+impl Stamp {
+    fn of(path: &Path) -> Result<Stamp> {
+        let m = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+        let modified_ns = m
+            .modified()
+            .ok()
+            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+            .map_or(0, |d| d.as_nanos() as u64);
+        Ok(Stamp {
+            path: path.to_path_buf(),
+            bytes: m.len(),
+            modified_ns,
+        })
+    }
+}
+
+/// The plan file: what every job of one run agrees on.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct JobPlan {
+    /// `terratile shard plan 1`.
+    pub format: String,
+    /// The pipeline file (absolute).
+    pub pipeline: PathBuf,
+    /// CRC-32 of the pipeline file's text when planned.
+    pub pipeline_crc: u32,
+    /// The inputs, in reading order.
+    pub inputs: Vec<Stamp>,
+    /// Shards along x and y.
+    pub shards: [usize; 2],
+    /// Jobs per phase (`shards[0] · shards[1]`), indices 0 to `jobs − 1`.
+    pub jobs: usize,
+    /// The phases, in order (each one array of `jobs` jobs), then `merge`.
+    pub phases: Vec<String>,
+    /// Points read (after the class filter and the cap).
+    pub points: usize,
+    /// Their bounds (min x, y, z, max x, y, z), for reading.
+    pub bounds: [f64; 6],
+    /// The same bounds as f64 bit patterns: what the jobs use.
+    pub bounds_bits: [u64; 6],
+    /// Metres per horizontal unit of the inputs (their CRS), as f64 bits.
+    pub metres_per_unit_bits: u64,
+}
+
+impl JobPlan {
+    fn bounds(&self) -> Bounds {
+        let b = self.bounds_bits.map(f64::from_bits);
+        Bounds {
+            min: [b[0], b[1], b[2]],
+            max: [b[3], b[4], b[5]],
+        }
+    }
+}
+
+fn crc32(b: &[u8]) -> u32 {
+    let mut c = flate2::Crc::new();
+    c.update(b);
+    c.sum()
+}
+
+/// What the pipeline asks that a sharded run cannot do: refused with one line at its key.
+fn check_supported(p: &LoadedPipeline) -> Result<()> {
+    let c = &p.config;
+    let refusals = [
+        (
+            c.ground.enabled,
+            "ground.enabled",
+            "ground classification reads all points at once",
+        ),
+        (
+            c.baseline.enabled,
+            "baseline.enabled",
+            "the Delaunay baseline triangulates all points at once",
+        ),
+        (
+            !c.assets.is_empty(),
+            "assets",
+            "assets are set down on the whole grid",
+        ),
+        (
+            c.denoise.enabled && c.denoise.write_removed,
+            "denoise.write_removed",
+            "the removed points are written from the whole cloud",
+        ),
+        (
+            c.fill.enabled && c.fill.fallback == Fallback::Mean,
+            "fill.fallback",
+            "the mean fallback needs the whole grid's mean",
+        ),
+        (
+            c.tiles.preset == Preset::Unreal,
+            "tiles.preset",
+            "the unreal preset resamples the whole grid",
+        ),
+    ];
+    match refusals.into_iter().find(|r| r.0) {
+        Some((_, key, why)) => Err(p.key_error(
+            key,
+            format!(
+                "{why}: the sharded run (plan/shard/merge) does not do it; use `terratile run`"
+            ),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// Reads every input in order, one file at a time, with the pipeline's class filter and cap
+/// (as `points::read_all` applies them), and hands each file's points to `f`.
+fn for_each_input(
+    paths: &[PathBuf],
+    opts: &ReadOptions,
+    mut f: impl FnMut(PointCloud) -> Result<()>,
+) -> Result<()> {
+    let mut read = 0u64;
+    for p in paths {
+        let mut o = opts.clone();
+        if let Some(cap) = opts.max_points {
+            o.max_points = Some(cap.saturating_sub(read));
+        }
+        let c = points::read(p, &o, &NoProgress)?;
+        read += c.len() as u64;
+        f(c)?;
+    }
+    Ok(())
+}
+
+/// `terratile plan`: checks the pipeline, counts the inputs' points and their bounds, and
+/// writes `dir/plan.json` for `shards` jobs per phase (the largest `sx × sy ≤ shards` with
+/// `sx = ⌊√shards⌋`). Planning again with the same pipeline and inputs writes the same plan,
+/// so finished job results stay valid (a rerun resumes).
+pub fn plan(pipeline: &Path, dir: &Path, shards: usize) -> Result<JobPlan> {
+    if shards == 0 {
+        return Err(Error::Usage("--shards must be at least 1".into()));
+    }
+    let loaded = crate::config::load(pipeline)?;
+    let checked = crate::pipeline::Plan::new(&loaded)?;
+    check_supported(&loaded)?;
+    let plan_path = dir.join(PLAN_FILE);
+    if plan_path.exists() && read_plan(&plan_path).is_err() {
+        return Err(Error::Usage(format!(
+            "{}: exists and is not a terratile plan: choose another --out directory",
+            plan_path.display()
+        )));
+    }
+    let opts = loaded.config.input.read_options();
+    let mut bounds = Bounds::EMPTY;
+    let mut n = 0usize;
+    let mut sources = Vec::new();
+    for_each_input(&checked.inputs, &opts, |c| {
+        let (b, k) = crate::terrain::bounds_of(&c.x, &c.y, &c.z, None);
+        bounds = bounds.union(b);
+        n += k;
+        sources.extend(c.sources);
+        Ok(())
+    })?;
+    let seen = PointCloud {
+        sources,
+        ..Default::default()
+    };
+    if n == 0 {
+        return Err(crate::pipeline::empty_input(&loaded, &seen));
+    }
+    let mpu = seen.crs().map_or(1.0, |c| c.metres_per_unit());
+    // The largest square side within `shards` (in integers, whatever the float root says).
+    let sx = (1..=shards)
+        .take_while(|s| s * s <= shards)
+        .last()
+        .unwrap_or(1);
+    let sy = shards / sx;
+    let abs = std::path::absolute(&loaded.path).map_err(|e| Error::io(&loaded.path, e))?;
+    let inputs = checked
+        .inputs
+        .iter()
+        .map(|p| {
+            let a = std::path::absolute(p).map_err(|e| Error::io(p, e))?;
+            Stamp::of(&a)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let flat = [
+        bounds.min[0],
+        bounds.min[1],
+        bounds.min[2],
+        bounds.max[0],
+        bounds.max[1],
+        bounds.max[2],
+    ];
+    let plan = JobPlan {
+        format: FORMAT.into(),
+        pipeline: abs,
+        pipeline_crc: crc32(loaded.text.as_bytes()),
+        inputs,
+        shards: [sx, sy],
+        jobs: sx * sy,
+        phases: Phase::ALL.iter().map(|p| p.name().to_string()).collect(),
+        points: n,
+        bounds: flat,
+        bounds_bits: flat.map(f64::to_bits),
+        metres_per_unit_bits: mpu.to_bits(),
+    };
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let text = serde_json::to_string_pretty(&plan).map_err(|e| Error::Internal(e.to_string()))?;
+    crate::fsutil::write_bytes_atomic(&plan_path, format!("{text}\n").as_bytes())?;
+    Ok(plan)
+}
+
+fn read_plan(path: &Path) -> Result<(JobPlan, u32)> {
+    let bytes = match std::fs::read(path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(Error::Usage(format!(
+                "{}: no plan here (run `terratile plan PIPELINE --out DIR` first)",
+                path.display()
+            )))
+        }
+        Err(e) => return Err(Error::io(path, e)),
+    };
+    let plan: JobPlan = serde_json::from_slice(&bytes)
+        .map_err(|e| Error::text(path, e.line() as u64, format!("not a terratile plan: {e}")))?;
+    if plan.format != FORMAT {
+        return Err(Error::text(
+            path,
+            1,
+            format!("format `{}`: expected `{FORMAT}`", plan.format),
+        ));
+    }
+    if plan.jobs != plan.shards[0] * plan.shards[1] || plan.jobs == 0 {
+        return Err(Error::text(
+            path,
+            1,
+            "jobs differs from shards[0] × shards[1]",
+        ));
+    }
+    Ok((plan, crc32(&bytes)))
+}
+
+/// A job's view of the run: the plan, the pipeline and the stages' settings.
+struct Run {
+    dir: PathBuf,
+    plan: JobPlan,
+    plan_crc: u32,
+    pipeline: LoadedPipeline,
+    stages: Stages,
+    inputs: Vec<PathBuf>,
+}
+
+impl Run {
+    /// The plan at `at` (its work directory or the plan file), checked against the pipeline
+    /// and inputs as they are now.
+    fn open(at: &Path) -> Result<Run> {
+        let (dir, file) = if at.is_dir() {
+            (at.to_path_buf(), at.join(PLAN_FILE))
+        } else {
+            let d = at.parent().unwrap_or(Path::new(".")).to_path_buf();
+            (d, at.to_path_buf())
+        };
+        let (plan, plan_crc) = read_plan(&file)?;
+        let pipeline = crate::config::load(&plan.pipeline)?;
+        if crc32(pipeline.text.as_bytes()) != plan.pipeline_crc {
+            return Err(Error::Usage(format!(
+                "{}: the pipeline changed since {} was planned: plan again",
+                plan.pipeline.display(),
+                file.display()
+            )));
+        }
+        check_supported(&pipeline)?;
+        for s in &plan.inputs {
+            let now = Stamp::of(&s.path)?;
+            if now != *s {
+                return Err(Error::Usage(format!(
+                    "{}: changed since {} was planned (size or modification time): plan again",
+                    s.path.display(),
+                    file.display()
+                )));
+            }
+        }
+        let c = &pipeline.config;
+        let stages = Stages {
+            denoise: c.denoise.enabled.then(|| c.denoise.clone()),
+            metres_per_unit: f64::from_bits(plan.metres_per_unit_bits),
+            resample: c.resample.clone(),
+            fill: c.fill.enabled.then(|| c.fill.clone()),
+            tiles: c.tiles.clone(),
+            quadtree: c.quadtree.clone(),
+        };
+        let inputs = plan.inputs.iter().map(|s| s.path.clone()).collect();
+        Ok(Run {
+            dir,
+            plan,
+            plan_crc,
+            pipeline,
+            stages,
+            inputs,
+        })
+    }
+
+    fn each_input(&self, f: impl FnMut(PointCloud) -> Result<()>) -> Result<()> {
+        for_each_input(&self.inputs, &self.pipeline.config.input.read_options(), f)
+    }
+
+    fn result(&self, phase: Phase, index: usize) -> PathBuf {
+        self.dir
+            .join("shards")
+            .join(index.to_string())
+            .join(format!("{}.bin", phase.name()))
+    }
+
+    fn open_result(&self, phase: Phase, index: usize) -> Result<Reader> {
+        Reader::open(
+            &self.result(phase, index),
+            phase as u32,
+            self.plan_crc,
+            index as u64,
+        )
+    }
+
+    fn save(&self, phase: Phase, index: usize, w: Writer) -> Result<()> {
+        w.save(
+            &self.result(phase, index),
+            phase as u32,
+            self.plan_crc,
+            index as u64,
+        )
+    }
+
+    /// Shard index `k`'s place in the shard grid.
+    fn place(&self, k: usize) -> [usize; 2] {
+        [k % self.plan.shards[0], k / self.plan.shards[0]]
+    }
+
+    /// Stage errors located at their keys in the pipeline file.
+    fn at_key(&self, e: Error) -> Error {
+        self.pipeline.param_error(e)
+    }
+}
+
+/// Noise removal's windows: the voxel-column lattice cut into the plan's shard grid, each
+/// side a whole number of low-layer columns.
+struct Windows {
+    frame: Frame,
+    settings: DenoiseSettings,
+    side: [u64; 2],
+    n: [u64; 2],
+    columns: [u64; 2],
+    halo: u64,
+}
+
+impl Windows {
+    fn of(run: &Run) -> Result<Option<Windows>> {
+        let Some(params) = &run.stages.denoise else {
+            return Ok(None);
+        };
+        let frame = Frame {
+            bounds: run.plan.bounds(),
+            points: run.plan.points,
+        };
+        let settings = frame
+            .settings(params, run.stages.metres_per_unit)
+            .map_err(|e| run.at_key(e))?;
+        let columns = frame.columns(&settings);
+        let g = frame.group(&settings).max(1);
+        let side = [0, 1].map(|a| {
+            (columns[a].div_ceil(run.plan.shards[a] as u64))
+                .div_ceil(g)
+                .max(1)
+                * g
+        });
+        let n = [0, 1].map(|a| columns[a].div_ceil(side[a]));
+        let halo = frame.halo(&settings);
+        Ok(Some(Windows {
+            frame,
+            settings,
+            side,
+            n,
+            columns,
+            halo,
+        }))
+    }
+
+    /// The columns window `[wx, wy]` owns (None: no such window).
+    fn own(&self, [wx, wy]: [usize; 2]) -> Option<ColumnWindow> {
+        let (wx, wy) = (wx as u64, wy as u64);
+        (wx < self.n[0] && wy < self.n[1]).then(|| ColumnWindow {
+            x: wx * self.side[0]..((wx + 1) * self.side[0]).min(self.columns[0]),
+            y: wy * self.side[1]..((wy + 1) * self.side[1]).min(self.columns[1]),
+        })
+    }
+
+    /// The window owning a point's column (as `[wx, wy]`).
+    fn owner(&self, x: f64, y: f64) -> [usize; 2] {
+        let (a, b) = self.frame.column(&self.settings, x, y);
+        [(a / self.side[0]) as usize, (b / self.side[1]) as usize]
+    }
+
+    /// The points of one window: (own columns and halo) in input order, and which it owns.
+    fn gather(&self, run: &Run, own: &ColumnWindow) -> Result<([Vec<f64>; 3], Vec<bool>)> {
+        let h = self.halo;
+        let reads = |c: u64, r: &std::ops::Range<u64>| c + h >= r.start && c < r.end + h;
+        let mut xyz = [Vec::new(), Vec::new(), Vec::new()];
+        let mut owned = Vec::new();
+        run.each_input(|c| {
+            for i in 0..c.len() {
+                let (a, b) = self.frame.column(&self.settings, c.x[i], c.y[i]);
+                if reads(a, &own.x) && reads(b, &own.y) {
+                    xyz[0].push(c.x[i]);
+                    xyz[1].push(c.y[i]);
+                    xyz[2].push(c.z[i]);
+                    owned.push(own.x.contains(&a) && own.y.contains(&b));
+                }
+            }
+            Ok(())
+        })?;
+        Ok((xyz, owned))
+    }
+
+    fn input<'a>(
+        &'a self,
+        run: &'a Run,
+        xyz: &'a [Vec<f64>; 3],
+        own: &'a ColumnWindow,
+    ) -> Option<denoise::ShardInput<'a>> {
+        Some(denoise::ShardInput {
+            x: &xyz[0],
+            y: &xyz[1],
+            z: &xyz[2],
+            frame: &self.frame,
+            params: run.stages.denoise.as_ref()?,
+            metres_per_unit: run.stages.metres_per_unit,
+            owned: own,
+        })
+    }
+}
+
+/// The result of `count`: noise removal's (failing, failing but coarse-passing, voxels)
+/// per voxel height over the window's own points.
+fn job_count(run: &Run, k: usize) -> Result<Writer> {
+    let mut w = Writer::default();
+    let win = Windows::of(run)?;
+    let own = win.as_ref().and_then(|w| w.own(run.place(k)));
+    let (Some(win), Some(own)) = (win, own) else {
+        w.u64s(std::iter::empty());
+        return Ok(w);
+    };
+    let (xyz, _) = win.gather(run, &own)?;
+    let counts = match win.input(run, &xyz, &own) {
+        Some(input) if !xyz[0].is_empty() => denoise::shard_counts(&input)?,
+        _ => Vec::new(),
+    };
+    let flat: Vec<u64> = counts.iter().flatten().map(|&c| c as u64).collect();
+    w.u64s(flat.into_iter());
+    Ok(w)
+}
+
+/// The voxel height steps the windows' counts choose (all `count` results read).
+fn chosen_steps(run: &Run) -> Result<u32> {
+    let Some(params) = &run.stages.denoise else {
+        return Ok(1);
+    };
+    let mut sums: Vec<[usize; 3]> = Vec::new();
+    for k in 0..run.plan.jobs {
+        let mut r = run.open_result(Phase::Count, k)?;
+        let c = r.u64s()?;
+        if c.len() % 3 != 0 {
+            return Err(r.invalid("counts are not whole triples"));
+        }
+        r.end()?;
+        let c: Vec<[usize; 3]> = c
+            .chunks_exact(3)
+            .map(|t| [t[0] as usize, t[1] as usize, t[2] as usize])
+            .collect();
+        if sums.len() < c.len() {
+            sums.resize(c.len(), [0; 3]);
+        }
+        for (acc, c) in sums.iter_mut().zip(&c) {
+            for i in 0..3 {
+                acc[i] += c[i];
+            }
+        }
+    }
+    Ok(denoise::choose_steps(params, &sums, run.plan.points))
+}
+
+/// The result of `keep`: the voxel height steps, one keep flag per point the window owns
+/// (in input order, packed eight to a byte), the number and bounds of its kept points.
+fn job_keep(run: &Run, k: usize) -> Result<Writer> {
+    let q = chosen_steps(run)?;
+    let mut w = Writer::default();
+    w.u64(q as u64);
+    let win = Windows::of(run)?;
+    let own = win.as_ref().and_then(|w| w.own(run.place(k)));
+    let (flags, kept, bounds) = match (win, own) {
+        (Some(win), Some(own)) => {
+            let (xyz, owned) = win.gather(run, &own)?;
+            let keep = match win.input(run, &xyz, &own) {
+                Some(input) if !xyz[0].is_empty() => denoise::shard_denoise(&input, q)?.keep,
+                _ => Vec::new(),
+            };
+            let (b, n) = crate::terrain::bounds_of(&xyz[0], &xyz[1], &xyz[2], Some(&keep));
+            let flags: Vec<bool> = keep
+                .iter()
+                .zip(&owned)
+                .filter(|(_, &o)| o)
+                .map(|(&k, _)| k)
+                .collect();
+            (flags, n, b)
+        }
+        _ => (Vec::new(), 0, Bounds::EMPTY),
+    };
+    w.u64(flags.len() as u64);
+    let mut packed = vec![0u8; flags.len().div_ceil(8)];
+    for (i, _) in flags.iter().enumerate().filter(|(_, &f)| f) {
+        packed[i / 8] |= 1 << (i % 8);
+    }
+    w.bytes(&packed);
+    w.u64(kept as u64);
+    for v in bounds.min.iter().chain(&bounds.max) {
+        w.f64(*v);
+    }
+    Ok(w)
+}
+
+/// Every window's keep flags (None: noise removal off) and the kept points' bounds and
+/// number: the reduction that fixes the grid.
+struct Kept {
+    flags: Option<Vec<(Vec<u8>, usize)>>,
+    bounds: Bounds,
+    points: usize,
+}
+
+fn kept(run: &Run, with_flags: bool) -> Result<Kept> {
+    if run.stages.denoise.is_none() {
+        return Ok(Kept {
+            flags: None,
+            bounds: run.plan.bounds(),
+            points: run.plan.points,
+        });
+    }
+    let mut flags = Vec::new();
+    let (mut bounds, mut points) = (Bounds::EMPTY, 0usize);
+    for k in 0..run.plan.jobs {
+        let mut r = run.open_result(Phase::Keep, k)?;
+        r.u64()?;
+        let n = r.usize(run.plan.points, "owned points")?;
+        let packed = r.bytes()?;
+        if packed.len() != n.div_ceil(8) {
+            return Err(r.invalid("keep flags do not match the number of owned points"));
+        }
+        points += r.usize(n, "kept points")?;
+        let mut b = [0.0; 6];
+        for v in &mut b {
+            *v = r.f64()?;
+        }
+        r.end()?;
+        bounds = bounds.union(Bounds {
+            min: [b[0], b[1], b[2]],
+            max: [b[3], b[4], b[5]],
+        });
+        if with_flags {
+            flags.push((packed, n));
+        }
+    }
+    Ok(Kept {
+        flags: with_flags.then_some(flags),
+        bounds,
+        points,
+    })
+}
+
+/// The grid and its shard layout, from the kept points' reduction.
+fn grid(run: &Run, kept: &Kept) -> Result<(GridSpec, ShardLayout)> {
+    if kept.points == 0 {
+        return Err(Error::Data {
+            stage: "resample",
+            message: "no points to resample".into(),
+        });
+    }
+    let spec = GridSpec::new(&run.stages.resample, &kept.bounds, kept.points)
+        .map_err(|e| run.at_key(e))?;
+    let samples = [spec.cols, spec.rows];
+    let tiles = ShardLayout::new(samples, &run.stages.tiles, [1, 1])
+        .map_err(|e| run.at_key(e))?
+        .tiles;
+    let block = [0, 1].map(|a| tiles[a].div_ceil(run.plan.shards[a]));
+    let layout = ShardLayout::new(samples, &run.stages.tiles, block).map_err(|e| run.at_key(e))?;
+    Ok((spec, layout))
+}
+
+/// The block of tiles job `k` computes (None: the grid has fewer blocks than jobs).
+fn block_of(run: &Run, layout: &ShardLayout, k: usize) -> Option<Shard> {
+    let [c, r] = run.place(k);
+    let [sx, sy] = layout.shards();
+    (c < sx && r < sy).then(|| layout.shard(r * sx + c))
+}
+
+fn put_heightfield(w: &mut Writer, hf: &Heightfield) {
+    let (rows, cols) = hf.heights.dim();
+    w.u64(rows as u64);
+    w.u64(cols as u64);
+    w.f32s(hf.heights.iter().copied());
+    w.u32s(hf.counts.iter().copied());
+    w.bytes(&hf.state.iter().map(|s| *s as u8).collect::<Vec<_>>());
+    for v in [hf.corner, hf.cell_size].iter().flatten() {
+        w.f64(*v);
+    }
+    w.f64(hf.z_offset);
+}
+
+fn get_heightfield(r: &mut Reader, max_cells: usize) -> Result<Heightfield> {
+    let rows = r.usize(max_cells, "rows")?;
+    let cols = r.usize(max_cells, "columns")?;
+    let shape = |r: &Reader, n: usize| -> Result<()> {
+        if n != rows * cols {
+            return Err(r.invalid(format!("{n} cells for {rows}×{cols}")));
+        }
+        Ok(())
+    };
+    let heights = r.f32s()?;
+    shape(r, heights.len())?;
+    let counts = r.u32s()?;
+    shape(r, counts.len())?;
+    let state = r.bytes()?;
+    shape(r, state.len())?;
+    let state = state
+        .into_iter()
+        .map(|s| match s {
+            0 => Ok(CellState::Empty),
+            1 => Ok(CellState::Measured),
+            2 => Ok(CellState::Interpolated),
+            3 => Ok(CellState::Fallback),
+            _ => Err(r.invalid(format!("cell state {s}"))),
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let mut f = [0.0; 5];
+    for v in &mut f {
+        *v = r.f64()?;
+    }
+    let arr = |v| Array2::from_shape_vec((rows, cols), v);
+    let bad = |_| r.invalid("cells do not fit their shape");
+    Ok(Heightfield {
+        heights: arr(heights).map_err(bad)?,
+        counts: Array2::from_shape_vec((rows, cols), counts).map_err(bad)?,
+        state: Array2::from_shape_vec((rows, cols), state).map_err(bad)?,
+        corner: [f[0], f[1]],
+        cell_size: [f[2], f[3]],
+        z_offset: f[4],
+        crs: None,
+    })
+}
+
+/// The result of `prepare`: the block's region interpolated and its fill pyramid (as
+/// [`prepare`] leaves them) and the coarse cells it owns.
+fn job_prepare(run: &Run, k: usize) -> Result<Writer> {
+    let kept = kept(run, true)?;
+    let (spec, layout) = grid(run, &kept)?;
+    let mut w = Writer::default();
+    let Some(shard) = block_of(run, &layout, k) else {
+        w.u64(0);
+        return Ok(w);
+    };
+    let fill = run.stages.fill.as_ref();
+    let (ci, cj) = (shard.input(&layout, 0, fill), shard.input(&layout, 1, fill));
+    let win = Windows::of(run)?;
+    // Each window's flags are taken in input order, as its `keep` job wrote them.
+    let mut cursor = vec![0usize; run.plan.jobs];
+    let mut xyz = [Vec::new(), Vec::new(), Vec::new()];
+    let mut crs = None;
+    run.each_input(|c| {
+        if crs.is_none() {
+            crs = c.crs().cloned();
+        }
+        for i in 0..c.len() {
+            if let (Some(win), Some(flags)) = (&win, &kept.flags) {
+                let [wx, wy] = win.owner(c.x[i], c.y[i]);
+                let j = wy * run.plan.shards[0] + wx;
+                let ((packed, n), at) = (&flags[j], cursor[j]);
+                if at >= *n {
+                    return Err(Error::Usage(format!(
+                        "{}: holds fewer keep flags than the inputs' points (inputs changed?)",
+                        run.result(Phase::Keep, j).display()
+                    )));
+                }
+                cursor[j] += 1;
+                if packed[at / 8] & (1 << (at % 8)) == 0 {
+                    continue;
+                }
+            }
+            let (a, b) = spec.cell(c.x[i], c.y[i]);
+            if ci.contains(&a) && cj.contains(&b) {
+                xyz[0].push(c.x[i]);
+                xyz[1].push(c.y[i]);
+                xyz[2].push(c.z[i]);
+            }
+        }
+        Ok(())
+    })?;
+    let cells = resample::resample_window(
+        [&xyz[0], &xyz[1], &xyz[2]],
+        None,
+        &spec,
+        [ci.clone(), cj.clone()],
+        run.stages.resample.method,
+        crs,
+    );
+    drop(xyz);
+    let p =
+        prepare(&layout, &shard, &cells, [ci.start, cj.start], fill).map_err(|e| run.at_key(e))?;
+    w.u64(1);
+    put_heightfield(&mut w, &p.local);
+    w.u64(p.offset[0] as u64);
+    w.u64(p.offset[1] as u64);
+    w.u64(p.pyramid.len() as u64);
+    for (v, h, wd) in &p.pyramid {
+        w.u64(*h as u64);
+        w.u64(*wd as u64);
+        w.f32s(v.iter().copied());
+    }
+    let coarse = p.coarse(&layout);
+    w.u64s(coarse.iter().map(|c| c.0 as u64));
+    w.f32s(coarse.iter().map(|c| c.1));
+    Ok(w)
+}
+
+/// A block's coarse cells: (index into the layout's coarse grid, value).
+type CoarseCells = Vec<(usize, f32)>;
+
+/// A `prepare` result read back: the prepared block and its coarse cells (None: no block).
+fn read_prepared(
+    run: &Run,
+    layout: &ShardLayout,
+    k: usize,
+) -> Result<Option<(Prepared, CoarseCells)>> {
+    let mut r = run.open_result(Phase::Prepare, k)?;
+    let shard = block_of(run, layout, k);
+    let present = r.usize(1, "block flag")? == 1;
+    let Some(shard) = shard.filter(|_| present) else {
+        if present {
+            return Err(r.invalid("a block where the layout has none"));
+        }
+        r.end()?;
+        return Ok(None);
+    };
+    let max_cells = layout.samples[0].max(layout.samples[1]);
+    let local = get_heightfield(&mut r, max_cells)?;
+    let offset = [r.usize(max_cells, "offset")?, r.usize(max_cells, "offset")?];
+    let levels = r.usize(64, "pyramid levels")?;
+    let mut pyramid = Vec::with_capacity(levels);
+    for _ in 0..levels {
+        let (h, wd) = (r.usize(max_cells, "rows")?, r.usize(max_cells, "columns")?);
+        let v = r.f32s()?;
+        if v.len() != h * wd {
+            return Err(r.invalid("pyramid level does not fit its shape"));
+        }
+        pyramid.push((v, h, wd));
+    }
+    let idx = r.u64s()?;
+    let val = r.f32s()?;
+    if idx.len() != val.len() {
+        return Err(r.invalid("coarse cells and values differ in number"));
+    }
+    r.end()?;
+    let coarse = idx.into_iter().map(|i| i as usize).zip(val).collect();
+    let p = Prepared {
+        shard,
+        local,
+        offset,
+        pyramid,
+        fill: run.stages.fill.clone(),
+    };
+    Ok(Some((p, coarse)))
+}
+
+/// The result of `finish`: the block's tiles, their d2 and vertical error as propagated
+/// within the block, and its fill figures.
+fn job_finish(run: &Run, k: usize) -> Result<Writer> {
+    let kept = kept(run, false)?;
+    let (_, layout) = grid(run, &kept)?;
+    let fill = run.stages.fill.as_ref();
+    let mut coarse = Vec::new();
+    if is_smooth(fill) {
+        let mut cells = Vec::new();
+        for j in 0..run.plan.jobs {
+            if let Some((_, c)) = read_prepared(run, &layout, j)? {
+                cells.extend(c);
+            }
+        }
+        coarse = complete_coarse(&layout, &cells)?;
+    }
+    let mut w = Writer::default();
+    let Some((p, _)) = read_prepared(run, &layout, k)? else {
+        // No tiles, no fill figures.
+        w.u64(0);
+        w.u64(0);
+        return Ok(w);
+    };
+    let out = finish(&layout, p, &coarse, &run.stages.tiles, &run.stages.quadtree)
+        .map_err(|e| run.at_key(e))?;
+    w.u64(out.tiles.len() as u64);
+    for ((t, d), e) in out.tiles.iter().zip(&out.d2).zip(&out.vertical_error) {
+        for v in [
+            t.col,
+            t.row,
+            t.origin[0],
+            t.origin[1],
+            t.valid[0],
+            t.valid[1],
+        ] {
+            w.u64(v as u64);
+        }
+        w.u64(t.holes as u64);
+        let z: Vec<f32> = t.z_range.iter().flatten().copied().collect();
+        w.f32s(z.into_iter());
+        w.f32s(t.heights.iter().copied());
+        for v in [d, e] {
+            let k = (v.size() - 1).trailing_zeros();
+            for m in 1..=k {
+                w.f32s(v.level(m).iter().copied());
+            }
+        }
+    }
+    match out.fill {
+        Some(f) => {
+            w.u64(1);
+            for v in [f.measured, f.interpolated, f.fallback, f.empty] {
+                w.u64(v as u64);
+            }
+        }
+        None => w.u64(0),
+    }
+    Ok(w)
+}
+
+fn read_output(run: &Run, layout: &ShardLayout, k: usize) -> Result<Option<ShardOutput>> {
+    let mut r = run.open_result(Phase::Finish, k)?;
+    let n = r.usize(layout.tiles[0] * layout.tiles[1], "tiles")?;
+    let t = layout.tile_size;
+    let levels = (t - 1).trailing_zeros();
+    let mut out = ShardOutput {
+        tiles: Vec::with_capacity(n),
+        d2: Vec::with_capacity(n),
+        vertical_error: Vec::with_capacity(n),
+        fill: None,
+    };
+    // Indices, origins and extents are within the grid; holes within a tile.
+    let max = layout.samples[0].max(layout.samples[1]) + t * t;
+    for _ in 0..n {
+        let mut f = [0usize; 7];
+        for v in &mut f {
+            *v = r.usize(max, "tile figure")?;
+        }
+        let z = r.f32s()?;
+        let z_range = match z[..] {
+            [] => None,
+            [lo, hi] => Some([lo, hi]),
+            _ => return Err(r.invalid("a height range of neither 0 nor 2 values")),
+        };
+        let heights = r.f32s()?;
+        let heights = Array2::from_shape_vec((t, t), heights)
+            .map_err(|_| r.invalid("tile heights do not fit the tile size"))?;
+        let mut node = || -> Result<NodeValues> {
+            let lv = (0..levels).map(|_| r.f32s()).collect::<Result<Vec<_>>>()?;
+            NodeValues::from_levels(t, lv).ok_or_else(|| r.invalid("node values of another size"))
+        };
+        let (d, e) = (node()?, node()?);
+        out.tiles.push(Tile {
+            col: f[0],
+            row: f[1],
+            origin: [f[2], f[3]],
+            valid: [f[4], f[5]],
+            heights,
+            holes: f[6],
+            z_range,
+        });
+        out.d2.push(d);
+        out.vertical_error.push(e);
+    }
+    if r.usize(1, "fill flag")? == 1 {
+        let mut v = [0usize; 4];
+        for x in &mut v {
+            *x = r.usize(usize::MAX, "fill figure")?;
+        }
+        out.fill = Some(FillReport {
+            measured: v[0],
+            interpolated: v[1],
+            fallback: v[2],
+            empty: v[3],
+        });
+    }
+    r.end()?;
+    Ok((n > 0 || out.fill.is_some()).then_some(out))
+}
+
+/// The job index from `--index`, else `SLURM_ARRAY_TASK_ID`, else `JOB_COMPLETION_INDEX`
+/// (Kubernetes Indexed Jobs).
+pub fn job_index(given: Option<usize>) -> Result<usize> {
+    if let Some(i) = given {
+        return Ok(i);
+    }
+    for var in ["SLURM_ARRAY_TASK_ID", "JOB_COMPLETION_INDEX"] {
+        if let Ok(v) = std::env::var(var) {
+            return v.trim().parse().map_err(|_| {
+                Error::Usage(format!("{var} = {}: not a job index", crate::one_line(&v)))
+            });
+        }
+    }
+    Err(Error::Usage(
+        "no job index: give --index, or run under a Slurm array (SLURM_ARRAY_TASK_ID) or a \
+         Kubernetes Indexed Job (JOB_COMPLETION_INDEX)"
+            .into(),
+    ))
+}
+
+/// `terratile shard`: runs job `index` of `phase` under the plan at `at` (its work
+/// directory or plan file) and writes its result; returns the result's path.
+pub fn shard(at: &Path, phase: Phase, index: usize) -> Result<PathBuf> {
+    let run = Run::open(at)?;
+    if index >= run.plan.jobs {
+        return Err(Error::Usage(format!(
+            "--index {index}: the plan {} has jobs 0 to {}",
+            run.dir.join(PLAN_FILE).display(),
+            run.plan.jobs - 1
+        )));
+    }
+    let w = match phase {
+        Phase::Count => job_count(&run, index)?,
+        Phase::Keep => job_keep(&run, index)?,
+        Phase::Prepare => job_prepare(&run, index)?,
+        Phase::Finish => job_finish(&run, index)?,
+    };
+    run.save(phase, index, w)?;
+    Ok(run.result(phase, index))
+}
+
+/// What `terratile merge` did.
+#[derive(Debug, Serialize)]
+pub struct MergeSummary {
+    /// The output directory.
+    pub output: PathBuf,
+    /// Tiles (columns, rows).
+    pub tiles: [usize; 2],
+    /// Files written, relative to the output directory.
+    pub files: Vec<String>,
+}
+
+/// `terratile merge`: the shards' tiles put together, d2 and the vertical error finished
+/// across their borders, then meshes and every output as `terratile run` writes them, into
+/// a staged directory that replaces the output only when all is written.
+pub fn merge_run(at: &Path) -> Result<MergeSummary> {
+    let run = Run::open(at)?;
+    let checked = crate::pipeline::Plan::new(&run.pipeline)?;
+    let kept = kept(&run, false)?;
+    let (spec, layout) = grid(&run, &kept)?;
+    let mut outputs = Vec::new();
+    for k in 0..run.plan.jobs {
+        if let Some(o) = read_output(&run, &layout, k)? {
+            outputs.push(o);
+        }
+    }
+    // The CRS as the in-memory run takes it: the first input that states one (headers
+    // only: no point is read).
+    let opts = ReadOptions {
+        max_points: Some(0),
+        ..run.pipeline.config.input.read_options()
+    };
+    let mut crs = None;
+    for_each_input(&run.inputs, &opts, |c| {
+        if crs.is_none() {
+            crs = c.crs().cloned();
+        }
+        Ok(())
+    })?;
+    let geo = Heightfield::empty(1, 1, spec.corner, spec.cell_size, spec.z_offset, crs);
+    let cfg = &run.pipeline.config;
+    let staged = checked.stage_output_dir()?;
+    let merged = merge(&layout, &geo, &cfg.tiles, &cfg.quadtree, outputs)?;
+    let mut set = merged.set;
+    if let (None, Some(Ok(c))) = (
+        &set.crs,
+        cfg.input.crs.as_deref().map(crate::geo::crs_from_key),
+    ) {
+        set.crs = Some(c);
+    }
+    if cfg.output.wants_meshes() {
+        crate::terrain::extract::check_no_holes(&set)?;
+    }
+    cfg.output.validate()?;
+    let meshes = if cfg.output.wants_meshes() {
+        Some(crate::terrain::extract::extract_meshes(
+            &set,
+            &merged.quadtree,
+            &cfg.extract,
+        )?)
+    } else {
+        None
+    };
+    let products = crate::output::TerrainProducts {
+        set: &set,
+        quadtree: &merged.quadtree,
+        meshes: meshes.as_ref(),
+    };
+    let files = crate::output::write_terrain(staged.path(), &products, &cfg.output, &NoProgress)?;
+    let output = staged.commit()?;
+    Ok(MergeSummary {
+        output,
+        tiles: set.grid,
+        files,
+    })
+}
