@@ -374,10 +374,10 @@ pub fn mirror_pairs(set: &TileSet, d: usize) -> Vec<(Node, Node)> {
     let mut v = Vec::new();
     for y0 in (0..h).step_by(d) {
         for x0 in (0..w).step_by(d) {
-            if (x0 + d) % step == 0 && x0 + d < w {
+            if (x0 + d).is_multiple_of(step) && x0 + d < w {
                 v.push(((x0, y0, d), (x0 + d, y0, d)));
             }
-            if (y0 + d) % step == 0 && y0 + d < h {
+            if (y0 + d).is_multiple_of(step) && y0 + d < h {
                 v.push(((x0, y0, d), (x0, y0 + d, d)));
             }
         }

@@ -119,7 +119,7 @@ mod tests {
         ) {
             let pos: Vec<DVec3> = pts.iter().map(|&(x, y, z)| DVec3::new(x, y, z)).collect();
             let eligible = |v: u32| v % 7 != 3;
-            let adjacent = |u: u32, v: u32| (u + v) % 5 == 0;
+            let adjacent = |u: u32, v: u32| (u + v).is_multiple_of(5);
             let fast = close_pairs(&pos, eligible, adjacent, d, usize::MAX).unwrap();
             let slow = close_pairs_slow(&pos, eligible, adjacent, d);
             prop_assert_eq!(&fast, &slow);
