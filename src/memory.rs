@@ -47,6 +47,11 @@ pub fn set_budget(bytes: u64) {
     BUDGET.store(bytes.max(1), Relaxed);
 }
 
+/// True when `--max-memory` (or a library call to [`set_budget`]) set the budget.
+pub fn budget_is_set() -> bool {
+    BUDGET.load(Relaxed) != 0
+}
+
 /// The budget in bytes: what `--max-memory` set, else [`default_budget`].
 pub fn budget() -> u64 {
     match BUDGET.load(Relaxed) {

@@ -29,7 +29,9 @@ use ndarray::s;
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
 
+pub mod bricks;
 pub mod points;
+pub mod stream;
 #[cfg(test)]
 mod tests;
 
