@@ -24,6 +24,7 @@ mod read;
 mod read_fuzz;
 mod shard_real;
 mod simplify;
+mod stream;
 mod strips;
 mod terrain_props;
 mod terrain_real;
