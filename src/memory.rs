@@ -75,7 +75,7 @@ pub fn default_budget() -> u64 {
 }
 
 /// The figure `key` (e.g. `MemTotal:`) of a `/proc` file that gives sizes in kB, in bytes.
-pub(crate) fn proc_kb(file: &str, key: &str) -> Option<u64> {
+pub fn proc_kb(file: &str, key: &str) -> Option<u64> {
     let s = std::fs::read_to_string(file).ok()?;
     let line = s.lines().find(|l| l.starts_with(key))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;

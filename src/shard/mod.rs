@@ -31,6 +31,7 @@ use std::ops::Range;
 
 pub mod bricks;
 pub mod points;
+pub mod scale_bench;
 pub mod stream;
 #[cfg(test)]
 mod tests;
