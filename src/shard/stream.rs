@@ -101,6 +101,10 @@ pub const SHARD_BYTES_PER_POINT: u64 = 96;
 /// states, the pyramid and the tiles with their d2 and vertical error, rounded up.
 pub const SHARD_BYTES_PER_CELL: u64 = 48;
 
+/// Bytes a cell of a prepared shard holds between the two steps of the smooth fill: its
+/// height (4), count (4) and state (1), and the pyramid above it (4/3), rounded up.
+pub const PREPARED_BYTES_PER_CELL: u64 = 12;
+
 /// Points of a brick at most (smaller when the budget makes windows smaller).
 const BRICK_POINTS: u64 = 200_000;
 
@@ -798,7 +802,7 @@ fn grid_pass(
     let keep_prepared = {
         let [w, h] = layout.samples;
         let ring = (b + 2) * (b + 2);
-        (w * h) as u64 * SHARD_BYTES_PER_CELL * ring as u64 / (b * b) as u64 <= sizing.budget / 2
+        (w * h) as u64 * PREPARED_BYTES_PER_CELL * ring as u64 / (b * b) as u64 <= sizing.budget / 2
     };
     let mut kept: Vec<Option<super::Prepared>> = (0..n).map(|_| None).collect();
     let coarse = if smooth {
