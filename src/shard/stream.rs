@@ -191,6 +191,18 @@ pub fn estimate_in_memory(pipeline: &LoadedPipeline, scan: &Scan) -> u64 {
     .saturating_add(n.saturating_mul(crate::memory::DENOISE_BYTES_PER_POINT))
 }
 
+/// True when the grid and its tiles alone (which both modes hold) exceed `budget`.
+fn grid_alone_exceeds(pipeline: &LoadedPipeline, scan: &Scan, budget: u64) -> bool {
+    let cfg = &pipeline.config;
+    let n = scan.points.min(cfg.input.max_points.unwrap_or(u64::MAX));
+    GridSpec::new(&cfg.resample, &scan.bounds, n.max(1) as usize).is_ok_and(|s| {
+        (s.cols as u64)
+            .saturating_mul(s.rows as u64)
+            .saturating_mul(crate::memory::GRID_BYTES_PER_CELL)
+            > budget
+    })
+}
+
 /// The first setting that needs every point in memory at once, as (key, why).
 fn needs_memory(pipeline: &LoadedPipeline) -> Option<(&'static str, &'static str)> {
     let c = &pipeline.config;
@@ -241,7 +253,9 @@ pub fn run_if_streaming(
         }
         let s = scan(pipeline, &plan.inputs)?;
         let need = estimate_in_memory(pipeline, &s);
-        if need <= budget {
+        if need <= budget || grid_alone_exceeds(pipeline, &s, budget) {
+            // Streaming holds the tile set too: a grid beyond the budget is refused by the
+            // in-memory run's own check, at its key.
             return Ok(None);
         }
         if let Some((key, why)) = needs_memory(pipeline) {
