@@ -46,6 +46,9 @@ pub struct Pipeline {
     /// `[[assets]]`: model meshes simplified and placed on the terrain (see `assets`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub assets: Vec<crate::assets::AssetConfig>,
+    /// `[scale]`: in memory or streamed through temporary bricks (see `shard::stream`).
+    #[serde(default)]
+    pub scale: crate::shard::stream::ScaleConfig,
 }
 
 /// `[input]`
@@ -284,7 +287,8 @@ impl LoadedPipeline {
         c.quadtree.validate().map_err(at_key)?;
         c.extract.validate().map_err(at_key)?;
         c.output.validate().map_err(at_key)?;
-        c.baseline.validate().map_err(at_key)
+        c.baseline.validate().map_err(at_key)?;
+        c.scale.validate().map_err(at_key)
     }
 }
 

@@ -34,11 +34,11 @@ fn created() -> MutexGuard<'static, Vec<PathBuf>> {
     CREATED.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-fn register(path: &Path) {
+pub(crate) fn register(path: &Path) {
     created().push(path.to_path_buf());
 }
 
-fn unregister(path: &Path) {
+pub(crate) fn unregister(path: &Path) {
     created().retain(|p| p != path);
 }
 

@@ -446,6 +446,22 @@ enum BenchCommand {
         #[arg(long, value_name = "FILE.png")]
         plot: Option<PathBuf>,
     },
+    /// The streaming run against the in-memory run on generated surveys (tiles of at most
+    /// 10 M points in a temporary directory): wall time, points/s, peak RSS, identical bytes.
+    Scale {
+        /// Survey sizes in points (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "10000000,100000000", value_parser = parse_count)]
+        points: Vec<u64>,
+        /// Memory budget of the streaming run.
+        #[arg(long, default_value = "1GiB")]
+        budget: String,
+        /// Where the temporary surveys go (default: the system's temporary directory).
+        #[arg(long)]
+        dir: Option<PathBuf>,
+        /// Print JSON.
+        #[arg(long)]
+        json: bool,
+    },
     /// (Internal: one memory measurement of `table1`, run in a fresh process.)
     #[command(hide = true)]
     Table1Memory {
@@ -965,6 +981,20 @@ fn bench(cmd: BenchCommand) -> Result<()> {
                 print_json(&t.rows)?;
             } else {
                 out!("{t}");
+            }
+        }
+        BenchCommand::Scale {
+            points,
+            budget,
+            dir,
+            json,
+        } => {
+            let dir = dir.unwrap_or_else(std::env::temp_dir);
+            let rows = terratile::shard::scale_bench::bench_scale(&points, &budget, &dir)?;
+            if json {
+                print_json(&rows)?;
+            } else {
+                out!("{}", terratile::shard::scale_bench::table(&rows));
             }
         }
         BenchCommand::Table1Memory {

@@ -47,6 +47,11 @@ pub fn set_budget(bytes: u64) {
     BUDGET.store(bytes.max(1), Relaxed);
 }
 
+/// True when `--max-memory` (or a library call to [`set_budget`]) set the budget.
+pub fn budget_is_set() -> bool {
+    BUDGET.load(Relaxed) != 0
+}
+
 /// The budget in bytes: what `--max-memory` set, else [`default_budget`].
 pub fn budget() -> u64 {
     match BUDGET.load(Relaxed) {
@@ -70,7 +75,7 @@ pub fn default_budget() -> u64 {
 }
 
 /// The figure `key` (e.g. `MemTotal:`) of a `/proc` file that gives sizes in kB, in bytes.
-pub(crate) fn proc_kb(file: &str, key: &str) -> Option<u64> {
+pub fn proc_kb(file: &str, key: &str) -> Option<u64> {
     let s = std::fs::read_to_string(file).ok()?;
     let line = s.lines().find(|l| l.starts_with(key))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;

@@ -25,6 +25,7 @@ mod read_fuzz;
 mod shard_jobs;
 mod shard_real;
 mod simplify;
+mod stream;
 mod strips;
 mod terrain_props;
 mod terrain_real;

@@ -51,6 +51,10 @@ pub struct RunOutput {
 
 /// Runs `pipeline`, reporting progress to `progress`, and returns the summary.
 pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSummary> {
+    // Streamed through temporary bricks when `[scale]` asks or the input would not fit.
+    if let Some(summary) = crate::shard::stream::run_if_streaming(pipeline, progress)? {
+        return Ok(summary);
+    }
     run_with_context(pipeline, progress).map(|o| o.summary)
 }
 
@@ -488,15 +492,43 @@ pub fn tile_stages(
     let mut reports = Vec::new();
     let t = Instant::now();
     let mut set = tiles::tile(hf, &cfg.tiles)?;
+    with_input_crs(cfg, &mut set);
+    reports.push(tiles_report(&set, t.elapsed().as_secs_f64()));
+    // Refuse before the work.
+    check_products(cfg, &set)?;
+    let t = Instant::now();
+    let qt = quadtree::build(&set, &cfg.quadtree)?;
+    reports.push(quadtree_report(&qt, t.elapsed().as_secs_f64()));
+    product_stages(cfg, set, qt, reports, dir, progress)
+}
+
+/// What the outputs need of the tiles, checked before the quadtree and the writers run: a
+/// mesh needs a filled heightfield, the Cesium tileset a CRS it can reproject.
+fn check_products(cfg: &Pipeline, set: &TileSet) -> Result<()> {
+    if cfg.output.wants_meshes() {
+        crate::terrain::extract::check_no_holes(set)?;
+    }
+    if cfg.output.quantized_mesh {
+        crate::geo::tms::check(set)?;
+    }
+    Ok(())
+}
+
+/// `[input] crs` given to a tile set whose inputs named none.
+pub fn with_input_crs(cfg: &Pipeline, set: &mut TileSet) {
     if let (None, Some(Ok(crs))) = (
         &set.crs,
         cfg.input.crs.as_deref().map(crate::geo::crs_from_key),
     ) {
         set.crs = Some(crs);
     }
-    reports.push(StageReport {
+}
+
+/// The tiles stage's report.
+pub fn tiles_report(set: &TileSet, seconds: f64) -> StageReport {
+    StageReport {
         stage: "tiles".into(),
-        seconds: t.elapsed().as_secs_f64(),
+        seconds,
         figures: vec![
             ("tile size".into(), set.tile_size.to_string()),
             ("tiles".into(), format!("{}×{}", set.grid[0], set.grid[1])),
@@ -506,25 +538,33 @@ pub fn tile_stages(
             ),
             ("holes".into(), set.holes().to_string()),
         ],
-    });
-    if cfg.output.wants_meshes() {
-        // Refuse before the work: a mesh needs a filled heightfield.
-        crate::terrain::extract::check_no_holes(&set)?;
     }
-    if cfg.output.quantized_mesh {
-        // Refuse before the work: the Cesium tileset needs a CRS it can reproject.
-        crate::geo::tms::check(&set)?;
-    }
-    let t = Instant::now();
-    let qt = quadtree::build(&set, &cfg.quadtree)?;
-    reports.push(StageReport {
+}
+
+/// The quadtree stage's report.
+pub fn quadtree_report(qt: &Quadtree, seconds: f64) -> StageReport {
+    StageReport {
         stage: "quadtree".into(),
-        seconds: t.elapsed().as_secs_f64(),
+        seconds,
         figures: vec![
             ("C".into(), qt.c.to_string()),
             ("K".into(), qt.k.to_string()),
         ],
-    });
+    }
+}
+
+/// The stages after the quadtree, on tiles and d2 however they were made (in memory or by
+/// shards): extract (when an output wants meshes) → outputs written into `dir`; their
+/// reports appended to `reports`.
+pub fn product_stages(
+    cfg: &Pipeline,
+    set: TileSet,
+    qt: Quadtree,
+    mut reports: Vec<StageReport>,
+    dir: &Path,
+    progress: &dyn Progress,
+) -> Result<TileStages> {
+    check_products(cfg, &set)?;
     cfg.output.validate()?;
     let meshes = if cfg.output.wants_meshes() {
         let t = Instant::now();

@@ -326,3 +326,46 @@ pub(crate) fn for_each_batch(
     }
     Ok(())
 }
+
+/// Reads a LAS or LAZ file in batches of at most `batch` records, each decoded into `cloud`
+/// (cleared first) by the same record decoder as [`read_las`], with the class filter and
+/// `opts.max_points`; calls `f` with every non-empty batch in file order. For the streaming
+/// run, which never holds a whole file's points. Returns the header and the points kept.
+pub(crate) fn for_each_decoded(
+    path: &Path,
+    bytes: &[u8],
+    opts: &ReadOptions,
+    batch: usize,
+    cloud: &mut PointCloud,
+    mut f: impl FnMut(&PointCloud, &LasHeader) -> Result<()>,
+) -> Result<(LasHeader, u64)> {
+    let h = LasHeader::parse(path, bytes)?;
+    let layout = Layout {
+        len: h.record_length as usize,
+        extended: h.point_format >= 6,
+        scale: h.scale,
+        offset: h.offset,
+    };
+    let mut kept = 0u64;
+    for_each_batch(path, bytes, &h, |records| {
+        for part in records.chunks(batch.max(1) * layout.len) {
+            let left = opts.max_points.map(|c| c.saturating_sub(kept));
+            if left == Some(0) {
+                return Ok(false);
+            }
+            cloud.x.clear();
+            cloud.y.clear();
+            cloud.z.clear();
+            cloud.classification.clear();
+            cloud.return_number.clear();
+            cloud.number_of_returns.clear();
+            cloud.intensity.clear();
+            kept += las_records::decode(part, &layout, &opts.classes, left, cloud) as u64;
+            if !cloud.is_empty() {
+                f(cloud, &h)?;
+            }
+        }
+        Ok(true)
+    })?;
+    Ok((h, kept))
+}

@@ -17,6 +17,7 @@ mod xyz;
 pub use convert::{convert, Selection};
 pub use crs::{Crs, LinearUnit, VerticalCrs};
 pub use las_header::{LasHeader, Vlr};
+pub(crate) use las_read::for_each_decoded;
 pub use las_read::raw_records;
 pub use las_write::{
     write_las, write_raw_las, write_reclassified_records, write_selected_records, LasWriteOptions,

@@ -29,9 +29,12 @@ use ndarray::s;
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
 
+pub mod bricks;
 pub mod jobs;
 pub mod points;
+pub mod scale_bench;
 pub mod store;
+pub mod stream;
 #[cfg(test)]
 mod tests;
 

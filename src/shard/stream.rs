@@ -1,0 +1,1094 @@
+//! The single-machine streaming driver of `terratile run` (see `docs/scale.md`): the same
+//! shard code as the in-memory run, fed from temporary files instead of one cloud.
+//!
+//! 1. **Scan**: the headers of all inputs (bounds, counts, CRS); decides whether the run
+//!    fits the memory budget in memory (`[scale] mode = "auto"`).
+//! 2. **Bucket**: one read of every input in file order (LAS from its memory map, LAZ
+//!    through the chunk decoder, batch by batch), each point appended to its brick
+//!    ([`super::bricks`]) through fixed-size buffers; the exact bounds and number of the
+//!    points are reduced on the way (noise removal's lattice).
+//! 3. **Denoise windows**: square windows of low-layer columns, each reading the bricks its
+//!    columns and halo overlap: the counts at every voxel height (summed, the height
+//!    chosen), then the keep flags of its own points ([`denoise::shard_counts`],
+//!    [`denoise::shard_denoise`]); the kept points' bounds and number fix the grid.
+//! 4. **Grid shards**: blocks of tiles, each resampling the kept points of the bricks its
+//!    cells and halo overlap ([`resample::resample_window`]), then [`super::prepare`],
+//!    [`super::complete_coarse`], [`super::finish`] and [`super::merge`]; the tiles are
+//!    written by the in-memory run's own output stages.
+//!
+//! Windows and shards run in parallel, as many at once as the budget allows. Temporary
+//! files live in one directory beside the output (`.NAME.stream`, or under
+//! `[scale] temp_dir`), marked by a `job.txt` that names the inputs and settings: terratile
+//! removes only directories with that marker and only the file names it writes, on success,
+//! on failure and on SIGINT/SIGTERM. After a crash (the process killed outright) the next
+//! run with the same inputs and settings resumes: a finished bucketing pass (`bricks.json`
+//! present) and every finished denoise window (its `keep-…` file present: files are written
+//! under a temporary name and renamed when complete) are not redone.
+
+use super::bricks::{self, BrickLattice, BrickPoints, BrickWriter, SourceTransform};
+use super::{complete_coarse, finish, merge, prepare, ShardLayout, ShardOutput};
+use crate::config::LoadedPipeline;
+use crate::error::{Error, Result};
+use crate::fsutil::write_bytes_atomic;
+use crate::pipeline::{peak_rss, Plan, RunSummary, StageReport};
+use crate::points::{self, Bounds, Crs, PointCloud, SourceInfo};
+use crate::progress::Progress;
+use crate::terrain::denoise::{self, ColumnWindow, Frame};
+use crate::terrain::fill::{Fallback, FillReport};
+use crate::terrain::resample::{self, GridSpec};
+use crate::terrain::Heightfield;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// How `terratile run` holds the points.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// In memory when the estimate fits the budget, else streamed.
+    #[default]
+    Auto,
+    /// Always in memory.
+    Memory,
+    /// Always streamed.
+    Stream,
+}
+
+/// `[scale]`
+#[derive(Debug, Clone, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScaleConfig {
+    /// `auto` (default), `memory` or `stream`.
+    #[serde(default)]
+    pub mode: Mode,
+    /// The memory budget of the choice and of the streaming run, e.g. `"4GiB"` (default:
+    /// `--max-memory`, else half of the machine's memory). `--max-memory` wins.
+    #[serde(default)]
+    pub memory_budget: Option<String>,
+    /// Directory for the temporary files (default: beside the output directory).
+    #[serde(default)]
+    pub temp_dir: Option<PathBuf>,
+}
+
+impl ScaleConfig {
+    /// Checks `memory_budget`.
+    pub fn validate(&self) -> Result<()> {
+        if let Some(s) = &self.memory_budget {
+            crate::memory::parse_size(s)
+                .map_err(|e| Error::param("scale", "memory_budget", s, e))?;
+        }
+        Ok(())
+    }
+
+    /// The budget in bytes: `--max-memory`, else `memory_budget`, else the default.
+    pub fn budget(&self) -> u64 {
+        match &self.memory_budget {
+            Some(s) if !crate::memory::budget_is_set() => {
+                crate::memory::parse_size(s).unwrap_or_else(|_| crate::memory::budget())
+            }
+            _ => crate::memory::budget(),
+        }
+    }
+}
+
+/// Bytes a point costs inside a window or shard: its record read back (20), coordinates
+/// and sequence number (32), the sort into input order (12), noise removal's key and flags
+/// (12) and the resampling's cell index (4), rounded up.
+pub const SHARD_BYTES_PER_POINT: u64 = 96;
+
+/// Bytes a cell of a grid shard's region costs: unfilled and filled heights, counts and
+/// states, the pyramid and the tiles with their d2 and vertical error, rounded up.
+pub const SHARD_BYTES_PER_CELL: u64 = 48;
+
+/// Bytes a cell of a prepared shard holds between the two steps of the smooth fill: its
+/// height (4), count (4) and state (1), and the pyramid above it (4/3), rounded up.
+pub const PREPARED_BYTES_PER_CELL: u64 = 12;
+
+/// Points of a brick at most (smaller when the budget makes windows smaller).
+const BRICK_POINTS: u64 = 200_000;
+
+/// Bytes of all bucketing write buffers together, at most.
+const BUCKET_BUFFERS: u64 = 256 << 20;
+
+/// Points decoded per batch while bucketing.
+const BUCKET_BATCH: usize = 1 << 20;
+
+/// The header facts of all inputs (pass 1).
+#[derive(Debug, Clone)]
+pub struct Scan {
+    /// The inputs, as their headers describe them.
+    pub sources: Vec<SourceInfo>,
+    /// Union of the headers' boxes.
+    pub bounds: Bounds,
+    /// Points the headers announce (before the class filter and the cap).
+    pub points: u64,
+}
+
+/// Reads the header of every input (LAS or LAZ; anything else cannot be streamed).
+pub fn scan(pipeline: &LoadedPipeline, inputs: &[PathBuf]) -> Result<Scan> {
+    let mut sources = Vec::new();
+    let mut bounds = Bounds::EMPTY;
+    let mut total = 0u64;
+    for p in inputs {
+        let map = points::map_file(p)?;
+        let format = match pipeline.config.input.read_options().format {
+            Some(f) => f,
+            None => points::detect_format(p, &map)?,
+        };
+        if format == points::Format::Xyz {
+            return Err(pipeline.key_error(
+                "scale.mode",
+                format!(
+                    "{}: XYZ text cannot be streamed (no header with bounds and counts): \
+                     convert it to LAS or run in memory",
+                    p.display()
+                ),
+            ));
+        }
+        let h = points::LasHeader::parse(p, &map)?;
+        bounds = bounds.union(h.bounds());
+        total = total.saturating_add(h.point_count);
+        sources.push(SourceInfo {
+            path: p.clone(),
+            format,
+            version: Some(h.version),
+            point_format: Some(h.point_format),
+            record_length: Some(h.record_length),
+            points_in_file: h.point_count,
+            points_read: 0,
+            scale: Some(h.scale),
+            offset: Some(h.offset),
+            header_bounds: Some(h.bounds()),
+            crs: h.crs.clone(),
+        });
+    }
+    Ok(Scan {
+        sources,
+        bounds,
+        points: total,
+    })
+}
+
+/// What the in-memory run would need for `scan`'s points (the estimate `terratile run`
+/// refuses beyond the budget), from the headers alone.
+pub fn estimate_in_memory(pipeline: &LoadedPipeline, scan: &Scan) -> u64 {
+    let cfg = &pipeline.config;
+    let n = scan.points.min(cfg.input.max_points.unwrap_or(u64::MAX));
+    let cells = GridSpec::new(&cfg.resample, &scan.bounds, n.max(1) as usize)
+        .map_or(n, |s| (s.cols as u64).saturating_mul(s.rows as u64));
+    let denoise = cfg.denoise.enabled.then_some((0, 0));
+    crate::memory::estimate_run(
+        n,
+        true,
+        0,
+        denoise,
+        cells,
+        "resample.cell_size",
+        rayon::current_num_threads() as u64,
+    )
+    .total()
+    .saturating_add(n.saturating_mul(crate::memory::DENOISE_BYTES_PER_POINT))
+}
+
+/// True when the grid and its tiles alone (which both modes hold) exceed `budget`.
+fn grid_alone_exceeds(pipeline: &LoadedPipeline, scan: &Scan, budget: u64) -> bool {
+    let cfg = &pipeline.config;
+    let n = scan.points.min(cfg.input.max_points.unwrap_or(u64::MAX));
+    GridSpec::new(&cfg.resample, &scan.bounds, n.max(1) as usize).is_ok_and(|s| {
+        (s.cols as u64)
+            .saturating_mul(s.rows as u64)
+            .saturating_mul(crate::memory::GRID_BYTES_PER_CELL)
+            > budget
+    })
+}
+
+/// The first setting that needs every point in memory at once, as (key, why).
+fn needs_memory(pipeline: &LoadedPipeline) -> Option<(&'static str, &'static str)> {
+    let c = &pipeline.config;
+    if c.ground.enabled {
+        return Some(("ground.enabled", "ground classification"));
+    }
+    if c.baseline.enabled {
+        return Some(("baseline.enabled", "the Delaunay baseline"));
+    }
+    if !c.assets.is_empty() {
+        return Some(("assets", "placing assets on the whole grid"));
+    }
+    if c.denoise.enabled && c.denoise.write_removed {
+        return Some(("denoise.write_removed", "writing the removed points"));
+    }
+    if c.fill.enabled && c.fill.fallback == Fallback::Mean {
+        return Some(("fill.fallback", "the mean fallback (the whole grid's mean)"));
+    }
+    if c.tiles.preset == crate::terrain::tiles::Preset::Unreal {
+        return Some((
+            "tiles.preset",
+            "the unreal preset (resamples the whole grid)",
+        ));
+    }
+    None
+}
+
+/// Runs `pipeline` streamed when `[scale]` says so, or (`auto`) when the in-memory run
+/// would not fit the budget; `None` when it should run in memory.
+pub fn run_if_streaming(
+    pipeline: &LoadedPipeline,
+    progress: &dyn Progress,
+) -> Result<Option<RunSummary>> {
+    let scale = &pipeline.config.scale;
+    if scale.mode == Mode::Memory {
+        return Ok(None);
+    }
+    let plan = Plan::new(pipeline)?;
+    let budget = scale.budget();
+    if scale.mode == Mode::Auto {
+        let any_text = plan.inputs.iter().any(|p| {
+            points::map_file(p)
+                .ok()
+                .is_some_and(|m| !m.starts_with(b"LASF"))
+        });
+        if any_text {
+            return Ok(None);
+        }
+        let s = scan(pipeline, &plan.inputs)?;
+        let need = estimate_in_memory(pipeline, &s);
+        if need <= budget || grid_alone_exceeds(pipeline, &s, budget) {
+            // Streaming holds the tile set too: a grid beyond the budget is refused by the
+            // in-memory run's own check, at its key.
+            return Ok(None);
+        }
+        if let Some((key, why)) = needs_memory(pipeline) {
+            return Err(pipeline.key_error(
+                key,
+                format!(
+                    "the run needs about {} in memory, more than the budget of {}, and {why} \
+                     cannot be streamed: turn it off or raise --max-memory",
+                    crate::memory::human(need),
+                    crate::memory::human(budget)
+                ),
+            ));
+        }
+    } else if let Some((key, why)) = needs_memory(pipeline) {
+        return Err(pipeline.key_error(
+            key,
+            format!("{why} needs every point in memory: scale.mode = \"stream\" cannot run it"),
+        ));
+    }
+    run_streaming(&plan, budget, progress).map(Some)
+}
+
+/// How many windows or shards run at once, and how many points each may hold.
+#[derive(Debug, Clone, Copy)]
+pub struct Sizing {
+    /// The budget.
+    pub budget: u64,
+    /// Windows or shards at once.
+    pub parallel: usize,
+    /// Points per window or shard.
+    pub points: u64,
+}
+
+impl Sizing {
+    /// Half the budget for the windows and shards in flight (the rest for the tiles being
+    /// assembled and the write buffers), one per worker thread at most.
+    pub fn new(budget: u64) -> Sizing {
+        let threads = rayon::current_num_threads().max(1);
+        let share = budget / 2;
+        let parallel = threads.min((share / (SHARD_BYTES_PER_POINT * 50_000)).max(1) as usize);
+        Sizing {
+            budget,
+            parallel,
+            points: (share / parallel as u64 / SHARD_BYTES_PER_POINT).max(1_000),
+        }
+    }
+}
+
+/// The run's temporary directory.
+#[derive(Debug)]
+struct TempDir {
+    path: PathBuf,
+    /// True when it was found from an earlier run with the same job.
+    resumed: bool,
+}
+
+const JOB_FILE: &str = "job.txt";
+const JOB_MAGIC: &str = "terratile streaming run v1\n";
+const BRICKS_FILE: &str = "bricks.json";
+
+/// True for the names the streaming run writes in its directory.
+fn is_ours(name: &str) -> bool {
+    let window = |prefix: &str| {
+        name.strip_prefix(prefix)
+            .and_then(|r| r.strip_suffix(".bin"))
+            .is_some_and(|r| r.bytes().all(|c| c.is_ascii_digit() || c == b'-'))
+    };
+    name == JOB_FILE
+        || name == BRICKS_FILE
+        || bricks::is_brick_name(name)
+        || window("counts-")
+        || window("keep-")
+}
+
+impl TempDir {
+    /// Opens (resuming when `job` matches) or creates the directory at `path`. A directory
+    /// there without terratile's marker is refused, never touched.
+    fn open(path: PathBuf, job: &str) -> Result<TempDir> {
+        let marker = path.join(JOB_FILE);
+        if path.exists() {
+            let text = std::fs::read_to_string(&marker).unwrap_or_default();
+            if !text.starts_with(JOB_MAGIC) {
+                return Err(Error::Usage(format!(
+                    "{}: exists and was not made by terratile's streaming run; remove it or set \
+                     scale.temp_dir",
+                    path.display()
+                )));
+            }
+            let dir = TempDir {
+                path,
+                resumed: text == job,
+            };
+            if !dir.resumed {
+                dir.clear()?;
+            }
+            crate::fsutil::register(&dir.path);
+            write_bytes_atomic(&marker, job.as_bytes())?;
+            return Ok(dir);
+        }
+        std::fs::create_dir_all(&path).map_err(|e| Error::io(&path, e))?;
+        crate::fsutil::register(&path);
+        write_bytes_atomic(&marker, job.as_bytes())?;
+        Ok(TempDir {
+            path,
+            resumed: false,
+        })
+    }
+
+    /// Removes the files it wrote (all but the marker).
+    fn clear(&self) -> Result<()> {
+        let rd = std::fs::read_dir(&self.path).map_err(|e| Error::io(&self.path, e))?;
+        for e in rd.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if name != JOB_FILE && is_ours(&name) {
+                let p = e.path();
+                std::fs::remove_file(&p).map_err(|e| Error::io(&p, e))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Removes the files it wrote, then the directory if nothing else is left in it.
+    fn remove(&self) {
+        if let Ok(rd) = std::fs::read_dir(&self.path) {
+            for e in rd.flatten() {
+                if is_ours(&e.file_name().to_string_lossy()) {
+                    let _ = std::fs::remove_file(e.path());
+                }
+            }
+        }
+        let _ = std::fs::remove_dir(&self.path);
+        crate::fsutil::unregister(&self.path);
+    }
+}
+
+/// The temporary directory of a run into `out`: `.NAME.stream` beside it, or
+/// `DIR/NAME.stream` under `[scale] temp_dir`.
+fn temp_path(pipeline: &LoadedPipeline) -> PathBuf {
+    let out = pipeline.output_dir();
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out".into());
+    match &pipeline.config.scale.temp_dir {
+        Some(d) => pipeline.base_dir().join(d).join(format!("{name}.stream")),
+        None => out.with_file_name(format!(".{name}.stream")),
+    }
+}
+
+/// The job's identity: what the temporary files depend on (the inputs with their sizes and
+/// modification times, the read and stage settings, the budget).
+fn job_text(pipeline: &LoadedPipeline, inputs: &[PathBuf], budget: u64) -> String {
+    let c = &pipeline.config;
+    let mut s = String::from(JOB_MAGIC);
+    for p in inputs {
+        let m = std::fs::metadata(p).ok();
+        let mtime = m
+            .as_ref()
+            .and_then(|m| m.modified().ok())
+            .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+            .map_or(0, |d| d.as_nanos());
+        let len = m.map_or(0, |m| m.len());
+        s.push_str(&format!("input {} {len} {mtime}\n", p.display()));
+    }
+    s.push_str(&format!(
+        "input {:?}\ndenoise {:?}\nbudget {budget}\n",
+        c.input, c.denoise
+    ));
+    s
+}
+
+/// What bucketing leaves (`bricks.json`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct Bucketed {
+    lattice: BrickLattice,
+    counts: Vec<u64>,
+    sources: Vec<SourceTransform>,
+    /// Points kept per input file.
+    read: Vec<u64>,
+    /// Exact bounds of all points (min x, y, z; max x, y, z).
+    min: [f64; 3],
+    max: [f64; 3],
+    points: u64,
+    bytes: u64,
+}
+
+/// Pass 2: every input into the bricks.
+fn bucket(
+    pipeline: &LoadedPipeline,
+    scan: &Scan,
+    dir: &Path,
+    sizing: &Sizing,
+    progress: &dyn Progress,
+) -> Result<Bucketed> {
+    let opts = pipeline.config.input.read_options();
+    let brick_points = BRICK_POINTS.min(sizing.points / 16).max(1_000);
+    let target = (scan.points / brick_points).clamp(1, 1 << 16) as usize;
+    let lattice = BrickLattice::new(&scan.bounds, target);
+    let buffer = (BUCKET_BUFFERS.min(sizing.budget / 8) / lattice.count() as u64) as usize;
+    let mut w = BrickWriter::new(dir, lattice, buffer);
+    let mut sources = Vec::new();
+    let mut read = Vec::new();
+    let mut seq = 0u64;
+    let mut b = Bounds::EMPTY;
+    let mut cloud = PointCloud::default();
+    progress.start("bucketing points", scan.points);
+    for info in &scan.sources {
+        let path = &info.path;
+        let map = points::map_file(path)?;
+        let mut o = opts.clone();
+        if let Some(cap) = opts.max_points {
+            o.max_points = Some(cap.saturating_sub(seq));
+        }
+        let first = seq;
+        let (h, kept) = points::for_each_decoded(path, &map, &o, BUCKET_BATCH, &mut cloud, {
+            |c: &PointCloud, h: &points::LasHeader| {
+                for i in 0..c.len() {
+                    let (x, y, z) = (c.x[i], c.y[i], c.z[i]);
+                    let raw = [
+                        bricks::raw_of(x, h.scale[0], h.offset[0]),
+                        bricks::raw_of(y, h.scale[1], h.offset[1]),
+                        bricks::raw_of(z, h.scale[2], h.offset[2]),
+                    ];
+                    let [Some(rx), Some(ry), Some(rz)] = raw else {
+                        return Err(Error::format(
+                            path,
+                            0,
+                            format!("point {i} of a batch does not round-trip its scale"),
+                        ));
+                    };
+                    b.add([x, y, z]);
+                    w.push(x, y, [rx, ry, rz], seq)?;
+                    seq += 1;
+                }
+                progress.advance(c.len() as u64);
+                Ok(())
+            }
+        })?;
+        sources.push(SourceTransform {
+            first,
+            scale: h.scale,
+            offset: h.offset,
+        });
+        read.push(kept);
+    }
+    progress.finish();
+    let bytes = w.bytes;
+    let counts = w.finish()?;
+    let bytes = bytes.max(seq * bricks::RECORD as u64);
+    Ok(Bucketed {
+        lattice,
+        counts,
+        sources,
+        read,
+        min: b.min,
+        max: b.max,
+        points: seq,
+        bytes,
+    })
+}
+
+/// Keep flags by sequence number.
+#[derive(Debug)]
+struct KeepBits(Vec<u64>);
+
+impl KeepBits {
+    fn get(&self, i: u64) -> bool {
+        (self.0[(i / 64) as usize] >> (i % 64)) & 1 == 1
+    }
+    fn set(&mut self, i: u64) {
+        self.0[(i / 64) as usize] |= 1 << (i % 64);
+    }
+    fn count(&self) -> u64 {
+        self.0.iter().map(|w| u64::from(w.count_ones())).sum()
+    }
+}
+
+/// What the denoise pass leaves.
+struct DenoisePass {
+    keep: KeepBits,
+    windows: usize,
+    resumed: usize,
+    steps: u32,
+}
+
+fn write_u64s(path: &Path, v: &[u64]) -> Result<()> {
+    let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
+    write_bytes_atomic(path, &bytes)
+}
+
+fn read_u64s(path: &Path) -> Option<Vec<u64>> {
+    let b = std::fs::read(path).ok()?;
+    (b.len() % 8 == 0).then(|| {
+        b.chunks_exact(8)
+            .map(|c| u64::from_le_bytes(c.try_into().unwrap_or([0; 8])))
+            .collect()
+    })
+}
+
+/// Pass 3a: noise removal by windows of low-layer columns read from the bricks.
+fn denoise_pass(
+    pipeline: &LoadedPipeline,
+    dir: &Path,
+    bk: &Bucketed,
+    mpu: f64,
+    sizing: &Sizing,
+    progress: &dyn Progress,
+) -> Result<DenoisePass> {
+    let params = &pipeline.config.denoise;
+    let frame = Frame {
+        bounds: Bounds {
+            min: bk.min,
+            max: bk.max,
+        },
+        points: bk.points as usize,
+    };
+    let s = frame
+        .settings(params, mpu)
+        .map_err(|e| pipeline.param_error(e))?;
+    let [cx, cy] = frame.columns(&s);
+    let group = frame.group(&s);
+    let halo = frame.halo(&s);
+    // Windows of `groups` × `groups` low-layer columns holding about `sizing.points` points
+    // with their halo.
+    let area = (frame.bounds.size()[0] * frame.bounds.size()[1]).max(1e-9);
+    let density = bk.points as f64 / area;
+    let side_world = (sizing.points as f64 / density.max(1e-12)).sqrt();
+    let group_world = group as f64 * s.voxel_size;
+    let groups = ((side_world / group_world).floor() as u64)
+        .saturating_sub(2 * halo.div_ceil(group))
+        .max(1);
+    let side = groups * group;
+    let n = [cx.div_ceil(side), cy.div_ceil(side)];
+    let count = (n[0] * n[1]) as usize;
+    let window = |k: usize| {
+        let (wx, wy) = (k as u64 % n[0], k as u64 / n[0]);
+        ColumnWindow {
+            x: wx * side..((wx + 1) * side).min(cx),
+            y: wy * side..((wy + 1) * side).min(cy),
+        }
+    };
+    let inv = s.voxel_size;
+    // The points a window reads: its columns and the halo, as `denoise_sharded` buckets them.
+    let load = |k: usize| -> Result<BrickPoints> {
+        let own = window(k);
+        let rx = own.x.start.saturating_sub(halo)..(own.x.end + halo).min(cx);
+        let ry = own.y.start.saturating_sub(halo)..(own.y.end + halo).min(cy);
+        let world = |r: &std::ops::Range<u64>, a: usize, c: u64| {
+            let lo = frame.bounds.min[a] + (r.start as f64 - 1.0) * inv;
+            let hi = if r.end >= c {
+                f64::INFINITY
+            } else {
+                frame.bounds.min[a] + (r.end as f64 + 1.0) * inv
+            };
+            [lo, hi]
+        };
+        let cover = bk.lattice.covering(world(&rx, 0, cx), world(&ry, 1, cy));
+        bricks::load(dir, &cover, &bk.counts, &bk.sources, |_, x, y| {
+            let (a, b) = frame.column(&s, x, y);
+            rx.contains(&a) && ry.contains(&b)
+        })
+    };
+    let name = |kind: &str, k: usize| dir.join(format!("{kind}-{groups}-{k:07}.bin"));
+    let run_batch = |ks: &[usize], f: &(dyn Fn(usize) -> Result<()> + Sync)| -> Result<()> {
+        for chunk in ks.chunks(sizing.parallel) {
+            chunk.par_iter().try_for_each(|&k| f(k))?;
+            progress.advance(chunk.len() as u64);
+        }
+        Ok(())
+    };
+    let all: Vec<usize> = (0..count).collect();
+    // The counts at every voxel height, per window (saved: resumable).
+    progress.start("denoise: counts", count as u64);
+    let counts_of = |k: usize| -> Result<()> {
+        let path = name("counts", k);
+        if read_u64s(&path).is_some() {
+            return Ok(());
+        }
+        let p = load(k)?;
+        let own = window(k);
+        let c = if p.is_empty() {
+            Vec::new()
+        } else {
+            let input = denoise::ShardInput {
+                x: &p.x,
+                y: &p.y,
+                z: &p.z,
+                frame: &frame,
+                params,
+                metres_per_unit: mpu,
+                owned: &own,
+            };
+            denoise::shard_counts(&input)?
+        };
+        let flat: Vec<u64> = c.iter().flat_map(|c| c.map(|v| v as u64)).collect();
+        write_u64s(&path, &flat)
+    };
+    run_batch(&all, &counts_of)?;
+    progress.finish();
+    let mut sums: Vec<[usize; 3]> = Vec::new();
+    for k in 0..count {
+        let flat = read_u64s(&name("counts", k))
+            .ok_or_else(|| Error::Internal(format!("denoise window {k}: counts missing")))?;
+        let c: Vec<[usize; 3]> = flat
+            .chunks_exact(3)
+            .map(|c| [c[0] as usize, c[1] as usize, c[2] as usize])
+            .collect();
+        sums.resize(sums.len().max(c.len()), [0; 3]);
+        for (acc, c) in sums.iter_mut().zip(&c) {
+            for i in 0..3 {
+                acc[i] += c[i];
+            }
+        }
+    }
+    let q = denoise::choose_steps(params, &sums, frame.points);
+    // The keep flags of each window's own points (saved: resumable). The file holds q, then
+    // the kept points' sequence numbers.
+    let done: Vec<usize> = (0..count)
+        .filter(|&k| read_u64s(&name("keep", k)).is_some_and(|v| v.first() == Some(&(q as u64))))
+        .collect();
+    let todo: Vec<usize> = (0..count).filter(|k| !done.contains(k)).collect();
+    let crash_after: Option<usize> = std::env::var("TERRATILE_STREAM_CRASH_AFTER")
+        .ok()
+        .and_then(|v| v.parse().ok());
+    let written = std::sync::atomic::AtomicUsize::new(0);
+    let keep_of = |k: usize| -> Result<()> {
+        let p = load(k)?;
+        let own = window(k);
+        let mut out = vec![q as u64];
+        if !p.is_empty() {
+            let input = denoise::ShardInput {
+                x: &p.x,
+                y: &p.y,
+                z: &p.z,
+                frame: &frame,
+                params,
+                metres_per_unit: mpu,
+                owned: &own,
+            };
+            let d = denoise::shard_denoise(&input, q)?;
+            out.extend(
+                d.keep
+                    .iter()
+                    .zip(&p.seq)
+                    .filter(|(k, _)| **k)
+                    .map(|(_, &s)| s),
+            );
+        }
+        write_u64s(&name("keep", k), &out)?;
+        let w = written.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+        if crash_after.is_some_and(|c| w >= c) {
+            // A test's stand-in for the process being killed outright: no clean-up at all.
+            eprintln!("terratile: TERRATILE_STREAM_CRASH_AFTER={w}: stopping without clean-up");
+            std::process::exit(101);
+        }
+        Ok(())
+    };
+    progress.start("denoise: keep flags", todo.len() as u64);
+    run_batch(&todo, &keep_of)?;
+    progress.finish();
+    let mut keep = KeepBits(vec![0; (bk.points as usize).div_ceil(64)]);
+    for k in 0..count {
+        let v = read_u64s(&name("keep", k))
+            .ok_or_else(|| Error::Internal(format!("denoise window {k}: keep flags missing")))?;
+        for &s in &v[1..] {
+            keep.set(s);
+        }
+    }
+    Ok(DenoisePass {
+        keep,
+        windows: count,
+        resumed: done.len(),
+        steps: q,
+    })
+}
+
+/// The kept points' exact bounds (one more read of the bricks: a min/max reduction).
+fn kept_bounds(dir: &Path, bk: &Bucketed, keep: &KeepBits) -> Result<Bounds> {
+    let all: Vec<usize> = (0..bk.lattice.count()).collect();
+    all.par_chunks(16)
+        .map(|c| {
+            let p = bricks::load(dir, c, &bk.counts, &bk.sources, |s, _, _| keep.get(s))?;
+            Ok(crate::terrain::bounds_of(&p.x, &p.y, &p.z, None).0)
+        })
+        .try_reduce(|| Bounds::EMPTY, |a, b| Ok(a.union(b)))
+}
+
+/// Tiles per shard side for `sizing`: the shard's region with its one-tile ring within the
+/// points (one point a cell, the √N rule's mean) and cells it may hold.
+fn block_for(sizing: &Sizing, tile_step: usize) -> usize {
+    let per_cell = SHARD_BYTES_PER_POINT + SHARD_BYTES_PER_CELL;
+    let cells = sizing.points * SHARD_BYTES_PER_POINT / per_cell;
+    let side = (cells as f64).sqrt() / tile_step as f64;
+    (side.floor() as usize).saturating_sub(2).max(1)
+}
+
+/// Runs the grid shards over the kept points of the bricks and merges them.
+#[allow(clippy::too_many_arguments)]
+fn grid_pass(
+    pipeline: &LoadedPipeline,
+    dir: &Path,
+    bk: &Bucketed,
+    keep: Option<&KeepBits>,
+    spec: &GridSpec,
+    crs: Option<Crs>,
+    sizing: &Sizing,
+    progress: &dyn Progress,
+) -> Result<(ShardLayout, super::Merged)> {
+    let cfg = &pipeline.config;
+    let fill = cfg.fill.enabled.then_some(&cfg.fill);
+    let step = cfg.tiles.tile_size() - 1;
+    let b = block_for(sizing, step);
+    let layout = ShardLayout::new([spec.cols, spec.rows], &cfg.tiles, [b, b])
+        .map_err(|e| pipeline.param_error(e))?;
+    let geo = Heightfield::empty(
+        1,
+        1,
+        spec.corner,
+        spec.cell_size,
+        spec.z_offset,
+        crs.clone(),
+    );
+    let prepared_of = |i: usize| -> Result<super::Prepared> {
+        let shard = layout.shard(i);
+        let (ci, cj) = (shard.input(&layout, 0, fill), shard.input(&layout, 1, fill));
+        let world = |r: &std::ops::Range<usize>, a: usize, n: usize| {
+            let lo = spec.corner[a] + (r.start as f64 - 1.0) * spec.cell_size[a];
+            let hi = if r.end >= n {
+                f64::INFINITY
+            } else {
+                spec.corner[a] + (r.end as f64 + 1.0) * spec.cell_size[a]
+            };
+            [lo, hi]
+        };
+        let cover = bk
+            .lattice
+            .covering(world(&ci, 0, spec.cols), world(&cj, 1, spec.rows));
+        let p = bricks::load(dir, &cover, &bk.counts, &bk.sources, |s, x, y| {
+            keep.is_none_or(|k| k.get(s)) && ci.contains(&spec.col(x)) && cj.contains(&spec.row(y))
+        })?;
+        let offset = [ci.start, cj.start];
+        let cells = resample::resample_window(
+            [&p.x, &p.y, &p.z],
+            None,
+            spec,
+            [ci, cj],
+            cfg.resample.method,
+            crs.clone(),
+        );
+        drop(p);
+        prepare(&layout, &shard, &cells, offset, fill)
+    };
+    let smooth = fill.is_some_and(|f| f.fallback == Fallback::Smooth);
+    let n = layout.count();
+    let all: Vec<usize> = (0..n).collect();
+    // With the smooth fill every shard's coarse cells come first; the prepared shards are
+    // kept for the second step when they fit the budget, else prepared again.
+    let keep_prepared = {
+        let [w, h] = layout.samples;
+        let ring = (b + 2) * (b + 2);
+        (w * h) as u64 * PREPARED_BYTES_PER_CELL * ring as u64 / (b * b) as u64 <= sizing.budget / 2
+    };
+    let mut kept: Vec<Option<super::Prepared>> = (0..n).map(|_| None).collect();
+    let coarse = if smooth {
+        progress.start("grid shards: coarse level", n as u64);
+        let mut cells = Vec::new();
+        for chunk in all.chunks(sizing.parallel) {
+            let got: Vec<super::Prepared> = chunk
+                .par_iter()
+                .map(|&i| prepared_of(i))
+                .collect::<Result<_>>()?;
+            for (p, &i) in got.into_iter().zip(chunk) {
+                cells.extend(p.coarse(&layout));
+                if keep_prepared {
+                    kept[i] = Some(p);
+                }
+            }
+            progress.advance(chunk.len() as u64);
+        }
+        progress.finish();
+        complete_coarse(&layout, &cells)?
+    } else {
+        Vec::new()
+    };
+    progress.start("grid shards", n as u64);
+    let mut outputs: Vec<ShardOutput> = Vec::with_capacity(n);
+    for chunk in all.chunks(sizing.parallel) {
+        let taken: Vec<Option<super::Prepared>> = chunk.iter().map(|&i| kept[i].take()).collect();
+        let got: Vec<ShardOutput> = chunk
+            .par_iter()
+            .zip(taken)
+            .map(|(&i, p)| {
+                let p = match p {
+                    Some(p) => p,
+                    None => prepared_of(i)?,
+                };
+                finish(&layout, p, &coarse, &cfg.tiles, &cfg.quadtree)
+            })
+            .collect::<Result<_>>()?;
+        outputs.extend(got);
+        progress.advance(chunk.len() as u64);
+    }
+    progress.finish();
+    let merged = merge(&layout, &geo, &cfg.tiles, &cfg.quadtree, outputs)?;
+    Ok((layout, merged))
+}
+
+fn fig(k: &str, v: impl ToString) -> (String, String) {
+    (k.to_string(), v.to_string())
+}
+
+fn report(stage: &str, t: Instant, figures: Vec<(String, String)>) -> StageReport {
+    StageReport {
+        stage: stage.into(),
+        seconds: t.elapsed().as_secs_f64(),
+        figures,
+    }
+}
+
+/// The streaming run of `plan` within `budget` bytes.
+pub fn run_streaming(plan: &Plan<'_>, budget: u64, progress: &dyn Progress) -> Result<RunSummary> {
+    let pipeline = plan.pipeline;
+    let staged = plan.stage_output_dir()?;
+    let t = Instant::now();
+    let sc = scan(pipeline, &plan.inputs)?;
+    let mut stages = vec![report(
+        "scan",
+        t,
+        vec![
+            fig("files", sc.sources.len()),
+            fig("points in headers", sc.points),
+            fig(
+                "in-memory estimate",
+                crate::memory::human(estimate_in_memory(pipeline, &sc)),
+            ),
+            fig("budget", crate::memory::human(budget)),
+        ],
+    )];
+    let sizing = Sizing::new(budget);
+    let tmp = TempDir::open(
+        temp_path(pipeline),
+        &job_text(pipeline, &plan.inputs, budget),
+    )?;
+    let result = stream_passes(pipeline, &sc, &tmp, &sizing, &staged, &mut stages, progress);
+    // On failure as on success, the temporary files go (a crash leaves them to resume).
+    tmp.remove();
+    let (files, bk) = result?;
+    staged.commit()?;
+    let mut inputs = sc.sources;
+    for (s, r) in inputs.iter_mut().zip(&bk.read) {
+        s.points_read = *r;
+        s.path = crate::fsutil::normalize_lexically(&s.path);
+    }
+    let crs = inputs.iter().find_map(|s| s.crs.as_ref()).map(|c| c.text());
+    Ok(RunSummary {
+        inputs,
+        points: bk.points,
+        bounds: Some(Bounds {
+            min: bk.min,
+            max: bk.max,
+        }),
+        crs,
+        stages,
+        output_dir: crate::fsutil::normalize_lexically(&pipeline.output_dir()),
+        files,
+        assets: Vec::new(),
+        baseline: None,
+    })
+}
+
+/// Passes 2 to 4 and the outputs, into `staged`; returns the files written and the buckets.
+fn stream_passes(
+    pipeline: &LoadedPipeline,
+    sc: &Scan,
+    tmp: &TempDir,
+    sizing: &Sizing,
+    staged: &crate::fsutil::StagedDir,
+    stages: &mut Vec<StageReport>,
+    progress: &dyn Progress,
+) -> Result<(Vec<String>, Bucketed)> {
+    let cfg = &pipeline.config;
+    let dir = &tmp.path;
+    let t = Instant::now();
+    let done = dir.join(BRICKS_FILE);
+    let previous: Option<Bucketed> = tmp
+        .resumed
+        .then(|| std::fs::read(&done).ok())
+        .flatten()
+        .and_then(|b| serde_json::from_slice(&b).ok());
+    let resumed = previous.is_some();
+    let bk = match previous {
+        Some(b) => b,
+        None => {
+            tmp.clear()?;
+            let b = bucket(pipeline, sc, dir, sizing, progress)?;
+            let json = serde_json::to_vec(&b).map_err(|e| Error::Internal(e.to_string()))?;
+            write_bytes_atomic(&done, &json)?;
+            b
+        }
+    };
+    if bk.points == 0 {
+        return Err(pipeline.key_error(
+            "input.paths",
+            "the inputs hold no points (after the class filter)",
+        ));
+    }
+    stages.push(report(
+        "bucket",
+        t,
+        vec![
+            fig("points", bk.points),
+            fig("bricks", bk.lattice.count()),
+            fig("temporary", crate::memory::human(bk.bytes)),
+            fig("resumed", resumed),
+        ],
+    ));
+    let crs: Option<Crs> = sc.sources.iter().find_map(|s| s.crs.clone());
+    let mpu = crs.as_ref().map_or(1.0, |c| c.metres_per_unit());
+    let all_bounds = Bounds {
+        min: bk.min,
+        max: bk.max,
+    };
+    let (keep, kept_bounds, kept) = if cfg.denoise.enabled {
+        let t = Instant::now();
+        let d = denoise_pass(pipeline, dir, &bk, mpu, sizing, progress)?;
+        let kept = d.keep.count();
+        let b = kept_bounds(dir, &bk, &d.keep)?;
+        stages.push(report(
+            "denoise",
+            t,
+            vec![
+                fig("points in", bk.points),
+                fig("points out", kept),
+                fig("removed", bk.points - kept),
+                fig("windows", d.windows),
+                fig("windows resumed", d.resumed),
+                fig("voxel height steps", d.steps),
+            ],
+        ));
+        (Some(d.keep), b, kept)
+    } else {
+        (None, all_bounds, bk.points)
+    };
+    if kept == 0 {
+        return Err(Error::Data {
+            stage: "resample",
+            message: "no points to resample".into(),
+        });
+    }
+    let spec = GridSpec::new(&cfg.resample, &kept_bounds, kept as usize)
+        .map_err(|e| pipeline.param_error(e))?;
+    let t = Instant::now();
+    let (layout, merged) = grid_pass(
+        pipeline,
+        dir,
+        &bk,
+        keep.as_ref(),
+        &spec,
+        crs,
+        sizing,
+        progress,
+    )?;
+    drop(keep);
+    let mut figures = vec![
+        fig("grid", format!("{}×{}", spec.cols, spec.rows)),
+        fig("shards", layout.count()),
+        fig(
+            "tiles per shard",
+            format!("{}×{}", layout.block[0], layout.block[1]),
+        ),
+    ];
+    if let Some(f) = &merged.fill {
+        figures.extend(fill_figures(f));
+    }
+    stages.push(report("grid shards", t, figures));
+    let super::Merged {
+        mut set, quadtree, ..
+    } = merged;
+    crate::pipeline::with_input_crs(cfg, &mut set);
+    let reports = vec![
+        crate::pipeline::tiles_report(&set, 0.0),
+        crate::pipeline::quadtree_report(&quadtree, 0.0),
+    ];
+    let ts = crate::pipeline::product_stages(cfg, set, quadtree, reports, staged.path(), progress)?;
+    stages.extend(ts.reports);
+    stages.push(StageReport {
+        stage: "stream".into(),
+        seconds: 0.0,
+        figures: vec![
+            fig("parallel", sizing.parallel),
+            fig("points per shard", sizing.points),
+            fig(
+                "peak memory",
+                peak_rss().map_or("—".into(), crate::memory::human),
+            ),
+        ],
+    });
+    Ok((ts.files, bk))
+}
+
+fn fill_figures(f: &FillReport) -> Vec<(String, String)> {
+    vec![
+        fig("measured", f.measured),
+        fig("interpolated", f.interpolated),
+        fig("fallback", f.fallback),
+        fig("empty", f.empty),
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_our_names_are_ours() {
+        for n in [
+            "job.txt",
+            "bricks.json",
+            "brick-0000012.bin",
+            "counts-3-0000001.bin",
+            "keep-3-0000001.bin",
+        ] {
+            assert!(is_ours(n), "{n}");
+        }
+        for n in ["notes.txt", "brick-12.bin", "keep-x.bin", "tile_0_0.exr"] {
+            assert!(!is_ours(n), "{n}");
+        }
+    }
+
+    #[test]
+    fn sizing_respects_the_budget() {
+        let s = Sizing::new(64 << 20);
+        assert!(s.parallel as u64 * s.points * SHARD_BYTES_PER_POINT <= 32 << 20);
+        assert!(block_for(&s, 256) >= 1);
+    }
+}

@@ -1,0 +1,325 @@
+//! The streaming run of `terratile run` (`[scale]`): byte-identical outputs to the in-memory
+//! run on real surveys and on a glob of generated tiles, with a budget small enough that
+//! several denoise windows and grid shards are used; the automatic choice; clean-up of the
+//! temporary files on failure and on SIGINT; resume after a crash; a directory that is not
+//! terratile's is never touched.
+
+use crate::common::{data_file, terratile, walk, Run};
+use std::path::{Path, PathBuf};
+
+/// Writes `NAME.toml` in `dir`: `inputs`, output `out_NAME`, `[scale]` with `mode` and a
+/// budget, plus `extra` TOML.
+fn pipeline(dir: &Path, name: &str, inputs: &[&str], mode: &str, extra: &str) -> PathBuf {
+    let paths: Vec<String> = inputs.iter().map(|p| format!("{p:?}")).collect();
+    let text = format!(
+        "[input]\npaths = [{}]\n[output]\ndir = \"out_{name}\"\n[scale]\nmode = \"{mode}\"\n\
+         memory_budget = \"16MiB\"\n{extra}",
+        paths.join(", ")
+    );
+    let p = dir.join(format!("{name}.toml"));
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn run_json(dir: &Path, toml: &Path, env: &[(&str, &str)]) -> Run {
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_terratile"));
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let p = toml.to_string_lossy().into_owned();
+    crate::common::run_with(cmd, dir, &["run", "-q", "--json", &p])
+}
+
+fn summary(r: &Run) -> serde_json::Value {
+    serde_json::from_str(&r.stdout).unwrap_or_else(|e| panic!("{e}\n{}", r.context()))
+}
+
+/// The figure `key` of stage `stage` in a JSON summary.
+fn figure(s: &serde_json::Value, stage: &str, key: &str) -> Option<String> {
+    let st = s["stages"]
+        .as_array()?
+        .iter()
+        .find(|x| x["stage"] == stage)?;
+    st["figures"]
+        .as_array()?
+        .iter()
+        .find(|f| f[0] == key)
+        .and_then(|f| f[1].as_str().map(String::from))
+}
+
+/// Asserts that two output directories hold the same files with the same bytes.
+fn same_tree(a: &Path, b: &Path) {
+    let rel = |d: &Path| -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = walk(d)
+            .into_iter()
+            .filter(|p| p.is_file())
+            .map(|p| p.strip_prefix(d).unwrap().to_path_buf())
+            .collect();
+        v.sort();
+        v
+    };
+    let (fa, fb) = (rel(a), rel(b));
+    assert_eq!(
+        fa,
+        fb,
+        "different files in {} and {}",
+        a.display(),
+        b.display()
+    );
+    assert!(!fa.is_empty());
+    for f in &fa {
+        let (x, y) = (
+            std::fs::read(a.join(f)).unwrap(),
+            std::fs::read(b.join(f)).unwrap(),
+        );
+        assert!(x == y, "{} differs between memory and stream", f.display());
+    }
+}
+
+/// No temporary directory of the streaming run is left in `dir`.
+fn no_stream_dir(dir: &Path, r: &Run) {
+    let left: Vec<_> = walk(dir)
+        .into_iter()
+        .filter(|p| p.to_string_lossy().ends_with(".stream"))
+        .collect();
+    assert!(left.is_empty(), "left {left:?}\n{}", r.context());
+}
+
+/// Memory and stream runs of `inputs` in `dir`; asserts identical outputs and that the
+/// streaming run used several windows and shards; returns the stream summary.
+fn equivalent(dir: &Path, inputs: &[&str], extra: &str) -> serde_json::Value {
+    let m = pipeline(dir, "memory", inputs, "memory", extra);
+    let s = pipeline(dir, "stream", inputs, "stream", extra);
+    let rm = run_json(dir, &m, &[]);
+    rm.ok();
+    let rs = run_json(dir, &s, &[]);
+    rs.ok();
+    let sum = summary(&rs);
+    assert!(
+        figure(&sum, "bucket", "bricks").is_some(),
+        "{}",
+        rs.context()
+    );
+    let shards: usize = figure(&sum, "grid shards", "shards")
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(shards > 1, "one shard only\n{}", rs.context());
+    if !extra.contains("[denoise]") {
+        let w: usize = figure(&sum, "denoise", "windows").unwrap().parse().unwrap();
+        assert!(w > 1, "one denoise window only\n{}", rs.context());
+    }
+    same_tree(&dir.join("out_memory"), &dir.join("out_stream"));
+    no_stream_dir(dir, &rs);
+    sum
+}
+
+fn real(rel: &str) -> Option<String> {
+    data_file(rel).map(|p| p.to_string_lossy().into_owned())
+}
+
+#[test]
+fn stream_equals_memory_on_csite4() {
+    let Some(f) = real("lidar/CSite4_orig-utm.laz") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    equivalent(dir.path(), &[&f], "");
+}
+
+#[test]
+fn stream_equals_memory_on_autzen_trim() {
+    let Some(f) = real("lidar/autzen_trim.las") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    equivalent(dir.path(), &[&f], "");
+}
+
+#[test]
+fn stream_equals_memory_on_fsite5() {
+    let Some(f) = real("lidar/FSite5_orig-utm.laz") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    equivalent(dir.path(), &[&f], "");
+}
+
+/// Generated tiles of one survey in `dir/tiles`.
+fn tiles(dir: &Path, points: &str) {
+    std::fs::create_dir(dir.join("tiles")).unwrap();
+    terratile(
+        dir,
+        &[
+            "generate",
+            "-o",
+            "tiles/s.las",
+            "--points",
+            points,
+            "--tiles",
+            "2x2",
+        ],
+    )
+    .ok();
+}
+
+#[test]
+fn stream_equals_memory_on_a_glob_of_tiles() {
+    for extra in ["", "[fill]\nradius = 2.0\n", "[denoise]\nenabled = false\n"] {
+        let dir = tempfile::tempdir().unwrap();
+        tiles(dir.path(), "300000");
+        equivalent(dir.path(), &["tiles/*.las"], extra);
+    }
+}
+
+#[test]
+fn auto_streams_only_beyond_the_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    tiles(dir.path(), "200000");
+    let p = pipeline(dir.path(), "auto", &["tiles/*.las"], "auto", "");
+    let r = run_json(dir.path(), &p, &[]);
+    r.ok();
+    assert!(
+        figure(&summary(&r), "bucket", "bricks").is_some(),
+        "{}",
+        r.context()
+    );
+    // `--max-memory` wins over `memory_budget`: with 4 GiB the run stays in memory.
+    let args = ["run", "-q", "--json", "--max-memory", "4GiB", "auto.toml"];
+    let r = terratile(dir.path(), &args);
+    r.ok();
+    let s = summary(&r);
+    assert!(figure(&s, "read", "points").is_some(), "{}", r.context());
+    // A stage that needs every point cannot be streamed: one line naming its key.
+    let p = pipeline(
+        dir.path(),
+        "ground",
+        &["tiles/*.las"],
+        "auto",
+        "[ground]\nenabled = true\n",
+    );
+    run_json(dir.path(), &p, &[]).input_error(&["ground.enabled", "cannot be streamed"]);
+    no_stream_dir(dir.path(), &r);
+}
+
+#[test]
+fn a_failed_stream_removes_its_temporary_files() {
+    let dir = tempfile::tempdir().unwrap();
+    tiles(dir.path(), "200000");
+    // The last tile loses its last records: the headers scan fine, bucketing fails on it
+    // after the first tiles' bricks are written.
+    let mut last: Vec<PathBuf> = walk(&dir.path().join("tiles"))
+        .into_iter()
+        .filter(|p| p.is_file())
+        .collect();
+    last.sort();
+    let victim = last.last().unwrap();
+    let bytes = std::fs::read(victim).unwrap();
+    std::fs::write(victim, &bytes[..bytes.len() - 1000]).unwrap();
+    let p = pipeline(dir.path(), "stream", &["tiles/*.las"], "stream", "");
+    let r = run_json(dir.path(), &p, &[]);
+    r.input_error(&["truncated point records"]);
+    r.left_nothing("out_stream");
+    no_stream_dir(dir.path(), &r);
+}
+
+#[test]
+fn a_crashed_stream_resumes_its_finished_windows() {
+    let dir = tempfile::tempdir().unwrap();
+    tiles(dir.path(), "300000");
+    let p = pipeline(dir.path(), "stream", &["tiles/*.las"], "stream", "");
+    // The test hook stops the process outright after two denoise windows, as a kill would.
+    let r = run_json(dir.path(), &p, &[("TERRATILE_STREAM_CRASH_AFTER", "2")]);
+    assert_eq!(r.code, 101, "{}", r.context());
+    let tmp = dir.path().join(".out_stream.stream");
+    assert!(tmp.join("bricks.json").is_file(), "{}", r.context());
+    let r = run_json(dir.path(), &p, &[]);
+    r.ok();
+    let s = summary(&r);
+    assert_eq!(figure(&s, "bucket", "resumed").as_deref(), Some("true"));
+    let resumed: usize = figure(&s, "denoise", "windows resumed")
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(resumed >= 2, "{}", r.context());
+    no_stream_dir(dir.path(), &r);
+    // What a resumed run writes is what the in-memory run writes.
+    let m = pipeline(dir.path(), "memory", &["tiles/*.las"], "memory", "");
+    run_json(dir.path(), &m, &[]).ok();
+    same_tree(
+        &dir.path().join("out_memory"),
+        &dir.path().join("out_stream"),
+    );
+    // Changed settings do not resume: the old files are dropped, not reused.
+    let r = run_json(dir.path(), &p, &[("TERRATILE_STREAM_CRASH_AFTER", "1")]);
+    assert_eq!(r.code, 101, "{}", r.context());
+    std::fs::write(
+        &p,
+        std::fs::read_to_string(&p).unwrap() + "[denoise]\nmin_points = 4\n",
+    )
+    .unwrap();
+    let r = run_json(dir.path(), &p, &[]);
+    r.ok();
+    assert_eq!(
+        figure(&summary(&r), "bucket", "resumed").as_deref(),
+        Some("false")
+    );
+}
+
+#[test]
+fn a_directory_that_is_not_terratiles_is_refused_and_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    tiles(dir.path(), "50000");
+    let tmp = dir.path().join(".out_stream.stream");
+    std::fs::create_dir(&tmp).unwrap();
+    std::fs::write(tmp.join("mine.txt"), "user data").unwrap();
+    let p = pipeline(dir.path(), "stream", &["tiles/*.las"], "stream", "");
+    run_json(dir.path(), &p, &[]).input_error(&["not made by terratile"]);
+    assert_eq!(
+        std::fs::read_to_string(tmp.join("mine.txt")).unwrap(),
+        "user data"
+    );
+}
+
+#[cfg(unix)]
+#[test]
+fn sigint_removes_the_temporary_files() {
+    let Some(f) = real("lidar/autzen_trim.las") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let p = pipeline(dir.path(), "stream", &[&f], "stream", "");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_terratile"))
+        .args(["run", "-q"])
+        .arg(&p)
+        .current_dir(dir.path())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let tmp = dir.path().join(".out_stream.stream");
+    let t = std::time::Instant::now();
+    // Signalled once the bricks are being written.
+    while !walk(&tmp)
+        .iter()
+        .any(|p| p.to_string_lossy().contains("brick-"))
+    {
+        if t.elapsed().as_secs() > 60 || child.try_wait().unwrap().is_some() {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    if child.try_wait().unwrap().is_some() {
+        eprintln!("skipped: the run finished before it could be interrupted");
+        return;
+    }
+    let ok = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130));
+    assert!(!tmp.exists(), "temporary directory left after SIGINT");
+    assert!(!dir.path().join("out_stream").exists());
+}
