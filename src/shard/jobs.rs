@@ -1077,31 +1077,17 @@ pub fn merge_run(at: &Path) -> Result<MergeSummary> {
     let staged = checked.stage_output_dir()?;
     let merged = merge(&layout, &geo, &cfg.tiles, &cfg.quadtree, outputs)?;
     let mut set = merged.set;
-    if let (None, Some(Ok(c))) = (
-        &set.crs,
-        cfg.input.crs.as_deref().map(crate::geo::crs_from_key),
-    ) {
-        set.crs = Some(c);
-    }
-    if cfg.output.wants_meshes() {
-        crate::terrain::extract::check_no_holes(&set)?;
-    }
-    cfg.output.validate()?;
-    let meshes = if cfg.output.wants_meshes() {
-        Some(crate::terrain::extract::extract_meshes(
-            &set,
-            &merged.quadtree,
-            &cfg.extract,
-        )?)
-    } else {
-        None
-    };
-    let products = crate::output::TerrainProducts {
-        set: &set,
-        quadtree: &merged.quadtree,
-        meshes: meshes.as_ref(),
-    };
-    let files = crate::output::write_terrain(staged.path(), &products, &cfg.output, &NoProgress)?;
+    crate::pipeline::with_input_crs(cfg, &mut set);
+    // The in-memory run's own product stages (extract, writers, the Cesium tileset).
+    let done = crate::pipeline::product_stages(
+        cfg,
+        set,
+        merged.quadtree,
+        Vec::new(),
+        staged.path(),
+        &NoProgress,
+    )?;
+    let (set, files) = (done.set, done.files);
     let output = staged.commit()?;
     Ok(MergeSummary {
         output,
