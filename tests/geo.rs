@@ -10,58 +10,14 @@ use std::process::Command;
 
 mod qmesh;
 
-/// The Python interpreter of `target/geo-py/venv`, with rasterio, rio-cogeo and pyproj,
-/// built on first use; None (after saying why) when that is impossible.
+/// The Python interpreter of `target/geo-py/venv`, with rasterio, rio-cogeo, pyproj and
+/// jsonschema; None (after saying why) when that is impossible.
 fn python_env() -> Option<PathBuf> {
-    let root = repo().join("target/geo-py");
-    let py = root.join("venv/bin/python");
-    // The marker names the package set: a new package makes older environments install it.
-    let ready = root.join("venv/.terratile-ready-jsonschema");
-    if ready.is_file() {
-        return Some(py);
-    }
-    let _ = std::fs::create_dir_all(&root);
-    let skip = |why: &str| {
-        eprintln!("skipping: no Python environment with rasterio ({why})");
-        None
-    };
-    let venv = Command::new("python3")
-        .args(["-m", "venv"])
-        .arg(root.join("venv"))
-        .output();
-    match venv {
-        Ok(o) if o.status.success() => {}
-        Ok(o) => {
-            return skip(&format!(
-                "python3 -m venv: {}",
-                String::from_utf8_lossy(&o.stderr)
-            ))
-        }
-        Err(e) => return skip(&format!("python3: {e}")),
-    }
-    let pip = Command::new(&py)
-        .args([
-            "-m",
-            "pip",
-            "install",
-            "--quiet",
-            "rasterio",
-            "rio-cogeo",
-            "pyproj",
-            "jsonschema",
-        ])
-        .output();
-    match pip {
-        Ok(o) if o.status.success() => {
-            let _ = std::fs::write(&ready, b"");
-            Some(py)
-        }
-        Ok(o) => skip(&format!(
-            "pip install: {}",
-            String::from_utf8_lossy(&o.stderr)
-        )),
-        Err(e) => skip(&format!("pip: {e}")),
-    }
+    python_venv(
+        "geo-py",
+        &["rasterio", "rio-cogeo", "pyproj", "jsonschema"],
+        "rasterio",
+    )
 }
 
 /// Asserts that every manifest in `manifests` is valid against docs/manifest.schema.json

@@ -224,48 +224,10 @@ fn run_jobs_from(d: &Path, from: &str) {
     }
 }
 
-/// The Python interpreter of `target/dask-py/venv`, with dask and distributed, built on
-/// first use; None (after saying why) when that is impossible.
+/// The Python interpreter of `target/dask-py/venv`, with dask and distributed; None (after
+/// saying why) when that is impossible.
 fn dask_env() -> Option<PathBuf> {
-    let root = repo().join("target/dask-py");
-    let py = root.join("venv/bin/python");
-    let ready = root.join("venv/.terratile-ready");
-    if ready.is_file() {
-        return Some(py);
-    }
-    let _ = std::fs::create_dir_all(&root);
-    let skip = |why: &str| {
-        eprintln!("skipping: no Python environment with dask distributed ({why})");
-        None
-    };
-    match Command::new("python3")
-        .args(["-m", "venv"])
-        .arg(root.join("venv"))
-        .output()
-    {
-        Ok(o) if o.status.success() => {}
-        Ok(o) => {
-            return skip(&format!(
-                "python3 -m venv: {}",
-                String::from_utf8_lossy(&o.stderr)
-            ))
-        }
-        Err(e) => return skip(&format!("python3: {e}")),
-    }
-    let pip = Command::new(&py)
-        .args(["-m", "pip", "install", "--quiet", "dask", "distributed"])
-        .output();
-    match pip {
-        Ok(o) if o.status.success() => {
-            let _ = std::fs::write(&ready, b"");
-            Some(py)
-        }
-        Ok(o) => skip(&format!(
-            "pip install: {}",
-            String::from_utf8_lossy(&o.stderr)
-        )),
-        Err(e) => skip(&format!("pip: {e}")),
-    }
+    python_venv("dask-py", &["dask", "distributed"], "dask distributed")
 }
 
 /// `terratile run` and `scale/dask_run.py` (2 local workers, `terratile` = `bin`) on CSite4;

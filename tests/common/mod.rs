@@ -281,3 +281,44 @@ pub fn edit_pipeline(dir: &Path, from: &str, to: &str) {
     assert!(text.contains(from), "pipeline.toml lacks `{from}`");
     std::fs::write(&p, text.replace(from, to)).unwrap();
 }
+
+/// The Python interpreter of a virtual environment `target/NAME/venv` with `packages`
+/// installed from the registry, built on first use (a marker file names the package set, so
+/// adding a package makes an older environment install it); None, after saying why the
+/// caller's test skips, when that is impossible (no python3, no registry).
+pub fn python_venv(name: &str, packages: &[&str], what: &str) -> Option<PathBuf> {
+    use std::process::Command;
+    let root = repo().join("target").join(name);
+    let py = root.join("venv/bin/python");
+    let ready = root.join(format!("venv/.terratile-ready-{}", packages.join("-")));
+    if ready.is_file() {
+        return Some(py);
+    }
+    let _ = std::fs::create_dir_all(&root);
+    let skip = |why: String| {
+        eprintln!("skipping: no Python environment with {what} ({why})");
+        None
+    };
+    let stderr = |o: &std::process::Output| String::from_utf8_lossy(&o.stderr).into_owned();
+    match Command::new("python3")
+        .args(["-m", "venv"])
+        .arg(root.join("venv"))
+        .output()
+    {
+        Ok(o) if o.status.success() => {}
+        Ok(o) => return skip(format!("python3 -m venv: {}", stderr(&o))),
+        Err(e) => return skip(format!("python3: {e}")),
+    }
+    match Command::new(&py)
+        .args(["-m", "pip", "install", "--quiet"])
+        .args(packages)
+        .output()
+    {
+        Ok(o) if o.status.success() => {
+            let _ = std::fs::write(&ready, b"");
+            Some(py)
+        }
+        Ok(o) => skip(format!("pip install: {}", stderr(&o))),
+        Err(e) => skip(format!("pip: {e}")),
+    }
+}
