@@ -50,3 +50,17 @@ fn glb_strip_reader_kept_the_degenerate_joining_triangles() {
     assert_eq!(back.triangle_count(), unstripify(&strip).len());
     assert_eq!(back.triangle_count(), 3);
 }
+
+/// The swap case {a, b, c, b, f} never fired: it tested the same condition as the regular
+/// case, so a triangle across the other outgoing edge (a fan turning around one vertex)
+/// always started a new strip. Four triangles of a fan around vertex 0, given one strip
+/// each: DTFS now joins them into one strip (swaps as repeated vertices, no restart).
+#[test]
+fn dtfs_swap_case_never_fired_so_fans_were_split() {
+    const R: u32 = u32::MAX;
+    let s = [1, 0, 2, R, 2, 0, 3, R, 3, 0, 4, R, 4, 0, 5];
+    let d = dtfs(&s, Join::Restart);
+    assert_eq!(triangle_set(unstripify(&d)), triangle_set(unstripify(&s)));
+    assert!(!d.contains(&R), "one strip: {d:?}");
+    assert_eq!(d, [1, 0, 2, 0, 3, 0, 4, 5]);
+}
