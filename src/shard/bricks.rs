@@ -216,6 +216,26 @@ pub struct BrickPoints {
 }
 
 impl BrickPoints {
+    /// The points as a noise-removal window's input: `owned` its own voxel columns, the rest
+    /// of the points its halo.
+    pub fn shard_input<'a>(
+        &'a self,
+        frame: &'a crate::terrain::denoise::Frame,
+        params: &'a crate::terrain::denoise::DenoiseParams,
+        metres_per_unit: f64,
+        owned: &'a crate::terrain::denoise::ColumnWindow,
+    ) -> crate::terrain::denoise::ShardInput<'a> {
+        crate::terrain::denoise::ShardInput {
+            x: &self.x,
+            y: &self.y,
+            z: &self.z,
+            frame,
+            params,
+            metres_per_unit,
+            owned,
+        }
+    }
+
     /// Number of points.
     pub fn len(&self) -> usize {
         self.x.len()

@@ -639,15 +639,7 @@ fn denoise_pass(
         let c = if p.is_empty() {
             Vec::new()
         } else {
-            let input = denoise::ShardInput {
-                x: &p.x,
-                y: &p.y,
-                z: &p.z,
-                frame: &frame,
-                params,
-                metres_per_unit: mpu,
-                owned: &own,
-            };
+            let input = p.shard_input(&frame, params, mpu, &own);
             denoise::shard_counts(&input)?
         };
         let flat: Vec<u64> = c.iter().flat_map(|c| c.map(|v| v as u64)).collect();
@@ -686,15 +678,7 @@ fn denoise_pass(
         let own = window(k);
         let mut out = vec![q as u64];
         if !p.is_empty() {
-            let input = denoise::ShardInput {
-                x: &p.x,
-                y: &p.y,
-                z: &p.z,
-                frame: &frame,
-                params,
-                metres_per_unit: mpu,
-                owned: &own,
-            };
+            let input = p.shard_input(&frame, params, mpu, &own);
             let d = denoise::shard_denoise(&input, q)?;
             out.extend(
                 d.keep
