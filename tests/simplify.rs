@@ -896,44 +896,23 @@ fn qem_refuses_bad_meshes_and_pair_distances() {
         r.left_nothing("out.obj");
     }
     std::fs::write(d.path().join("m.obj"), grid_obj(12, "")).unwrap();
-    for (args, needle) in [
-        (
-            &["--method", "qem", "--ratio", "0.5", "--pair-distance", "-1"][..],
-            "pair_distance",
-        ),
-        (
-            &[
-                "--method",
-                "qem",
-                "--ratio",
-                "0.5",
-                "--pair-distance",
-                "nan",
-            ][..],
-            "pair_distance",
-        ),
+    const QEM: &[&str] = &["--method", "qem", "--ratio", "0.5"];
+    let cases: [(&[&str], &[&str], &str); 5] = [
+        (QEM, &["--pair-distance", "-1"], "pair_distance"),
+        (QEM, &["--pair-distance", "nan"], "pair_distance"),
         // Every vertex within reach of every other: more candidate pairs than allowed.
+        (QEM, &["--pair-distance", "100"], "candidate vertex pairs"),
+        // QEM keys with the default clustering method.
         (
-            &[
-                "--method",
-                "qem",
-                "--ratio",
-                "0.5",
-                "--pair-distance",
-                "100",
-            ][..],
-            "candidate vertex pairs",
-        ),
-        (
-            &["--ratio", "0.5", "--pair-distance", "0.1"][..],
+            &["--ratio", "0.5"],
+            &["--pair-distance", "0.1"],
             "pair_distance",
         ),
-        (
-            &["--ratio", "0.5", "--collapse-seams"][..],
-            "collapse_seams",
-        ),
-    ] {
+        (&["--ratio", "0.5"], &["--collapse-seams"], "collapse_seams"),
+    ];
+    for (method, args, needle) in cases {
         let mut a = vec!["simplify", "m.obj", "out.obj"];
+        a.extend_from_slice(method);
         a.extend_from_slice(args);
         let r = common::terratile(d.path(), &a);
         r.input_error(&[needle]);
