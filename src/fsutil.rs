@@ -42,6 +42,48 @@ pub(crate) fn unregister(path: &Path) {
     created().retain(|p| p != path);
 }
 
+/// A working directory kept across runs (resumable), of which this process owns only the
+/// files whose names `ours` accepts: what the signal handler removes of it.
+type OwnedFiles = (PathBuf, fn(&str) -> bool);
+
+static WORK_DIRS: Mutex<Vec<OwnedFiles>> = Mutex::new(Vec::new());
+
+fn work_dirs() -> MutexGuard<'static, Vec<OwnedFiles>> {
+    WORK_DIRS.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Registers `dir` as a working directory whose files named as `ours` accepts are this
+/// process's: on SIGINT/SIGTERM those files are removed, then `dir` if nothing else is left
+/// in it (a file someone else put there is never touched).
+pub(crate) fn register_work_dir(dir: &Path, ours: fn(&str) -> bool) {
+    work_dirs().push((dir.to_path_buf(), ours));
+}
+
+pub(crate) fn unregister_work_dir(dir: &Path) {
+    work_dirs().retain(|(p, _)| p != dir);
+}
+
+/// Removes the files of `dir` that `ours` accepts, then `dir` if it is left empty. Like
+/// [`remove_tree`], it goes over the directory again while other threads still writing
+/// create files in it (a few passes; the next run removes the rest).
+pub(crate) fn remove_owned_files(dir: &Path, ours: fn(&str) -> bool) {
+    for _ in 0..8 {
+        let Ok(rd) = std::fs::read_dir(dir) else {
+            return;
+        };
+        let mut removed = false;
+        for e in rd.flatten() {
+            if ours(&e.file_name().to_string_lossy()) {
+                removed |= std::fs::remove_file(e.path()).is_ok();
+            }
+        }
+        if std::fs::remove_dir(dir).is_ok() || !removed {
+            return;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+}
+
 /// Removes `path` (file or directory tree) and what was created in it meanwhile by other
 /// threads still writing; gives up after a few tries (the next run removes the rest).
 fn remove_tree(path: &Path) {
@@ -63,6 +105,9 @@ pub fn remove_created() {
     let mut list = created();
     for p in list.drain(..) {
         remove_tree(&p);
+    }
+    for (dir, ours) in work_dirs().drain(..) {
+        remove_owned_files(&dir, ours);
     }
 }
 

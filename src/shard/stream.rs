@@ -351,12 +351,12 @@ impl TempDir {
             if !dir.resumed {
                 dir.clear()?;
             }
-            crate::fsutil::register(&dir.path);
+            crate::fsutil::register_work_dir(&dir.path, is_ours);
             write_bytes_atomic(&marker, job.as_bytes())?;
             return Ok(dir);
         }
         std::fs::create_dir_all(&path).map_err(|e| Error::io(&path, e))?;
-        crate::fsutil::register(&path);
+        crate::fsutil::register_work_dir(&path, is_ours);
         write_bytes_atomic(&marker, job.as_bytes())?;
         Ok(TempDir {
             path,
@@ -379,15 +379,8 @@ impl TempDir {
 
     /// Removes the files it wrote, then the directory if nothing else is left in it.
     fn remove(&self) {
-        if let Ok(rd) = std::fs::read_dir(&self.path) {
-            for e in rd.flatten() {
-                if is_ours(&e.file_name().to_string_lossy()) {
-                    let _ = std::fs::remove_file(e.path());
-                }
-            }
-        }
-        let _ = std::fs::remove_dir(&self.path);
-        crate::fsutil::unregister(&self.path);
+        crate::fsutil::remove_owned_files(&self.path, is_ours);
+        crate::fsutil::unregister_work_dir(&self.path);
     }
 }
 
