@@ -288,6 +288,7 @@ pub fn edit_pipeline(dir: &Path, from: &str, to: &str) {
 /// caller's test skips, when that is impossible (no python3, no registry).
 pub fn python_venv(name: &str, packages: &[&str], what: &str) -> Option<PathBuf> {
     use std::process::Command;
+    let _one_at_a_time = environment_lock();
     let root = repo().join("target").join(name);
     let py = root.join("venv/bin/python");
     let ready = root.join(format!("venv/.terratile-ready-{}", packages.join("-")));
@@ -321,4 +322,12 @@ pub fn python_venv(name: &str, packages: &[&str], what: &str) -> Option<PathBuf>
         Ok(o) => skip(format!("pip install: {}", stderr(&o))),
         Err(e) => skip(format!("pip: {e}")),
     }
+}
+
+/// Held while a test builds a Python or Node environment under `target/`: tests run on
+/// several threads, and two installs into one directory (or one test reading a package
+/// another is still unpacking) break both.
+pub fn environment_lock() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|p| p.into_inner())
 }

@@ -18,10 +18,12 @@ const F: f64 = 1.0 / 298.257_223_563;
 /// `target/DIR/node_modules` with npm package `spec` (`name@version`), installed on first
 /// use; None (after saying why) without npm or the registry.
 fn npm_env(dir: &str, spec: &str) -> Option<PathBuf> {
+    let _one_at_a_time = environment_lock();
     let root = repo().join("target").join(dir);
     let modules = root.join("node_modules");
-    let name = &spec[..spec.rfind('@').unwrap_or(spec.len())];
-    if modules.join(name).join("package.json").is_file() {
+    // Written after a complete install: a package.json alone may be a half-unpacked one.
+    let ready = root.join(format!(".terratile-ready-{}", spec.replace('/', "+")));
+    if ready.is_file() {
         return Some(modules);
     }
     let _ = std::fs::create_dir_all(&root);
@@ -31,7 +33,10 @@ fn npm_env(dir: &str, spec: &str) -> Option<PathBuf> {
         .args(["install", "--no-audit", "--no-fund", spec])
         .output();
     match o {
-        Ok(o) if o.status.success() => Some(modules),
+        Ok(o) if o.status.success() => {
+            let _ = std::fs::write(&ready, b"");
+            Some(modules)
+        }
         Ok(o) => {
             eprintln!(
                 "skipping: npm install {spec} failed: {}",
