@@ -210,6 +210,15 @@ impl DenoiseParams {
             match given {
                 Some(v) => Ok(v),
                 None if spacing > 0.0 => Ok(factor * spacing),
+                None if !area.is_finite() => Err(Error::param(
+                    "denoise",
+                    param,
+                    "auto",
+                    format!(
+                        "the points span a range too large to measure (x {w}, y {h}): some \
+                         coordinates are near the limits of a 64-bit float"
+                    ),
+                )),
                 None => Err(Error::param(
                     "denoise",
                     param,

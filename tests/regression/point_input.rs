@@ -260,6 +260,18 @@ fn one_far_away_point_keeps_denoise_small() {
     }
 }
 
+// Points at ±1e308 overflowed the span to infinity, and the error said the points spanned a
+// "zero-width range (x inf, y inf)": the opposite of the truth.
+#[test]
+fn an_infinite_span_is_not_called_zero_width() {
+    let d = tempfile::tempdir().unwrap();
+    write(d.path(), "a.xyz", "1e308 1e308 1\n-1e308 -1e308 2\n0 0 0\n");
+    pipeline(d.path(), "a.xyz", "");
+    run_within(d.path(), "1GiB")
+        .input_error(&["denoise.voxel_size:", "too large to measure"])
+        .left_nothing("out");
+}
+
 // `--threads 100000` ran a minute and aborted.
 #[test]
 fn threads_100000_is_refused() {
