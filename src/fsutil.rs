@@ -179,6 +179,87 @@ pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic(path, |w| w.write_all(bytes).map_err(|e| Error::io(path, e)))
 }
 
+/// Refuses a single-file output (`convert`, `simplify`, `strips`, `generate`) that would
+/// destroy a file terratile did not write: one of the command's `inputs` (by name or as the
+/// same file), a symbolic link (the rename would replace the link), a directory or anything
+/// else that is not a regular file, or a regular file without terratile's signature (see
+/// [`written_by_terratile`]). A file terratile wrote is replaced atomically, so rerunning a
+/// command into the same name works. The error is one line naming the output.
+pub fn check_file_output(output: &Path, inputs: &[&Path]) -> Result<()> {
+    let refuse = |why: String| Err(Error::Usage(format!("{}: {why}", output.display())));
+    for input in inputs {
+        let same = *input == output
+            || matches!(
+                (input.canonicalize(), output.canonicalize()),
+                (Ok(a), Ok(b)) if a == b
+            );
+        if same {
+            return refuse(format!(
+                "the output is the input file {}; choose another name",
+                input.display()
+            ));
+        }
+    }
+    let Ok(meta) = output.symlink_metadata() else {
+        return Ok(());
+    };
+    if meta.file_type().is_symlink() {
+        return refuse(
+            "is a symbolic link; terratile does not replace it (name the file itself, or \
+             another name)"
+                .into(),
+        );
+    }
+    if !meta.is_file() {
+        return refuse(not_a_regular_file(output).unwrap_or_else(|| "is not a file".into()));
+    }
+    if !written_by_terratile(output) {
+        return refuse(
+            "already exists and terratile did not write it; remove it yourself or choose \
+             another name"
+                .into(),
+        );
+    }
+    Ok(())
+}
+
+/// True when the file at `path` starts the way terratile writes its single-file outputs:
+/// LAS with generating software `terratile …` (header bytes 58–89), OBJ whose first line is
+/// `# terratile …`, PLY with the header comment `written by terratile`, a progressive-strips
+/// stream (magic `TTPS`), binary glTF whose JSON names terratile as its generator, or text
+/// whose first line is `# terratile` (generated XYZ). Only the first 64 KiB are read.
+pub fn written_by_terratile(path: &Path) -> bool {
+    let mut head = Vec::new();
+    let Ok(file) = File::open(path) else {
+        return false;
+    };
+    if file.take(1 << 16).read_to_end(&mut head).is_err() {
+        return false;
+    }
+    let starts = |magic: &[u8]| head.starts_with(magic);
+    if starts(b"LASF") {
+        return head.get(58..67) == Some(b"terratile".as_slice());
+    }
+    if starts(b"ply") {
+        let end = find(&head, b"end_header").unwrap_or(head.len());
+        return find(&head[..end], b"\ncomment written by terratile").is_some();
+    }
+    if starts(b"glTF") {
+        // The JSON chunk: its length at bytes 12–15, its text from byte 20.
+        let len = head
+            .get(12..16)
+            .map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize);
+        let json = head.get(20..).unwrap_or_default();
+        let json = &json[..json.len().min(len)];
+        return find(json, b"\"generator\":\"terratile").is_some();
+    }
+    starts(b"TTPS") || starts(b"# terratile")
+}
+
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
+}
+
 /// True unless `pid` is known to be gone. Where that cannot be told, every process counts as
 /// alive, so nothing is removed.
 fn alive(pid: u32) -> bool {

@@ -518,7 +518,9 @@ pub fn write_xyz(path: &Path, cloud: &PointCloud) -> Result<()> {
     use std::io::Write;
     crate::fsutil::write_atomic(path, |w| {
         let io = |e| Error::io(path, e);
-        writeln!(w, "x y z").map_err(io)?;
+        // The comment marks the file as terratile's (`fsutil::written_by_terratile`), so a
+        // rerun may replace it; XYZ readers skip `#` lines.
+        writeln!(w, "# terratile generate\nx y z").map_err(io)?;
         let mut line = String::with_capacity(64);
         for i in 0..cloud.len() {
             line.clear();
@@ -572,18 +574,25 @@ pub fn write_scene(
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "scene".into());
-    let mut written = Vec::new();
-    for (k, ((c, r), mut cloud)) in parts.into_iter().enumerate() {
-        let format = formats[k % formats.len()];
-        let ext = match format {
+    let path_of = |k: usize| {
+        let ext = match formats[k % formats.len()] {
             OutFormat::Las => "las",
             OutFormat::Xyz => "xyz",
         };
-        let path = if tiles == (1, 1) {
+        if tiles == (1, 1) {
             out.to_path_buf()
         } else {
-            out.with_file_name(format!("{stem}-{c}-{r}.{ext}"))
-        };
+            out.with_file_name(format!("{stem}-{}-{}.{ext}", k % tiles.0, k / tiles.0))
+        }
+    };
+    // Every name is checked before the first file is written: no half-written set.
+    for k in 0..tiles.0 * tiles.1 {
+        crate::fsutil::check_file_output(&path_of(k), &[])?;
+    }
+    let mut written = Vec::new();
+    for (k, (_, mut cloud)) in parts.into_iter().enumerate() {
+        let format = formats[k % formats.len()];
+        let path = path_of(k);
         quantize(&mut cloud, format, &opts);
         match format {
             OutFormat::Las => crate::points::write_las(&path, &cloud, &opts)?,

@@ -41,7 +41,7 @@ mod rng;
 pub mod bench;
 
 pub use error::{one_line, Error, Result};
-pub use fsutil::{clean_up_on_signals, remove_stale_temps};
+pub use fsutil::{check_file_output, clean_up_on_signals, remove_stale_temps};
 pub use memory::{max_threads, parse_size, set_budget};
 pub use points::{PointCloud, ReadOptions};
 pub use progress::{bar_label, NoProgress, Progress};

@@ -3,7 +3,7 @@
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Mutex;
 use terratile::points::{self, ClassFilter, Format, ReadOptions};
@@ -541,8 +541,9 @@ struct GenerateArgs {
     /// Split into COLSxROWS tiles.
     #[arg(long, value_parser = parse_pair::<usize>, default_value = "1x1")]
     tiles: (usize, usize),
-    /// Output format(s), cycled over the tiles: las, xyz or e.g. las,xyz.
-    #[arg(long, value_delimiter = ',', default_value = "las")]
+    /// Output format(s), cycled over the tiles: las, xyz or e.g. las,xyz (default: from the
+    /// output's extension, `.xyz` for XYZ text, LAS otherwise).
+    #[arg(long, value_delimiter = ',')]
     format: Vec<GenFormat>,
     /// Outliers per million points.
     #[arg(long, default_value_t = 60)]
@@ -808,6 +809,8 @@ fn run(cli: Cli) -> Result<()> {
                 (None, Some(n)) => points::Selection::Sample { n, seed },
                 (None, None) => points::Selection::All,
             };
+            terratile::check_file_output(&output, &[&input])?;
+            refuse_laz_name(&output)?;
             // `.NAME.tmp-PID` files that killed runs left beside the output.
             terratile::remove_stale_temps(&output);
             progress.start(&format!("converting {}", input.display()), 0);
@@ -1084,6 +1087,7 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
     let error = (!a.no_error).then(|| terratile::mesh::HausdorffParams {
         samples: a.samples.unwrap_or(0),
     });
+    terratile::check_file_output(&a.output, &[&a.input])?;
     terratile::remove_stale_temps(&a.output);
     let read = terratile::mesh::io::ReadOptions { strict: a.strict };
     let r = terratile::simplify::simplify_file_with(
@@ -1107,6 +1111,7 @@ fn strips(a: StripsArgs) -> Result<()> {
         output,
     }) = a.decode
     {
+        terratile::check_file_output(&output, &[&input])?;
         terratile::remove_stale_temps(&output);
         let (l, t) = format::decode_file(&input, &level, &output)?;
         outln!("level {l}: {t} triangles");
@@ -1129,9 +1134,25 @@ fn strips(a: StripsArgs) -> Result<()> {
         EncodingArg::Naive => Encoding::Naive,
         EncodingArg::Encoded => Encoding::Encoded,
     };
+    terratile::check_file_output(&output, &[&input])?;
     terratile::remove_stale_temps(&output);
     let r = format::build_file(&input, &output, &params, encoding)?;
     out!("{r}");
+    Ok(())
+}
+
+/// `convert` and `generate` write uncompressed LAS: a `.laz` name would promise compression
+/// that readers then fail to find.
+fn refuse_laz_name(output: &Path) -> Result<()> {
+    let laz = output
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("laz"));
+    if laz {
+        return Err(Error::Usage(format!(
+            "{}: terratile writes uncompressed LAS; name it .las",
+            output.display()
+        )));
+    }
     Ok(())
 }
 
@@ -1149,7 +1170,16 @@ fn generate(g: &GenerateArgs) -> Result<()> {
         ..Default::default()
     };
     let scene = gen::generate(&params)?;
-    let formats: Vec<OutFormat> = g
+    let ext = g
+        .output
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase());
+    let named = match ext.as_deref() {
+        Some("xyz") => Some(OutFormat::Xyz),
+        Some("las") => Some(OutFormat::Las),
+        _ => None,
+    };
+    let mut formats: Vec<OutFormat> = g
         .format
         .iter()
         .map(|f| match f {
@@ -1157,6 +1187,21 @@ fn generate(g: &GenerateArgs) -> Result<()> {
             GenFormat::Xyz => OutFormat::Xyz,
         })
         .collect();
+    if formats.is_empty() {
+        refuse_laz_name(&g.output)?;
+        formats.push(named.unwrap_or(OutFormat::Las));
+    }
+    // One file takes the name as given: its extension must not promise the other format.
+    if g.tiles == (1, 1) && named.is_some_and(|n| n != formats[0]) {
+        return Err(Error::Usage(format!(
+            "{}: --format {} does not match the file's extension",
+            g.output.display(),
+            match formats[0] {
+                OutFormat::Las => "las",
+                OutFormat::Xyz => "xyz",
+            }
+        )));
+    }
     if let Some(parent) = g.output.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
     }

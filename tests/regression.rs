@@ -1,6 +1,7 @@
 //! Regression tests: one named test per defect fixed, each commented with what broke.
 //! Grouped by area in `tests/regression/`; the test name says the defect.
 
+mod file_outputs;
 mod geo;
 mod mesh_input;
 mod messages_outputs;
