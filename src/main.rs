@@ -965,6 +965,16 @@ fn bench(cmd: BenchCommand) -> Result<()> {
             json,
             plot,
         } => {
+            if let Some(p) = &plot {
+                // Checked before the minutes of measuring; a PNG carries no signature
+                // terratile could know it by, so any existing file is kept.
+                if p.symlink_metadata().is_ok() {
+                    return Err(Error::Usage(format!(
+                        "{}: the plot file exists (terratile does not overwrite it)",
+                        p.display()
+                    )));
+                }
+            }
             let counts = counts.unwrap_or_else(terratile::bench::paper_counts);
             // Each memory figure comes from a fresh process running one method once.
             let probe = |count: u64, method: &str| table1_memory_probe(&file, seed, count, method);

@@ -165,3 +165,14 @@ fn tiled_generate_checks_every_name_first() {
     assert!(!d.path().join("t-0-0.las").exists());
     assert!(!d.path().join("t-1-0.las").exists());
 }
+
+// `bench table1 --plot` replaced any file under the plot's name, after minutes of measuring.
+#[test]
+fn bench_table1_keeps_an_existing_plot_file() {
+    let d = tempfile::tempdir().unwrap();
+    terratile(d.path(), &["generate", "-o", "a.las", "--points", "1000"]).ok();
+    std::fs::write(d.path().join("t.png"), "mine\n").unwrap();
+    terratile(d.path(), &["bench", "table1", "a.las", "--plot", "t.png"])
+        .input_error(&["t.png: the plot file exists"]);
+    assert_eq!(read(d.path(), "t.png"), b"mine\n");
+}
