@@ -72,7 +72,9 @@ pub fn fig4_png(rows: &[LevelIndices], name: &str) -> Result<Vec<u8>> {
         .unwrap_or(0)
         .max(1) as f64;
     let (xs, ys) = (step(xmax), step(ymax));
-    let (xtop, ytop) = ((xmax / xs).ceil() * xs, (ymax / ys).ceil() * ys);
+    // The x axis ends at the last level (the full mesh), not at the next round tick: the
+    // data fill the plot's width. The y axis rounds up, above the highest series.
+    let (xtop, ytop) = (xmax, (ymax / ys).ceil() * ys);
     let px = |l: f64| LEFT + ((l / xtop) * (W - LEFT - RIGHT) as f64).round() as i32;
     let py = |v: f64| H - BOTTOM - ((v / ytop) * (H - TOP - BOTTOM) as f64).round() as i32;
     let text = MonoTextStyle::new(&FONT_6X10, Rgb888::BLACK);
