@@ -55,6 +55,19 @@ pub enum Encoding {
     Encoded,
 }
 
+/// How the strip of the full mesh is ordered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StripOrder {
+    /// The paper's: the full mesh stripified on its own ([`ProgressiveParams::strip`]).
+    Full,
+    /// Ours (default): the base mesh stripified, each split's triangles inserted next to
+    /// their neighbours from the base up ([`super::order`]), so that every level's
+    /// survivors come in few strips.
+    #[default]
+    Hierarchical,
+}
+
 /// How to build progressive strips.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ProgressiveParams {
@@ -66,6 +79,9 @@ pub struct ProgressiveParams {
     pub strip: StripParams,
     /// The engine's error bound, in model units (none by default).
     pub max_error: Option<f64>,
+    /// How the full strip is ordered (default [`StripOrder::Hierarchical`]; `strip`'s join
+    /// applies to both).
+    pub order: StripOrder,
 }
 
 impl Default for ProgressiveParams {
@@ -77,6 +93,7 @@ impl Default for ProgressiveParams {
                 ..StripParams::default()
             },
             max_error: None,
+            order: StripOrder::default(),
         }
     }
 }
@@ -264,7 +281,6 @@ pub fn progressive(mesh: &TriMesh, params: &ProgressiveParams) -> Result<Progres
             message: "the mesh has no triangles with three distinct corners".into(),
         });
     }
-    let strip = stripify::stripify(&canon.indices, &params.strip);
     let (_, steps) = qem::simplify_logged(&canon, &qem_params(&canon, params))?;
     let n = canon.vertex_count();
     // The strip id standing for each engine vertex: the engine's survivor keeps its id
@@ -285,6 +301,12 @@ pub fn progressive(mesh: &TriMesh, params: &ProgressiveParams) -> Result<Progres
         removed[p as usize] = true;
         pairs.push((p, q));
     }
+    let strip = match params.order {
+        StripOrder::Full => stripify::stripify(&canon.indices, &params.strip),
+        StripOrder::Hierarchical => {
+            super::order::hierarchical(&canon.indices, n, &pairs, params.strip.join)
+        }
+    };
     // Stream ids: base vertices ascending, then the removed ones, last collapse first.
     let mut stream = vec![u32::MAX; n];
     let mut next = 0u32;

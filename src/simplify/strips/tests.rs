@@ -195,11 +195,14 @@ fn check_levels(m: &TriMesh, params: &ProgressiveParams, engine_levels: &[usize]
 fn every_level_of_a_grid_is_the_engines_mesh() {
     let m = grid(16);
     for strip in all_params() {
-        let params = ProgressiveParams {
-            strip,
-            ..ProgressiveParams::default()
-        };
-        check_levels(&m, &params, &[0, 1, 7, 100, 300, usize::MAX]);
+        for order in [StripOrder::Full, StripOrder::Hierarchical] {
+            let params = ProgressiveParams {
+                strip,
+                order,
+                ..ProgressiveParams::default()
+            };
+            check_levels(&m, &params, &[0, 1, 7, 100, 300, usize::MAX]);
+        }
     }
 }
 
