@@ -81,7 +81,7 @@ fn fig4_x_axis_ran_past_the_last_level() {
         list: 3 * (1000 + level),
     };
     let rows: Vec<LevelIndices> = (0..=10).map(|i| row(i * 33_038 / 10)).collect();
-    let png = terratile::simplify::strips::figure::fig4_png(&rows, "test").unwrap();
+    let png = terratile::simplify::strips::figure::fig4_png(&rows, &[], "test").unwrap();
     let img = image::load_from_memory(&png).unwrap().to_rgb8();
     let red = img
         .enumerate_pixels()
