@@ -64,3 +64,34 @@ fn dtfs_swap_case_never_fired_so_fans_were_split() {
     assert!(!d.contains(&R), "one strip: {d:?}");
     assert_eq!(d, [1, 0, 2, 0, 3, 0, 4, 5]);
 }
+
+/// Fig. 4's x axis ran to the next round tick past the last level (40k for bunny's 33,038
+/// splits), so the curves stopped at 83 % of the plot's width. The full level is now the
+/// axis' right end: the DTFS curve (red) reaches the frame's right edge.
+#[test]
+fn fig4_x_axis_ran_past_the_last_level() {
+    use terratile::simplify::strips::measure::LevelIndices;
+    let row = |level: usize| LevelIndices {
+        level,
+        triangles: 1000 + level,
+        unfiltered: 3000,
+        stss: 2500 + level / 2,
+        dtfs: 2000 + level / 2,
+        dtfs_restarts: 10,
+        list: 3 * (1000 + level),
+    };
+    let rows: Vec<LevelIndices> = (0..=10).map(|i| row(i * 33_038 / 10)).collect();
+    let png = terratile::simplify::strips::figure::fig4_png(&rows, &[], "test").unwrap();
+    let img = image::load_from_memory(&png).unwrap().to_rgb8();
+    let red = img
+        .enumerate_pixels()
+        .filter(|(_, _, p)| p.0 == [200, 40, 40])
+        .map(|(x, _, _)| x)
+        .max()
+        .unwrap();
+    // The frame's right edge is at 900 − 30; a 2-pixel stroke may reach one past it.
+    assert!(
+        (869..=871).contains(&red),
+        "rightmost DTFS pixel at x = {red}"
+    );
+}

@@ -57,8 +57,13 @@ fn label(v: f64) -> String {
     }
 }
 
-/// Draws `rows` (ascending levels) of mesh `name` as Fig. 4 into a PNG's bytes.
-pub fn fig4_png(rows: &[LevelIndices], name: &str) -> Result<Vec<u8>> {
+/// The colour of the fifth series: DTFS on the strip in the paper's order.
+const PAPER: Rgb888 = Rgb888::new(230, 140, 20);
+
+/// Draws `rows` (ascending levels) of mesh `name` as Fig. 4 into a PNG's bytes; `paper`
+/// (may be empty): the same levels with the full mesh stripified on its own (the paper's
+/// order), whose DTFS curve is drawn too.
+pub fn fig4_png(rows: &[LevelIndices], paper: &[LevelIndices], name: &str) -> Result<Vec<u8>> {
     let mut c = Canvas(image::RgbImage::from_pixel(
         W as u32,
         H as u32,
@@ -68,11 +73,14 @@ pub fn fig4_png(rows: &[LevelIndices], name: &str) -> Result<Vec<u8>> {
     let ymax = rows
         .iter()
         .flat_map(|r| SERIES.map(|s| (s.2)(r)))
+        .chain(paper.iter().map(|r| r.dtfs))
         .max()
         .unwrap_or(0)
         .max(1) as f64;
     let (xs, ys) = (step(xmax), step(ymax));
-    let (xtop, ytop) = ((xmax / xs).ceil() * xs, (ymax / ys).ceil() * ys);
+    // The x axis ends at the last level (the full mesh), not at the next round tick: the
+    // data fill the plot's width. The y axis rounds up, above the highest series.
+    let (xtop, ytop) = (xmax, (ymax / ys).ceil() * ys);
     let px = |l: f64| LEFT + ((l / xtop) * (W - LEFT - RIGHT) as f64).round() as i32;
     let py = |v: f64| H - BOTTOM - ((v / ytop) * (H - TOP - BOTTOM) as f64).round() as i32;
     let text = MonoTextStyle::new(&FONT_6X10, Rgb888::BLACK);
@@ -122,7 +130,16 @@ pub fn fig4_png(rows: &[LevelIndices], name: &str) -> Result<Vec<u8>> {
     let title = format!("Fig. 4 redone on {name}: indices per level, restarts counted");
     let _ =
         Text::with_alignment(&title, Point::new(W / 2, 22), text, Alignment::Center).draw(&mut c);
-    for (k, (what, col, value)) in SERIES.iter().enumerate() {
+    let paper_series: Series = (
+        "strip, DTFS, the full mesh stripified on its own (paper's order)",
+        PAPER,
+        |r| r.dtfs,
+    );
+    let all = SERIES
+        .iter()
+        .map(|s| (s, rows))
+        .chain((!paper.is_empty()).then_some((&paper_series, paper)));
+    for (k, ((what, col, value), rows)) in all.enumerate() {
         let pts: Vec<Point> = rows
             .iter()
             .map(|r| Point::new(px(r.level as f64), py(value(r) as f64)))
@@ -146,6 +163,11 @@ pub fn fig4_png(rows: &[LevelIndices], name: &str) -> Result<Vec<u8>> {
 }
 
 /// [`fig4_png`] written to `path` atomically.
-pub fn write_fig4(rows: &[LevelIndices], name: &str, path: &Path) -> Result<()> {
-    crate::fsutil::write_bytes_atomic(path, &fig4_png(rows, name)?)
+pub fn write_fig4(
+    rows: &[LevelIndices],
+    paper: &[LevelIndices],
+    name: &str,
+    path: &Path,
+) -> Result<()> {
+    crate::fsutil::write_bytes_atomic(path, &fig4_png(rows, paper, name)?)
 }

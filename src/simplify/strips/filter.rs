@@ -192,6 +192,13 @@ pub fn dtfs_window_into(
 ) {
     scratch.clear();
     super::stripify::each_triangle(strip, |t| scratch.push(t));
+    rebuild_into(scratch, join, window, out);
+}
+
+/// Strips of the oriented triangles `tris` in their order, by DTFS's rules (regular, swap
+/// and split cases; with `window` > 1 the look-ahead reorders them). Every triangle is
+/// drawn once, with its orientation.
+pub fn rebuild_into(tris: &mut [[u32; 3]], join: Join, window: usize, out: &mut Vec<u32>) {
     let mut b = Builder {
         out: std::mem::take(out),
         join,
@@ -200,18 +207,16 @@ pub fn dtfs_window_into(
     b.out.clear();
     let window = window.max(1);
     let mut i = 0;
-    while i < scratch.len() {
-        let end = (i + window).min(scratch.len());
-        let pick = b.tail.and_then(|tail| {
-            scratch[i..end]
-                .iter()
-                .position(|&t| takes(t, tail).is_some())
-        });
+    while i < tris.len() {
+        let end = (i + window).min(tris.len());
+        let pick = b
+            .tail
+            .and_then(|tail| tris[i..end].iter().position(|&t| takes(t, tail).is_some()));
         // Keep the order of the others: move the pick to the front of the window.
         if let Some(k) = pick {
-            scratch[i..=i + k].rotate_right(1);
+            tris[i..=i + k].rotate_right(1);
         }
-        b.push(scratch[i], &scratch[i + 1..]);
+        b.push(tris[i], &tris[i + 1..]);
         i += 1;
     }
     *out = b.out;

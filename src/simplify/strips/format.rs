@@ -3,7 +3,7 @@
 //! All numbers little-endian.
 //!
 //! ```text
-//! header   28 bytes: magic "TTPS", version u16 (1), flags u16 (bit 0: E-PS records,
+//! header   28 bytes: magic "TTPS", version u16 (2), flags u16 (bit 0: E-PS records,
 //!          bit 1: normals, bit 2: colours, bit 3: UVs), vertices u32, base vertices u32,
 //!          strip length u32, splits u32 (= vertices − base vertices), triangles u32 (of
 //!          the full mesh)
@@ -31,7 +31,7 @@ use glam::{Vec2, Vec3};
 use std::path::Path;
 
 const MAGIC: &[u8; 4] = b"TTPS";
-const VERSION: u16 = 1;
+const VERSION: u16 = 2;
 const HEADER: usize = 28;
 const F_ENCODED: u16 = 1;
 const F_NORMALS: u16 = 2;

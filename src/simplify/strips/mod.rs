@@ -13,11 +13,14 @@ pub mod figure;
 pub mod filter;
 pub mod format;
 pub mod measure;
+pub mod order;
 pub mod progressive;
 pub mod stripify;
 
 pub use filter::{dtfs, dtfs_into, stss};
-pub use progressive::{progressive, Decoder, Encoding, Progressive, ProgressiveParams, Split};
+pub use progressive::{
+    progressive, Decoder, Encoding, Progressive, ProgressiveParams, Split, StripOrder,
+};
 pub use stripify::{stripify, unstripify, Join, StripParams, RESTART};
 
 #[cfg(test)]

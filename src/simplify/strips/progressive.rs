@@ -7,11 +7,15 @@
 //!
 //! - Naive-PS: the offsets of every slot that holds p, including the slots of vertices
 //!   collapsed into p before. These pile up as the strip coarsens.
-//! - E-PS: a slot of p whose neighbour at distance 1 or 2 already shows q is written as
-//!   a reference to it (R−2, R−1, R+1, R+2) rather than as q; a slot that is a reference
-//!   follows its target, so a later collapse of q rewrites only the slots that name q
-//!   directly, and its split restores only those. References point at slots that showed
-//!   q before the collapse, so they never form cycles.
+//! - E-PS: a slot of p whose neighbour at distance 1 or 2 shows q after the collapse is
+//!   written as a reference to it (R−2, R−1, R+1, R+2) rather than as q; a slot that is a
+//!   reference follows its target, so a later collapse of q rewrites only the slots that
+//!   name q directly, and its split restores only those. The neighbour may be a slot that
+//!   shows q already (the paper's six patterns, p and q in one triangle) or one that shows
+//!   p, through references or another slot of p, as long as its chain of references does
+//!   not come back to the slot: at most one slot named per group of p's slots that reach
+//!   one another, none when the group touches q. The chains end at named slots, so they
+//!   never form cycles.
 //!
 //! The collapses are half-edge collapses (the engine with endpoint placement): a split
 //! restores one vertex and moves no other, as the record holds one position. The stream
@@ -55,6 +59,19 @@ pub enum Encoding {
     Encoded,
 }
 
+/// How the strip of the full mesh is ordered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StripOrder {
+    /// The paper's: the full mesh stripified on its own ([`ProgressiveParams::strip`]).
+    Full,
+    /// Ours (default): the base mesh stripified, each split's triangles inserted next to
+    /// their neighbours from the base up ([`super::order`]), so that every level's
+    /// survivors come in few strips.
+    #[default]
+    Hierarchical,
+}
+
 /// How to build progressive strips.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ProgressiveParams {
@@ -66,6 +83,9 @@ pub struct ProgressiveParams {
     pub strip: StripParams,
     /// The engine's error bound, in model units (none by default).
     pub max_error: Option<f64>,
+    /// How the full strip is ordered (default [`StripOrder::Hierarchical`]; `strip`'s join
+    /// applies to both).
+    pub order: StripOrder,
 }
 
 impl Default for ProgressiveParams {
@@ -77,6 +97,7 @@ impl Default for ProgressiveParams {
                 ..StripParams::default()
             },
             max_error: None,
+            order: StripOrder::default(),
         }
     }
 }
@@ -183,6 +204,8 @@ struct Replay {
     /// Per vertex: the offsets that show it (Naive-PS) and that name it (E-PS).
     shows: Vec<Vec<u32>>,
     names: Vec<Vec<u32>>,
+    /// Scratch for [`Replay::collapse`].
+    state: Vec<u8>,
 }
 
 impl Replay {
@@ -198,31 +221,78 @@ impl Replay {
             resolved: strip,
             names: shows.clone(),
             shows,
+            state: Vec::new(),
         }
     }
 
     /// Collapses `p` into `q`; returns the split that undoes it.
     fn collapse(&mut self, p: u32, q: u32) -> Split {
         let len = self.resolved.len() as i64;
-        // E-PS first, against the strip before the collapse: a slot of p refers to a
-        // neighbour that shows q already (never to another slot of p).
+        // E-PS, against the strip before the collapse. A slot that names p becomes a
+        // reference to a neighbour at distance 1 or 2 that shows p or q, as every slot
+        // showing either shows q once the collapse is done, provided that the neighbour
+        // does not lean on the slot itself: the neighbour's chain of references must end at
+        // a slot that names q, or at a slot of p settled to name q. Slots that can refer
+        // are turned into references (each pass may enable more); when none can, one slot
+        // of p is settled to name q, and the passes go on. So each group of p's slots that
+        // reach one another through neighbours costs at most one named slot, and none when
+        // one of them is next to q.
         let names = std::mem::take(&mut self.names[p as usize]);
-        let mut encoded = Vec::with_capacity(names.len());
-        for &o in &names {
-            let near = [-1i32, 1, -2, 2].into_iter().find(|&k| {
-                let j = o as i64 + k as i64;
-                (0..len).contains(&j) && self.resolved[j as usize] == q
-            });
-            let v = match near {
-                Some(k) => ref_slot(k),
-                None => {
-                    self.names[q as usize].push(o);
-                    q
+        // Per slot of p: 0 undecided, 1 a reference, 2 settled to name q.
+        let mut state = std::mem::take(&mut self.state);
+        state.clear();
+        state.resize(names.len(), 0);
+        let root = |slots: &[u32], mut j: usize| {
+            while let Some(k) = ref_offset(slots[j]) {
+                j = (j as i64 + k as i64) as usize;
+            }
+            j
+        };
+        loop {
+            let mut changed = false;
+            for i in 0..names.len() {
+                if state[i] != 0 {
+                    continue;
                 }
-            };
-            self.slots[o as usize] = v;
-            encoded.push((o, v));
+                let o = names[i] as i64;
+                let near = [-1i32, 1, -2, 2].into_iter().find(|&k| {
+                    let j = o + k as i64;
+                    if !(0..len).contains(&j) {
+                        return false;
+                    }
+                    let r = self.resolved[j as usize];
+                    if r != q && r != p {
+                        return false;
+                    }
+                    let n = root(&self.slots, j as usize);
+                    self.slots[n] == q
+                        || names
+                            .iter()
+                            .position(|&x| x as usize == n)
+                            .is_some_and(|m| state[m] == 2)
+                });
+                if let Some(k) = near {
+                    self.slots[o as usize] = ref_slot(k);
+                    state[i] = 1;
+                    changed = true;
+                }
+            }
+            if !changed {
+                match state.iter().position(|&x| x == 0) {
+                    Some(i) => state[i] = 2,
+                    None => break,
+                }
+            }
         }
+        let mut encoded = Vec::with_capacity(names.len());
+        for (i, &o) in names.iter().enumerate() {
+            if state[i] == 2 {
+                self.slots[o as usize] = q;
+                self.names[q as usize].push(o);
+            }
+            encoded.push((o, self.slots[o as usize]));
+        }
+        self.state = state;
         let mut naive = std::mem::take(&mut self.shows[p as usize]);
         for &o in &naive {
             self.resolved[o as usize] = q;
@@ -264,7 +334,6 @@ pub fn progressive(mesh: &TriMesh, params: &ProgressiveParams) -> Result<Progres
             message: "the mesh has no triangles with three distinct corners".into(),
         });
     }
-    let strip = stripify::stripify(&canon.indices, &params.strip);
     let (_, steps) = qem::simplify_logged(&canon, &qem_params(&canon, params))?;
     let n = canon.vertex_count();
     // The strip id standing for each engine vertex: the engine's survivor keeps its id
@@ -285,6 +354,12 @@ pub fn progressive(mesh: &TriMesh, params: &ProgressiveParams) -> Result<Progres
         removed[p as usize] = true;
         pairs.push((p, q));
     }
+    let strip = match params.order {
+        StripOrder::Full => stripify::stripify(&canon.indices, &params.strip),
+        StripOrder::Hierarchical => {
+            super::order::hierarchical(&canon.indices, n, &pairs, params.strip.join)
+        }
+    };
     // Stream ids: base vertices ascending, then the removed ones, last collapse first.
     let mut stream = vec![u32::MAX; n];
     let mut next = 0u32;

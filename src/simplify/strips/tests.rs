@@ -195,11 +195,14 @@ fn check_levels(m: &TriMesh, params: &ProgressiveParams, engine_levels: &[usize]
 fn every_level_of_a_grid_is_the_engines_mesh() {
     let m = grid(16);
     for strip in all_params() {
-        let params = ProgressiveParams {
-            strip,
-            ..ProgressiveParams::default()
-        };
-        check_levels(&m, &params, &[0, 1, 7, 100, 300, usize::MAX]);
+        for order in [StripOrder::Full, StripOrder::Hierarchical] {
+            let params = ProgressiveParams {
+                strip,
+                order,
+                ..ProgressiveParams::default()
+            };
+            check_levels(&m, &params, &[0, 1, 7, 100, 300, usize::MAX]);
+        }
     }
 }
 
@@ -224,6 +227,66 @@ fn e_ps_updates_fewer_slots_than_naive() {
     let (naive, enc) = p.mean_updates();
     assert!(enc < naive, "{enc} vs {naive}");
     assert!(p.base_slots.iter().any(|&v| ref_offset(v).is_some()));
+}
+
+/// The paper's Fig. 2 example, counted as the paper counts it (Table 3: the offsets a
+/// split restores): in the triangle p q r, q collapses into p, then p into r. Naive-PS
+/// writes p over q's slot, so p's split restores two slots; E-PS writes q's slot as R−1 (a
+/// reference to p's slot), so p's split restores one, and q's split one in both forms.
+#[test]
+fn the_papers_figure_2_counts() {
+    // Stream ids: r = 0 (the base vertex), p = 1 (split 0, kept r), q = 2 (split 1, kept p).
+    let vertices = TriMesh {
+        positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
+        ..TriMesh::default()
+    };
+    let kept = |k| Split {
+        kept: k,
+        ..Split::default()
+    };
+    let p = Progressive::from_full(vertices, 1, vec![1, 2, 0], &[kept(0), kept(1)], 1);
+    assert_eq!(p.splits[0].naive, vec![0, 1]);
+    assert_eq!(p.splits[1].naive, vec![1]);
+    assert_eq!(p.splits[0].encoded, vec![(0, progressive::ref_slot(2))]);
+    assert_eq!(p.splits[1].encoded, vec![(1, progressive::ref_slot(-1))]);
+    assert_eq!(p.mean_updates(), (1.5, 1.0));
+    // The base strip shows r three times, and names it once.
+    assert_eq!(p.base, vec![0, 0, 0]);
+    assert_eq!(
+        p.base_slots,
+        vec![progressive::ref_slot(2), progressive::ref_slot(-1), 0]
+    );
+}
+
+/// E-PS also refers to a neighbour that shows the removed vertex (it shows the kept one
+/// after the collapse): in the strip p a p b (a swap repeats p), p collapses into q, which
+/// is two slots away from one of p's slots only; the other refers to that one.
+#[test]
+fn e_ps_chains_through_the_removed_vertexs_own_slots() {
+    // Stream ids: a = 0, b = 1, q = 2 base; p = 3 (split 0, kept q).
+    let vertices = TriMesh {
+        positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
+        ..TriMesh::default()
+    };
+    let split = Split {
+        kept: 2,
+        ..Split::default()
+    };
+    let full = vec![3, 0, 3, 1, 2];
+    let p = Progressive::from_full(vertices, 3, full.clone(), &[split], 2);
+    assert_eq!(p.splits[0].naive, vec![0, 2]);
+    // Slot 2 refers to q at +2, slot 0 to slot 2 at +2.
+    let r = progressive::ref_slot(2);
+    assert_eq!(p.splits[0].encoded, vec![(0, r), (2, r)]);
+    // Both forms decode to the same strips.
+    for e in [Encoding::Naive, Encoding::Encoded] {
+        let mut d = Decoder::new(&p, e);
+        assert_eq!(d.strip(), [2, 0, 2, 1, 2]);
+        d.set_level(1);
+        assert_eq!(d.strip(), full.as_slice());
+        d.set_level(0);
+        assert_eq!(d.strip(), [2, 0, 2, 1, 2]);
+    }
 }
 
 #[test]
