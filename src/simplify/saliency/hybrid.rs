@@ -21,11 +21,11 @@
 //! visible in a view counts 0 (as the thesis does): on a closed mesh no vertex is visible
 //! from every direction, so C is empty there and matters for open, sheet-like meshes only.
 
-/// The hybrid is finally smoothed by a Gaussian of σ = SMOOTH · ε (ε = 0.3 % of the
-/// diagonal, Lee's unit; 4 ε is the middle of Lee's scales): the classes make the raw
-/// hybrid jump between neighbouring vertices (a class-A vertex at 0.9 beside a class-E one
-/// at 0.3), detail finer than any simplified mesh can keep, which scatters the salient area
-/// into specks no weighting can protect. Smoothed, it is the salience of a region.
+/// The weighting ([`super::Weighting`]) smooths any map, the hybrid included, by a Gaussian
+/// of σ = SMOOTH · ε (ε = 0.3 % of the diagonal, Lee's unit; 4 ε is the middle of Lee's
+/// scales): the classes make the raw hybrid jump between neighbouring vertices (a class-A
+/// vertex at 0.9 beside a class-E one at 0.3), detail finer than any simplified mesh can
+/// keep. Smoothed, it is the salience of a region. The hybrid itself ([`hybrid`]) stays raw.
 pub const SMOOTH: f64 = 4.0;
 
 /// Class bounds: (A top share of curvature, B top share of mesh saliency, C top share of

@@ -67,7 +67,7 @@ pub struct Maps {
     pub mesh_saliency: Vec<f64>,
     /// Image saliency over the views: max, min, mean (each in [0, 1]).
     pub image: image::ImageSaliency,
-    /// The hybrid saliency in [0, 1].
+    /// The hybrid saliency in [0, 1] (the thesis' classes, raw: the weighting smooths it).
     pub hybrid: Vec<f64>,
     /// The hybrid class of each vertex (0–4 for A–E).
     pub class: Vec<u8>,
