@@ -39,7 +39,11 @@ fn image_saliency(c: &mut Criterion) {
 
 fn weighted_qem(c: &mut Criterion) {
     let Some(m) = load("bunny.obj") else { return };
-    let w = saliency::hybrid::weights(&saliency::mesh::mesh_saliency(&m).saliency, saliency::H_MIN);
+    let w = saliency::hybrid::weights(
+        &saliency::mesh::mesh_saliency(&m).saliency,
+        saliency::H_MIN,
+        saliency::POWER,
+    );
     let plain = qem::QemParams::plain(m.triangle_count() as u64 / 10, qem::Placement::Optimal);
     let weighted = qem::QemParams {
         weights: w.map(Into::into),

@@ -161,6 +161,10 @@ enum Command {
         /// Side of each view in the PNG pictures, in pixels.
         #[arg(long, value_name = "PX", default_value_t = 512)]
         picture_size: u32,
+        /// A texture (PNG) baked into the vertex colours at each vertex's UV before the
+        /// image saliency renders the mesh.
+        #[arg(long, value_name = "PNG")]
+        texture: Option<PathBuf>,
         /// Print JSON.
         #[arg(long)]
         json: bool,
@@ -888,14 +892,20 @@ fn run(cli: Cli) -> Result<()> {
             views,
             view_size,
             picture_size,
+            texture,
             json,
         } => {
             let views = terratile::simplify::saliency::image::ViewParams {
                 views,
                 size: view_size,
             };
-            let r =
-                terratile::simplify::saliency::saliency_file(&input, &out, &views, picture_size)?;
+            let r = terratile::simplify::saliency::saliency_file(
+                &input,
+                &out,
+                &views,
+                picture_size,
+                texture.as_deref(),
+            )?;
             print_report(json, &r)?;
         }
         Command::Plan {

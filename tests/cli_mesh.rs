@@ -536,3 +536,74 @@ fn saliency_maps_of_cow_are_written() {
     let j: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
     assert!(j["triangles_out"].as_u64().unwrap() <= 580);
 }
+
+/// `terratile saliency --texture`: a textured grid (one `vt` per vertex) with a red/green
+/// texture is baked and mapped; a texture that is not an image and a mesh without UVs are
+/// refused with exit code 2 and leave no output directory.
+#[test]
+fn saliency_bakes_a_texture_and_refuses_bad_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let n = 12;
+    let mut obj = String::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, y) = (i as f64 / n as f64, j as f64 / n as f64);
+            let z = 0.1 * (6.0 * x).sin() * (4.0 * y).cos();
+            obj += &format!("v {x} {y} {z}\nvt {x} {y}\n");
+        }
+    }
+    let id = |i: usize, j: usize| j * (n + 1) + i + 1;
+    let mut faces = String::new();
+    let mut bare_faces = String::new();
+    for j in 0..n {
+        for i in 0..n {
+            for t in [
+                [id(i, j), id(i + 1, j), id(i + 1, j + 1)],
+                [id(i, j), id(i + 1, j + 1), id(i, j + 1)],
+            ] {
+                faces += &format!("f {0}/{0} {1}/{1} {2}/{2}\n", t[0], t[1], t[2]);
+                bare_faces += &format!("f {} {} {}\n", t[0], t[1], t[2]);
+            }
+        }
+    }
+    let plain: String = obj
+        .lines()
+        .filter(|l| l.starts_with("v "))
+        .fold(String::new(), |s, l| s + l + "\n");
+    std::fs::write(d.join("g.obj"), obj + &faces).unwrap();
+    std::fs::write(d.join("bare.obj"), plain + &bare_faces).unwrap();
+    let tex = image::RgbImage::from_fn(8, 8, |x, _| {
+        if x < 4 {
+            image::Rgb([255, 0, 0])
+        } else {
+            image::Rgb([0, 255, 0])
+        }
+    });
+    tex.save(d.join("t.png")).unwrap();
+    std::fs::write(d.join("not.png"), "not an image").unwrap();
+    let args = |mesh: &'static str, tex: &'static str, out: &'static str| {
+        [
+            "saliency",
+            mesh,
+            "--out",
+            out,
+            "--views",
+            "4",
+            "--view-size",
+            "32",
+            "--picture-size",
+            "32",
+            "--texture",
+            tex,
+        ]
+    };
+    terratile(d, &args("g.obj", "t.png", "maps")).ok();
+    assert!(d.join("maps/saliency.ply").is_file());
+    let r = terratile(d, &args("g.obj", "not.png", "bad1"));
+    r.input_error(&["not.png"]);
+    assert!(!d.join("bad1").exists());
+    let r = terratile(d, &args("bare.obj", "t.png", "bad2"));
+    r.input_error(&["bare.obj", "texture coordinates"]);
+    assert!(!d.join("bad2").exists());
+}

@@ -21,11 +21,11 @@
 //! visible in a view counts 0 (as the thesis does): on a closed mesh no vertex is visible
 //! from every direction, so C is empty there and matters for open, sheet-like meshes only.
 
-/// The hybrid is finally smoothed by a Gaussian of σ = SMOOTH · ε (ε = 0.3 % of the
-/// diagonal, Lee's unit; 4 ε is the middle of Lee's scales): the classes make the raw
-/// hybrid jump between neighbouring vertices (a class-A vertex at 0.9 beside a class-E one
-/// at 0.3), detail finer than any simplified mesh can keep, which scatters the salient area
-/// into specks no weighting can protect. Smoothed, it is the salience of a region.
+/// The weighting ([`super::Weighting`]) smooths any map, the hybrid included, by a Gaussian
+/// of σ = SMOOTH · ε (ε = 0.3 % of the diagonal, Lee's unit; 4 ε is the middle of Lee's
+/// scales): the classes make the raw hybrid jump between neighbouring vertices (a class-A
+/// vertex at 0.9 beside a class-E one at 0.3), detail finer than any simplified mesh can
+/// keep. Smoothed, it is the salience of a region. The hybrid itself ([`hybrid`]) stays raw.
 pub const SMOOTH: f64 = 4.0;
 
 /// Class bounds: (A top share of curvature, B top share of mesh saliency, C top share of
@@ -108,12 +108,15 @@ pub fn hybrid(
     (h, class)
 }
 
-/// The simplifier's weights H = h_min^(1 − rank(values)), from h_min (the least salient)
-/// to 1 (the most): geometric in the rank, so that every step up the ranks multiplies the
-/// weight by the same factor (the quadric errors they scale spread over orders of
-/// magnitude; a linear map leaves the top fifth within 1.25× of the next fifth). `None`
-/// (plain QEM) when every value is the same (a plane has zero curvature and saliency).
-pub fn weights(values: &[f64], h_min: f64) -> Option<Vec<f64>> {
+/// The simplifier's weights H = h_min^((1 − rank(values))^power), from h_min (the least
+/// salient) to 1 (the most). With power 1 the weight is geometric in the rank: every step up
+/// the ranks multiplies it by the same factor (the quadric errors it scales spread over
+/// orders of magnitude; a linear map leaves the top fifth within 1.25× of the next fifth).
+/// A power below 1 keeps the bulk of the surface near h_min and spends the range on the
+/// top ranks, as Lee et al. (2005) amplify the salient vertices' weights and leave the rest
+/// alone. `None` (plain QEM) when every value is the same (a plane has zero curvature and
+/// saliency).
+pub fn weights(values: &[f64], h_min: f64, power: f64) -> Option<Vec<f64>> {
     let first = *values.first()?;
     if values.iter().all(|&x| x == first) {
         return None;
@@ -121,7 +124,7 @@ pub fn weights(values: &[f64], h_min: f64) -> Option<Vec<f64>> {
     Some(
         ranks(values)
             .into_iter()
-            .map(|u| h_min.powf(1.0 - u))
+            .map(|u| h_min.powf((1.0 - u).powf(power)))
             .collect(),
     )
 }
@@ -161,8 +164,8 @@ mod tests {
 
     #[test]
     fn equal_values_give_plain_qem() {
-        assert_eq!(weights(&[0.0; 10], 0.1), None);
-        let w = weights(&[0.0, 2.0, 1.0], 0.01).unwrap();
+        assert_eq!(weights(&[0.0; 10], 0.1, 1.0), None);
+        let w = weights(&[0.0, 2.0, 1.0], 0.01, 1.0).unwrap();
         assert_eq!((w[0], w[1]), (0.01, 1.0));
         assert!((w[2] - 0.1).abs() < 1e-15, "{w:?}");
     }

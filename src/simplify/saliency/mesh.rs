@@ -268,6 +268,28 @@ pub fn smooth(mesh: &TriMesh, values: &[f64], sigma_eps: f64) -> Vec<f64> {
     w.spread(&out)
 }
 
+/// Every vertex takes the largest of the mean `values` of the triangles around it (over
+/// the welded surface; welded copies take the largest of their values first): the saliency
+/// of the most salient triangle the vertex bounds. Moving a vertex moves all its triangles,
+/// so a vertex must be weighted as its most salient triangle is, not by its own value alone.
+pub fn face_max(mesh: &TriMesh, values: &[f64]) -> Vec<f64> {
+    let w = Welded::new(mesh);
+    let mut x = vec![f64::NEG_INFINITY; w.pos.len()];
+    for (v, &d) in w.of.iter().enumerate() {
+        if d != u32::MAX {
+            x[d as usize] = x[d as usize].max(values[v]);
+        }
+    }
+    let mut out = vec![f64::NEG_INFINITY; w.pos.len()];
+    for f in &w.faces {
+        let mean = f.iter().map(|&v| x[v as usize]).sum::<f64>() / 3.0;
+        for &v in f {
+            out[v as usize] = out[v as usize].max(mean);
+        }
+    }
+    w.spread(&out)
+}
+
 /// ε in model units: 0.3 % of the bbox diagonal of `pos`.
 pub(crate) fn eps(pos: &[DVec3]) -> f64 {
     let (lo, hi) = pos.iter().fold(

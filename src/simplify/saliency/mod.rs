@@ -8,6 +8,7 @@ pub mod image;
 pub mod itti;
 pub mod mesh;
 pub mod render;
+pub mod texture;
 
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
@@ -66,7 +67,7 @@ pub struct Maps {
     pub mesh_saliency: Vec<f64>,
     /// Image saliency over the views: max, min, mean (each in [0, 1]).
     pub image: image::ImageSaliency,
-    /// The hybrid saliency in [0, 1].
+    /// The hybrid saliency in [0, 1] (the thesis' classes, raw: the weighting smooths it).
     pub hybrid: Vec<f64>,
     /// The hybrid class of each vertex (0–4 for A–E).
     pub class: Vec<u8>,
@@ -75,32 +76,76 @@ pub struct Maps {
 /// All maps of `mesh` (which must be valid and have triangles).
 pub fn maps(mesh: &TriMesh, views: &image::ViewParams) -> Result<Maps> {
     let m = mesh::mesh_saliency(mesh);
-    let image = image::image_saliency(mesh, views)?;
-    let (hybrid, class) = hybrid_map(mesh, &m, &image);
-    Ok(Maps {
-        curvature: m.curvature,
-        mesh_saliency: m.saliency,
-        image,
-        hybrid,
-        class,
-    })
+    Ok(assemble(m, image::image_saliency(mesh, views)?))
 }
 
-/// The hybrid of the maps (classes and ranges of [`hybrid::hybrid`]) smoothed over
-/// σ = [`hybrid::SMOOTH`] · ε, and the classes.
-fn hybrid_map(
-    mesh: &TriMesh,
-    m: &mesh::MeshSaliency,
-    image: &image::ImageSaliency,
-) -> (Vec<f64>, Vec<u8>) {
-    let (h, class) = hybrid::hybrid(
+/// The maps with the hybrid (the thesis' classes, [`hybrid::hybrid`]) of `m` and `image`.
+fn assemble(m: mesh::MeshSaliency, image: image::ImageSaliency) -> Maps {
+    let (hybrid, class) = hybrid::hybrid(
         &m.curvature,
         &m.saliency,
         &image.max,
         &image.min,
         &image.mean,
     );
-    (mesh::smooth(mesh, &h, hybrid::SMOOTH), class)
+    Maps {
+        curvature: m.curvature,
+        mesh_saliency: m.saliency,
+        image,
+        hybrid,
+        class,
+    }
+}
+
+/// How a saliency map becomes the simplifier's weights H: the same for every map (mesh,
+/// image or hybrid saliency).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Weighting {
+    /// The least weight, in (0, 1] ([`H_MIN`]).
+    pub h_min: f64,
+    /// σ of the Gaussian smoothing in ε (0.3 % of the diagonal); 0: none
+    /// ([`hybrid::SMOOTH`]).
+    pub smooth: f64,
+    /// Whether each vertex then takes the value of the most salient triangle around it
+    /// ([`mesh::face_max`]).
+    pub spread: bool,
+    /// The shape of H over the ranks ([`hybrid::weights`]; 1: geometric).
+    pub power: f64,
+}
+
+impl Default for Weighting {
+    fn default() -> Self {
+        Weighting {
+            h_min: H_MIN,
+            smooth: hybrid::SMOOTH,
+            spread: true,
+            power: POWER,
+        }
+    }
+}
+
+/// The default shape of the weights over the ranks ([`hybrid::weights`]).
+pub const POWER: f64 = 1.0;
+
+impl Weighting {
+    /// The weights H of `values` on `mesh` ([`weight_values`], then [`hybrid::weights`]).
+    pub fn weights(&self, mesh: &TriMesh, values: &[f64]) -> Option<Vec<f64>> {
+        hybrid::weights(&weight_values(mesh, values, self), self.h_min, self.power)
+    }
+}
+
+/// The per-vertex values the weights are ranked by: `values` smoothed over σ =
+/// `w.smooth` · ε, then (with `w.spread`) the most salient triangle around each vertex.
+pub fn weight_values(mesh: &TriMesh, values: &[f64], w: &Weighting) -> Vec<f64> {
+    let mut v = if w.smooth > 0.0 {
+        mesh::smooth(mesh, values, w.smooth)
+    } else {
+        values.to_vec()
+    };
+    if w.spread {
+        v = mesh::face_max(mesh, &v);
+    }
+    v
 }
 
 /// The weights H ∈ [h_min, 1] of `kind` for `mesh` (`None`: plain QEM, also when the
@@ -118,7 +163,11 @@ pub fn weights(
         Saliency::Image => image::image_saliency(mesh, views)?.mean,
         Saliency::Hybrid => maps(mesh, views)?.hybrid,
     };
-    Ok(hybrid::weights(&values, h_min))
+    let w = Weighting {
+        h_min,
+        ..Weighting::default()
+    };
+    Ok(w.weights(mesh, &values))
 }
 pub mod pictures;
 
@@ -173,14 +222,16 @@ impl std::fmt::Display for FileReport {
     }
 }
 
-/// Reads `input`, computes every map and writes `saliency.ply` and one PNG per map
-/// (`picture` pixels per view) into `out`, which must not exist or be empty (nothing of
-/// the user's is overwritten; nothing is written when anything fails before).
+/// Reads `input` (its vertex colours replaced by `texture` under each vertex's UV when
+/// given, [`texture::bake`]), computes every map and writes `saliency.ply` and one PNG per
+/// map (`picture` pixels per view) into `out`, which must not exist or be empty (nothing
+/// of the user's is overwritten; nothing is written when anything fails before).
 pub fn saliency_file(
     input: &std::path::Path,
     out: &std::path::Path,
     views: &image::ViewParams,
     picture: u32,
+    texture: Option<&std::path::Path>,
 ) -> Result<FileReport> {
     views.validate()?;
     if !(image::SIZE_RANGE.0..=image::SIZE_RANGE.1).contains(&picture) {
@@ -203,8 +254,17 @@ pub fn saliency_file(
             )));
         }
     }
-    let (m, _warnings) = crate::mesh::io::read_surface_with(input, &Default::default())?;
+    let (mut m, _warnings) = crate::mesh::io::read_surface_with(input, &Default::default())?;
     m.validate("the input mesh")?;
+    if let Some(t) = texture {
+        texture::bake(&mut m, &texture::Texture::read(t)?).map_err(|e| match e {
+            Error::Data { stage, message } => Error::Data {
+                stage,
+                message: format!("{}: {message}", input.display()),
+            },
+            e => e,
+        })?;
+    }
     if m.triangle_count() == 0 || m.area().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return Err(Error::Data {
             stage: "saliency",
@@ -217,14 +277,7 @@ pub fn saliency_file(
     let t = std::time::Instant::now();
     let img = image::image_saliency(&m, views)?;
     let image_seconds = t.elapsed().as_secs_f64();
-    let (hybrid, class) = hybrid_map(&m, &ms, &img);
-    let maps = Maps {
-        curvature: ms.curvature,
-        mesh_saliency: ms.saliency,
-        image: img,
-        hybrid,
-        class,
-    };
+    let maps = assemble(ms, img);
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let mut files = vec![out.join("saliency.ply")];
     pictures::write_ply(&m, &maps, &files[0])?;

@@ -128,3 +128,21 @@ fn welded_copies_share_their_value() {
     assert_eq!(s.curvature[5], s.curvature[dup as usize]);
     assert_eq!(s.saliency[5], s.saliency[dup as usize]);
 }
+
+#[test]
+fn face_max_gives_each_vertex_its_most_salient_triangle() {
+    // A fan of four triangles around vertex 0, one of them with a salient corner (vertex 2),
+    // plus a seam copy (5) of vertex 1 in the last triangle.
+    let m = TriMesh {
+        positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y, -Vec3::X, -Vec3::Y, Vec3::X],
+        indices: vec![[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 5]],
+        ..TriMesh::default()
+    };
+    let values = [0.0, 0.0, 3.0, 0.0, 0.0, 0.6];
+    let f = face_max(&m, &values);
+    // The copies of vertex 1 take their larger value, 0.6; triangle means 1.2, 1, 0, 0.2.
+    let near = |a: f64, b: f64| (a - b).abs() < 1e-12;
+    assert!(near(f[0], 1.2) && near(f[2], 1.2), "{f:?}");
+    assert!(near(f[3], 1.0) && near(f[4], 0.2), "{f:?}");
+    assert!(near(f[1], 1.2) && f[1] == f[5], "{f:?}");
+}
