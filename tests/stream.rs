@@ -145,6 +145,23 @@ fn stream_equals_memory_on_fsite5() {
     equivalent(dir.path(), &[&f], "");
 }
 
+#[test]
+fn stream_equals_memory_on_bcts_3_with_taller_voxels() {
+    // More than 1 % of bcts_3's points fail the count at voxels one spacing tall: the run
+    // reads every window again for the counts at every height and filters at the chosen one
+    // (the first read at height 1 is then not the answer).
+    let Some(f) = real("lidar/bcts_3.laz") else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let s = equivalent(dir.path(), &[&f], "");
+    let q: u32 = figure(&s, "denoise", "voxel height steps")
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(q > 1, "voxel height steps {q}");
+}
+
 /// Generated tiles of one survey in `dir/tiles`.
 fn tiles(dir: &Path, points: &str) {
     std::fs::create_dir(dir.join("tiles")).unwrap();

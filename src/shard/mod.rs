@@ -338,7 +338,8 @@ pub struct ShardOutput {
     pub tiles: Vec<Tile>,
     /// d2 of each tile, reconciled within the shard only.
     pub d2: Vec<NodeValues>,
-    /// Vertical error of each tile, reconciled within the shard only.
+    /// Vertical error of each tile, reconciled within the shard only (empty when
+    /// [`finish_with`] left it out).
     pub vertical_error: Vec<NodeValues>,
     /// Fill figures over the cells the shard owns (`None`: fill off).
     pub fill: Option<FillReport>,
@@ -352,6 +353,20 @@ pub fn finish(
     coarse: &[f32],
     tiles: &TileParams,
     quadtree: &QuadtreeParams,
+) -> Result<ShardOutput> {
+    finish_with(layout, prepared, coarse, tiles, quadtree, true)
+}
+
+/// [`finish`], with the vertical error tree only when `vertical_error` is true (the mesh
+/// extraction builds its own from the merged tiles, so a driver that only hands the tiles on
+/// leaves it out: `ShardOutput::vertical_error` is then empty).
+pub fn finish_with(
+    layout: &ShardLayout,
+    prepared: Prepared,
+    coarse: &[f32],
+    tiles: &TileParams,
+    quadtree: &QuadtreeParams,
+    vertical_error: bool,
 ) -> Result<ShardOutput> {
     let Prepared {
         shard,
@@ -408,7 +423,11 @@ pub fn finish(
         t.origin = [t.origin[0] + c0 * step, t.origin[1] + r0 * step];
     }
     let d2 = quadtree::build(&set, quadtree)?.d2;
-    let vertical_error = quadtree::vertical_error(&set);
+    let vertical_error = if vertical_error {
+        quadtree::vertical_error(&set)
+    } else {
+        Vec::new()
+    };
     Ok(ShardOutput {
         tiles: set.tiles,
         d2,
@@ -425,7 +444,8 @@ pub struct Merged {
     pub set: TileSet,
     /// d2 of every tile, as `quadtree::build` computes it on the whole set.
     pub quadtree: Quadtree,
-    /// The vertical error of every tile, as `quadtree::vertical_error` computes it.
+    /// The vertical error of every tile, as `quadtree::vertical_error` computes it (empty
+    /// when the shards left it out).
     pub vertical_error: Vec<NodeValues>,
     /// Fill figures of the whole grid (`None`: fill off).
     pub fill: Option<FillReport>,
@@ -496,7 +516,8 @@ pub fn merge(
 ) -> Result<Merged> {
     quadtree.validate()?;
     let n = layout.tiles[0] * layout.tiles[1];
-    let mut slots: Vec<Option<(Tile, NodeValues, NodeValues)>> = (0..n).map(|_| None).collect();
+    let mut slots: Vec<Option<(Tile, NodeValues, Option<NodeValues>)>> =
+        (0..n).map(|_| None).collect();
     let mut fill: Option<FillReport> = None;
     for out in outputs {
         if let Some(f) = out.fill {
@@ -506,7 +527,9 @@ pub fn merge(
             acc.fallback += f.fallback;
             acc.empty += f.empty;
         }
-        for ((t, d), e) in out.tiles.into_iter().zip(out.d2).zip(out.vertical_error) {
+        let mut errors = out.vertical_error.into_iter();
+        for (t, d) in out.tiles.into_iter().zip(out.d2) {
+            let e = errors.next();
             let k = t.row * layout.tiles[0] + t.col;
             match slots.get_mut(k) {
                 Some(slot @ None) => *slot = Some((t, d, e)),
@@ -532,7 +555,11 @@ pub fn merge(
         })?;
         set_tiles.push(t);
         d2.push(d);
-        err.push(e);
+        err.extend(e);
+    }
+    if err.len() != d2.len() {
+        // Some shard left the vertical error out: the merged set has none.
+        err.clear();
     }
     let k = quadtree.k();
     quadtree::merge(layout.tiles, k as f32, &mut d2);

@@ -26,7 +26,7 @@
 //! under a temporary name and renamed when complete) are not redone.
 
 use super::bricks::{self, BrickLattice, BrickPoints, BrickWriter, SourceTransform};
-use super::{complete_coarse, finish, merge, prepare, ShardLayout, ShardOutput};
+use super::{complete_coarse, finish_with, merge, prepare, ShardLayout, ShardOutput};
 use crate::config::LoadedPipeline;
 use crate::error::{Error, Result};
 use crate::fsutil::write_bytes_atomic;
@@ -313,7 +313,9 @@ struct TempDir {
 }
 
 const JOB_FILE: &str = "job.txt";
-const JOB_MAGIC: &str = "terratile streaming run v1\n";
+const JOB_MAGIC: &str = "terratile streaming run v2\n";
+/// What every version's marker starts with (an older run's directory is still ours).
+const JOB_MARK: &str = "terratile streaming run v";
 const BRICKS_FILE: &str = "bricks.json";
 
 /// True for the names the streaming run writes in its directory.
@@ -337,7 +339,7 @@ impl TempDir {
         let marker = path.join(JOB_FILE);
         if path.exists() {
             let text = std::fs::read_to_string(&marker).unwrap_or_default();
-            if !text.starts_with(JOB_MAGIC) {
+            if !text.starts_with(JOB_MARK) {
                 return Err(Error::Usage(format!(
                     "{}: exists and was not made by terratile's streaming run; remove it or set \
                      scale.temp_dir",
@@ -529,6 +531,8 @@ impl KeepBits {
 /// What the denoise pass leaves.
 struct DenoisePass {
     keep: KeepBits,
+    /// The kept points' exact bounds (the grid's).
+    bounds: Bounds,
     windows: usize,
     resumed: usize,
     steps: u32,
@@ -548,7 +552,36 @@ fn read_u64s(path: &Path) -> Option<Vec<u64>> {
     })
 }
 
+/// Words before the sequence numbers in a window's keep file: the voxel height steps, the
+/// points of its own columns failing the count, and the kept points' bounds (six f64 bit
+/// patterns).
+const KEEP_HEAD: usize = 8;
+
+/// A window's keep file, read back: (steps, failing, kept bounds, kept sequence numbers).
+fn read_keep(path: &Path) -> Option<(u64, u64, Bounds, Vec<u64>)> {
+    let mut v = read_u64s(path)?;
+    if v.len() < KEEP_HEAD {
+        return None;
+    }
+    let f = |i: usize| f64::from_bits(v[i]);
+    let b = Bounds {
+        min: [f(2), f(3), f(4)],
+        max: [f(5), f(6), f(7)],
+    };
+    let (q, failing) = (v[0], v[1]);
+    v.drain(..KEEP_HEAD);
+    Some((q, failing, b, v))
+}
+
 /// Pass 3a: noise removal by windows of low-layer columns read from the bricks.
+///
+/// Each window is read once and filtered at voxel height steps 1 (the height the
+/// in-memory run tries first, and the only one when `voxel_height` is given): its keep
+/// flags, its points failing the count and its kept points' bounds are saved. When the
+/// failing points of all windows are within the automatic height's budget, that is the
+/// in-memory run's choice and the pass is done (the common case). Otherwise the counts at
+/// every height are taken (`shard_counts`, one more read per window), the sums pick the
+/// height (`choose_steps`), and the windows are filtered again at that height.
 fn denoise_pass(
     pipeline: &LoadedPipeline,
     dir: &Path,
@@ -591,7 +624,8 @@ fn denoise_pass(
         }
     };
     let inv = s.voxel_size;
-    // The points a window reads: its columns and the halo, as `denoise_sharded` buckets them.
+    // The points a window reads: its columns and the halo, as `denoise_sharded` buckets them
+    // (in brick order: noise removal does not depend on the order of its points).
     let load = |k: usize| -> Result<BrickPoints> {
         let own = window(k);
         let rx = own.x.start.saturating_sub(halo)..(own.x.end + halo).min(cx);
@@ -606,10 +640,17 @@ fn denoise_pass(
             [lo, hi]
         };
         let cover = bk.lattice.covering(world(&rx, 0, cx), world(&ry, 1, cy));
-        bricks::load(dir, &cover, &bk.counts, &bk.sources, |_, x, y| {
-            let (a, b) = frame.column(&s, x, y);
-            rx.contains(&a) && ry.contains(&b)
-        })
+        bricks::load(
+            dir,
+            &cover,
+            &bk.counts,
+            &bk.sources,
+            bricks::Order::Bricks,
+            |_, x, y| {
+                let (a, b) = frame.column(&s, x, y);
+                rx.contains(&a) && ry.contains(&b)
+            },
+        )
     };
     let name = |kind: &str, k: usize| dir.join(format!("{kind}-{groups}-{k:07}.bin"));
     let run_batch = |ks: &[usize], f: &(dyn Fn(usize) -> Result<()> + Sync)| -> Result<()> {
@@ -619,61 +660,23 @@ fn denoise_pass(
         }
         Ok(())
     };
-    let all: Vec<usize> = (0..count).collect();
-    // The counts at every voxel height, per window (saved: resumable).
-    progress.start("denoise: counts", count as u64);
-    let counts_of = |k: usize| -> Result<()> {
-        let path = name("counts", k);
-        if read_u64s(&path).is_some() {
-            return Ok(());
-        }
-        let p = load(k)?;
-        let own = window(k);
-        let c = if p.is_empty() {
-            Vec::new()
-        } else {
-            let input = p.shard_input(&frame, params, mpu, &own);
-            denoise::shard_counts(&input)?
-        };
-        let flat: Vec<u64> = c.iter().flat_map(|c| c.map(|v| v as u64)).collect();
-        write_u64s(&path, &flat)
-    };
-    run_batch(&all, &counts_of)?;
-    progress.finish();
-    let mut sums: Vec<[usize; 3]> = Vec::new();
-    for k in 0..count {
-        let flat = read_u64s(&name("counts", k))
-            .ok_or_else(|| Error::Internal(format!("denoise window {k}: counts missing")))?;
-        let c: Vec<[usize; 3]> = flat
-            .chunks_exact(3)
-            .map(|c| [c[0] as usize, c[1] as usize, c[2] as usize])
-            .collect();
-        sums.resize(sums.len().max(c.len()), [0; 3]);
-        for (acc, c) in sums.iter_mut().zip(&c) {
-            for i in 0..3 {
-                acc[i] += c[i];
-            }
-        }
-    }
-    let q = denoise::choose_steps(params, &sums, frame.points);
-    // The keep flags of each window's own points (saved: resumable). The file holds q, then
-    // the kept points' sequence numbers.
-    let done: Vec<usize> = (0..count)
-        .filter(|&k| read_u64s(&name("keep", k)).is_some_and(|v| v.first() == Some(&(q as u64))))
-        .collect();
-    let todo: Vec<usize> = (0..count).filter(|k| !done.contains(k)).collect();
     let crash_after: Option<usize> = std::env::var("TERRATILE_STREAM_CRASH_AFTER")
         .ok()
         .and_then(|v| v.parse().ok());
     let written = std::sync::atomic::AtomicUsize::new(0);
-    let keep_of = |k: usize| -> Result<()> {
+    // One window filtered at `q`: its keep file (saved: resumable).
+    let keep_of = |k: usize, q: u32| -> Result<()> {
         let p = load(k)?;
         let own = window(k);
-        let mut out = vec![q as u64];
+        let mut out = vec![q as u64, 0];
+        let mut kept = Bounds::EMPTY;
+        let mut seqs = Vec::new();
         if !p.is_empty() {
             let input = p.shard_input(&frame, params, mpu, &own);
             let d = denoise::shard_denoise(&input, q)?;
-            out.extend(
+            out[1] = d.removed_sparse as u64;
+            kept = crate::terrain::bounds_of(&p.x, &p.y, &p.z, Some(&d.keep)).0;
+            seqs.extend(
                 d.keep
                     .iter()
                     .zip(&p.seq)
@@ -681,6 +684,8 @@ fn denoise_pass(
                     .map(|(_, &s)| s),
             );
         }
+        out.extend(kept.min.iter().chain(&kept.max).map(|v| v.to_bits()));
+        out.extend(seqs);
         write_u64s(&name("keep", k), &out)?;
         let w = written.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
         if crash_after.is_some_and(|c| w >= c) {
@@ -690,34 +695,79 @@ fn denoise_pass(
         }
         Ok(())
     };
-    progress.start("denoise: keep flags", todo.len() as u64);
-    run_batch(&todo, &keep_of)?;
-    progress.finish();
+    // Windows whose keep file at `q` is already there (a resumed run) are not redone.
+    let keep_at = |q: u32, label: &str| -> Result<usize> {
+        let done = |k: &usize| read_keep(&name("keep", *k)).is_some_and(|v| v.0 == q as u64);
+        let todo: Vec<usize> = (0..count).filter(|k| !done(k)).collect();
+        progress.start(label, todo.len() as u64);
+        run_batch(&todo, &|k| keep_of(k, q))?;
+        progress.finish();
+        Ok(count - todo.len())
+    };
+    let mut resumed = keep_at(1, "denoise")?;
+    let failing: u64 = (0..count)
+        .map(|k| read_keep(&name("keep", k)).map_or(0, |v| v.1))
+        .sum();
+    let mut q = 1;
+    if denoise::choose_steps(params, &[[failing as usize; 3]], frame.points) != 1 {
+        // More than the budget fails at q = 1: the counts at every height decide.
+        progress.start("denoise: counts", count as u64);
+        let counts_of = |k: usize| -> Result<()> {
+            let path = name("counts", k);
+            if read_u64s(&path).is_some() {
+                return Ok(());
+            }
+            let p = load(k)?;
+            let own = window(k);
+            let c = if p.is_empty() {
+                Vec::new()
+            } else {
+                let input = p.shard_input(&frame, params, mpu, &own);
+                denoise::shard_counts(&input)?
+            };
+            let flat: Vec<u64> = c.iter().flat_map(|c| c.map(|v| v as u64)).collect();
+            write_u64s(&path, &flat)
+        };
+        let all: Vec<usize> = (0..count).collect();
+        run_batch(&all, &counts_of)?;
+        progress.finish();
+        let mut sums: Vec<[usize; 3]> = Vec::new();
+        for k in 0..count {
+            let flat = read_u64s(&name("counts", k))
+                .ok_or_else(|| Error::Internal(format!("denoise window {k}: counts missing")))?;
+            let c: Vec<[usize; 3]> = flat
+                .chunks_exact(3)
+                .map(|c| [c[0] as usize, c[1] as usize, c[2] as usize])
+                .collect();
+            sums.resize(sums.len().max(c.len()), [0; 3]);
+            for (acc, c) in sums.iter_mut().zip(&c) {
+                for i in 0..3 {
+                    acc[i] += c[i];
+                }
+            }
+        }
+        q = denoise::choose_steps(params, &sums, frame.points);
+        if q != 1 {
+            resumed = keep_at(q, "denoise: keep flags")?;
+        }
+    }
     let mut keep = KeepBits(vec![0; (bk.points as usize).div_ceil(64)]);
+    let mut bounds = Bounds::EMPTY;
     for k in 0..count {
-        let v = read_u64s(&name("keep", k))
+        let (_, _, b, seqs) = read_keep(&name("keep", k))
             .ok_or_else(|| Error::Internal(format!("denoise window {k}: keep flags missing")))?;
-        for &s in &v[1..] {
+        bounds = bounds.union(b);
+        for s in seqs {
             keep.set(s);
         }
     }
     Ok(DenoisePass {
         keep,
+        bounds,
         windows: count,
-        resumed: done.len(),
+        resumed,
         steps: q,
     })
-}
-
-/// The kept points' exact bounds (one more read of the bricks: a min/max reduction).
-fn kept_bounds(dir: &Path, bk: &Bucketed, keep: &KeepBits) -> Result<Bounds> {
-    let all: Vec<usize> = (0..bk.lattice.count()).collect();
-    all.par_chunks(16)
-        .map(|c| {
-            let p = bricks::load(dir, c, &bk.counts, &bk.sources, |s, _, _| keep.get(s))?;
-            Ok(crate::terrain::bounds_of(&p.x, &p.y, &p.z, None).0)
-        })
-        .try_reduce(|| Bounds::EMPTY, |a, b| Ok(a.union(b)))
 }
 
 /// Tiles per shard side for `sizing`: the shard's region with its one-tile ring within the
@@ -770,9 +820,18 @@ fn grid_pass(
         let cover = bk
             .lattice
             .covering(world(&ci, 0, spec.cols), world(&cj, 1, spec.rows));
-        let p = bricks::load(dir, &cover, &bk.counts, &bk.sources, |s, x, y| {
-            keep.is_none_or(|k| k.get(s)) && ci.contains(&spec.col(x)) && cj.contains(&spec.row(y))
-        })?;
+        let p = bricks::load(
+            dir,
+            &cover,
+            &bk.counts,
+            &bk.sources,
+            bricks::Order::Input,
+            |s, x, y| {
+                keep.is_none_or(|k| k.get(s))
+                    && ci.contains(&spec.col(x))
+                    && cj.contains(&spec.row(y))
+            },
+        )?;
         let offset = [ci.start, cj.start];
         let cells = resample::resample_window(
             [&p.x, &p.y, &p.z],
@@ -829,7 +888,8 @@ fn grid_pass(
                     Some(p) => p,
                     None => prepared_of(i)?,
                 };
-                finish(&layout, p, &coarse, &cfg.tiles, &cfg.quadtree)
+                // The extraction builds its own vertical error from the merged tiles.
+                finish_with(&layout, p, &coarse, &cfg.tiles, &cfg.quadtree, false)
             })
             .collect::<Result<_>>()?;
         outputs.extend(got);
@@ -959,7 +1019,7 @@ fn stream_passes(
         let t = Instant::now();
         let d = denoise_pass(pipeline, dir, &bk, mpu, sizing, progress)?;
         let kept = d.keep.count();
-        let b = kept_bounds(dir, &bk, &d.keep)?;
+        let b = d.bounds;
         stages.push(report(
             "denoise",
             t,
