@@ -190,6 +190,36 @@ fn stream_equals_memory_on_a_glob_of_tiles() {
 }
 
 #[test]
+fn both_smooth_fill_paths_equal_memory() {
+    // Under 16 MiB the prepared grid shards do not fit: the first step computes only the
+    // coarse cells (own cells, no ring) and the second prepares each shard again. Under
+    // 64 MiB they fit and are kept between the steps. Both give the in-memory bytes.
+    for (budget, kept) in [("16MiB", "false"), ("64MiB", "true")] {
+        let dir = tempfile::tempdir().unwrap();
+        tiles(dir.path(), "300000");
+        let m = pipeline(dir.path(), "memory", &["tiles/*.las"], "memory", "");
+        let s = pipeline(dir.path(), "stream", &["tiles/*.las"], "stream", "");
+        let text = std::fs::read_to_string(&s).unwrap();
+        std::fs::write(&s, text.replace("\"16MiB\"", &format!("{budget:?}"))).unwrap();
+        run_json(dir.path(), &m, &[]).ok();
+        let r = run_json(dir.path(), &s, &[]);
+        r.ok();
+        let sum = summary(&r);
+        let got = figure(&sum, "grid shards", "prepared shards kept");
+        assert_eq!(got.as_deref(), Some(kept), "{budget}\n{}", r.context());
+        let shards: usize = figure(&sum, "grid shards", "shards")
+            .unwrap()
+            .parse()
+            .unwrap();
+        assert!(shards > 1, "{budget}: one shard only\n{}", r.context());
+        same_tree(
+            &dir.path().join("out_memory"),
+            &dir.path().join("out_stream"),
+        );
+    }
+}
+
+#[test]
 fn auto_streams_only_beyond_the_budget() {
     let dir = tempfile::tempdir().unwrap();
     tiles(dir.path(), "200000");

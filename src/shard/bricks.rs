@@ -154,7 +154,13 @@ impl BrickWriter {
     /// Adds the point with raw integers `raw` and sequence number `seq` at (x, y).
     #[inline]
     pub fn push(&mut self, x: f64, y: f64, raw: [i32; 3], seq: u64) -> Result<()> {
-        let b = self.lattice.brick(x, y);
+        self.push_to(self.lattice.brick(x, y), raw, seq)
+    }
+
+    /// Adds the point with raw integers `raw` and sequence number `seq` to brick `b` (the
+    /// lattice's brick of the point, found beforehand).
+    #[inline]
+    pub fn push_to(&mut self, b: usize, raw: [i32; 3], seq: u64) -> Result<()> {
         let buf = &mut self.buffers[b];
         if buf.capacity() == 0 {
             buf.reserve_exact(self.capacity);
