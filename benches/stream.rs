@@ -55,9 +55,16 @@ fn bench_bucketing(c: &mut Criterion) {
     g.bench_function("load", |b| {
         b.iter(|| {
             black_box(
-                bricks::load(dir.path(), &all, &counts, &sources, |_, _, _| true)
-                    .expect("loaded")
-                    .len(),
+                bricks::load(
+                    dir.path(),
+                    &all,
+                    &counts,
+                    &sources,
+                    bricks::Order::Input,
+                    |_, _, _| true,
+                )
+                .expect("loaded")
+                .len(),
             )
         })
     });

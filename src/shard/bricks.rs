@@ -154,7 +154,13 @@ impl BrickWriter {
     /// Adds the point with raw integers `raw` and sequence number `seq` at (x, y).
     #[inline]
     pub fn push(&mut self, x: f64, y: f64, raw: [i32; 3], seq: u64) -> Result<()> {
-        let b = self.lattice.brick(x, y);
+        self.push_to(self.lattice.brick(x, y), raw, seq)
+    }
+
+    /// Adds the point with raw integers `raw` and sequence number `seq` to brick `b` (the
+    /// lattice's brick of the point, found beforehand).
+    #[inline]
+    pub fn push_to(&mut self, b: usize, raw: [i32; 3], seq: u64) -> Result<()> {
         let buf = &mut self.buffers[b];
         if buf.capacity() == 0 {
             buf.reserve_exact(self.capacity);
@@ -247,16 +253,40 @@ impl BrickPoints {
     }
 }
 
-/// The points of `bricks` in `dir` that `wanted(seq, x, y)` accepts, in sequence order.
+/// The order [`load`] gives the points in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Order {
+    /// Input order (by sequence number): what a stage that sums in input order needs.
+    Input,
+    /// Brick by brick, each brick in input order: enough for a stage whose result does not
+    /// depend on the order of its points (noise removal counts and compares).
+    Bricks,
+}
+
+/// The points of `bricks` in `dir` that `wanted(seq, x, y)` accepts, in `order`.
 /// `counts` gives each brick's records (a brick file of another length is refused).
 pub fn load(
     dir: &Path,
     bricks: &[usize],
     counts: &[u64],
     sources: &[SourceTransform],
+    order: Order,
     wanted: impl Fn(u64, f64, f64) -> bool,
 ) -> Result<BrickPoints> {
     let mut p = BrickPoints::default();
+    let total: u64 = bricks
+        .iter()
+        .map(|&b| counts.get(b).copied().unwrap_or(0))
+        .sum();
+    let cap = total as usize;
+    p.x.reserve(cap);
+    p.y.reserve(cap);
+    p.z.reserve(cap);
+    p.seq.reserve(cap);
+    // Where each brick's points start in `p` (each brick is in input order).
+    let mut runs = vec![0usize];
+    // The source of the previous record: consecutive records are mostly of one file.
+    let mut src = 0usize;
     for &b in bricks {
         let n = counts.get(b).copied().unwrap_or(0);
         if n == 0 {
@@ -278,7 +308,13 @@ pub fn load(
         for r in bytes.chunks_exact(RECORD) {
             let int = |k: usize| i32::from_le_bytes([r[k], r[k + 1], r[k + 2], r[k + 3]]);
             let seq = u64::from_le_bytes(r[12..20].try_into().unwrap_or([0; 8]));
-            let s = &sources[sources.partition_point(|s| s.first <= seq).max(1) - 1];
+            let in_src = |i: usize| {
+                sources[i].first <= seq && sources.get(i + 1).is_none_or(|n| seq < n.first)
+            };
+            if !in_src(src) {
+                src = sources.partition_point(|s| s.first <= seq).max(1) - 1;
+            }
+            let s = &sources[src];
             // The LAS reader's expression, so the bits are the reader's.
             let x = s.scale[0] * f64::from(int(0)) + s.offset[0];
             let y = s.scale[1] * f64::from(int(4)) + s.offset[1];
@@ -290,20 +326,52 @@ pub fn load(
             p.z.push(s.scale[2] * f64::from(int(8)) + s.offset[2]);
             p.seq.push(seq);
         }
+        if p.len() > *runs.last().unwrap_or(&0) {
+            runs.push(p.len());
+        }
     }
-    // Each brick is in input order; together they are put back into it.
-    if p.seq.windows(2).any(|w| w[0] > w[1]) {
-        let mut idx: Vec<u32> = (0..p.len() as u32).collect();
-        idx.sort_unstable_by_key(|&i| p.seq[i as usize]);
-        let g = |v: &[f64]| idx.iter().map(|&i| v[i as usize]).collect::<Vec<f64>>();
-        p = BrickPoints {
-            x: g(&p.x),
-            y: g(&p.y),
-            z: g(&p.z),
-            seq: idx.iter().map(|&i| p.seq[i as usize]).collect(),
-        };
+    if order == Order::Input && p.seq.windows(2).any(|w| w[0] > w[1]) {
+        p = merge_runs(p, &runs);
     }
     Ok(p)
+}
+
+/// The points of `p` in sequence order, each of the ranges `runs[i]..runs[i + 1]` being in
+/// sequence order already: a k-way merge that takes from the run of the smallest head every
+/// point below the next run's head at once (points of a scan line fall in one brick, so the
+/// runs interleave in long stretches: about n + stretches · log k steps, where a sort is
+/// n log n).
+fn merge_runs(p: BrickPoints, runs: &[usize]) -> BrickPoints {
+    use std::cmp::Reverse;
+    use std::collections::BinaryHeap;
+    let mut next: Vec<usize> = runs[..runs.len() - 1].to_vec();
+    let mut heap: BinaryHeap<Reverse<(u64, usize)>> = next
+        .iter()
+        .enumerate()
+        .filter(|&(r, &i)| i < runs[r + 1])
+        .map(|(r, &i)| Reverse((p.seq[i], r)))
+        .collect();
+    let mut idx: Vec<u32> = Vec::with_capacity(p.len());
+    while let Some(Reverse((_, r))) = heap.pop() {
+        let bound = heap.peek().map_or(u64::MAX, |Reverse((s, _))| *s);
+        let end = runs[r + 1];
+        let mut i = next[r];
+        while i < end && p.seq[i] < bound {
+            idx.push(i as u32);
+            i += 1;
+        }
+        next[r] = i;
+        if i < end {
+            heap.push(Reverse((p.seq[i], r)));
+        }
+    }
+    let g = |v: &[f64]| idx.iter().map(|&i| v[i as usize]).collect::<Vec<f64>>();
+    BrickPoints {
+        x: g(&p.x),
+        y: g(&p.y),
+        z: g(&p.z),
+        seq: idx.iter().map(|&i| p.seq[i as usize]).collect(),
+    }
 }
 
 #[cfg(test)]
@@ -335,6 +403,43 @@ mod tests {
             let y = 10.0 + 70.0 * u();
             let c = l.covering([x - 3.0, x + 3.0], [y - 1.0, f64::INFINITY]);
             assert!(c.contains(&l.brick(x, y)));
+        }
+    }
+
+    #[test]
+    fn merged_runs_equal_a_sort() {
+        // The slow twin: sort every point by its sequence number.
+        let mut rng = crate::SplitMix64::new(11);
+        for k in [1usize, 2, 5, 17] {
+            let mut seqs: Vec<Vec<u64>> = vec![Vec::new(); k];
+            for s in 0..5000u64 {
+                // Stretches of one run, as scan lines give them.
+                let r =
+                    ((s / (1 + rng.next_u64() % 40)) as usize + (rng.next_u64() % 3) as usize) % k;
+                seqs[r].push(s);
+            }
+            let mut p = BrickPoints::default();
+            let mut runs = vec![0];
+            for run in &seqs {
+                for &s in run {
+                    p.x.push(s as f64);
+                    p.y.push(-(s as f64));
+                    p.z.push(0.5 * s as f64);
+                    p.seq.push(s);
+                }
+                runs.push(p.len());
+            }
+            let m = merge_runs(p.clone(), &runs);
+            let mut idx: Vec<usize> = (0..p.len()).collect();
+            idx.sort_by_key(|&i| p.seq[i]);
+            assert_eq!(
+                m.seq,
+                idx.iter().map(|&i| p.seq[i]).collect::<Vec<_>>(),
+                "k {k}"
+            );
+            assert_eq!(m.x, idx.iter().map(|&i| p.x[i]).collect::<Vec<_>>());
+            assert_eq!(m.y, idx.iter().map(|&i| p.y[i]).collect::<Vec<_>>());
+            assert_eq!(m.z, idx.iter().map(|&i| p.z[i]).collect::<Vec<_>>());
         }
     }
 

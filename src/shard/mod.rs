@@ -184,6 +184,14 @@ impl Shard {
         let halo = fill.map_or(0, fill_halo);
         region.start.saturating_sub(halo)..(region.end + halo).min(l.samples[a])
     }
+
+    /// The cells [`prepare_coarse`] reads along axis `a`: its own cells widened by the fill's
+    /// halo (no ring: a coarse cell is the pyramid of its own block alone).
+    pub fn coarse_input(&self, l: &ShardLayout, a: usize, fill: &FillParams) -> Range<usize> {
+        let own = self.owned(l, a);
+        let halo = fill_halo(fill);
+        own.start.saturating_sub(halo)..(own.end + halo).min(l.samples[a])
+    }
 }
 
 /// The interpolation's halo in cells: `radius` rounded down, as `fill` reads it.
@@ -248,6 +256,41 @@ pub fn prepare(
         shard.region(layout, 0, smooth),
         shard.region(layout, 1, smooth),
     ];
+    prepare_region(layout, shard, input, offset, fill, region)
+}
+
+/// The smooth fill's coarse cells of a shard ([`Prepared::coarse`]) without the ring that
+/// [`prepare`] computes for the pull down: each coarse cell is the pyramid of the shard's own
+/// 2^k block alone (blocks are aligned to the pyramid), so its own cells, interpolated, are
+/// enough. `input` holds (at least) the cells [`Shard::coarse_input`] names, its cell (0, 0)
+/// being global cell `offset`. A driver that cannot keep the prepared shards between the two
+/// steps runs this first and [`prepare`] (with the ring) for the second step: the first
+/// step then reads about the shard's own cells instead of its region with the ring.
+pub fn prepare_coarse(
+    layout: &ShardLayout,
+    shard: &Shard,
+    input: &Heightfield,
+    offset: [usize; 2],
+    fill: &FillParams,
+) -> Result<Vec<(usize, f32)>> {
+    if fill.fallback != Fallback::Smooth {
+        return Ok(Vec::new());
+    }
+    let region = [shard.owned(layout, 0), shard.owned(layout, 1)];
+    let p = prepare_region(layout, shard, input, offset, Some(fill), region)?;
+    Ok(p.coarse(layout))
+}
+
+/// [`prepare`] over the cells `region` (its start aligned to 2^k along both axes).
+fn prepare_region(
+    layout: &ShardLayout,
+    shard: &Shard,
+    input: &Heightfield,
+    offset: [usize; 2],
+    fill: Option<&FillParams>,
+    region: [Range<usize>; 2],
+) -> Result<Prepared> {
+    let smooth = is_smooth(fill);
     let dims = [input.cols(), input.rows()];
     for a in 0..2 {
         if offset[a] > region[a].start || offset[a] + dims[a] < region[a].end {
@@ -338,7 +381,8 @@ pub struct ShardOutput {
     pub tiles: Vec<Tile>,
     /// d2 of each tile, reconciled within the shard only.
     pub d2: Vec<NodeValues>,
-    /// Vertical error of each tile, reconciled within the shard only.
+    /// Vertical error of each tile, reconciled within the shard only (empty when
+    /// [`finish_with`] left it out).
     pub vertical_error: Vec<NodeValues>,
     /// Fill figures over the cells the shard owns (`None`: fill off).
     pub fill: Option<FillReport>,
@@ -352,6 +396,20 @@ pub fn finish(
     coarse: &[f32],
     tiles: &TileParams,
     quadtree: &QuadtreeParams,
+) -> Result<ShardOutput> {
+    finish_with(layout, prepared, coarse, tiles, quadtree, true)
+}
+
+/// [`finish`], with the vertical error tree only when `vertical_error` is true (the mesh
+/// extraction builds its own from the merged tiles, so a driver that only hands the tiles on
+/// leaves it out: `ShardOutput::vertical_error` is then empty).
+pub fn finish_with(
+    layout: &ShardLayout,
+    prepared: Prepared,
+    coarse: &[f32],
+    tiles: &TileParams,
+    quadtree: &QuadtreeParams,
+    vertical_error: bool,
 ) -> Result<ShardOutput> {
     let Prepared {
         shard,
@@ -408,7 +466,11 @@ pub fn finish(
         t.origin = [t.origin[0] + c0 * step, t.origin[1] + r0 * step];
     }
     let d2 = quadtree::build(&set, quadtree)?.d2;
-    let vertical_error = quadtree::vertical_error(&set);
+    let vertical_error = if vertical_error {
+        quadtree::vertical_error(&set)
+    } else {
+        Vec::new()
+    };
     Ok(ShardOutput {
         tiles: set.tiles,
         d2,
@@ -425,7 +487,8 @@ pub struct Merged {
     pub set: TileSet,
     /// d2 of every tile, as `quadtree::build` computes it on the whole set.
     pub quadtree: Quadtree,
-    /// The vertical error of every tile, as `quadtree::vertical_error` computes it.
+    /// The vertical error of every tile, as `quadtree::vertical_error` computes it (empty
+    /// when the shards left it out).
     pub vertical_error: Vec<NodeValues>,
     /// Fill figures of the whole grid (`None`: fill off).
     pub fill: Option<FillReport>,
@@ -496,7 +559,8 @@ pub fn merge(
 ) -> Result<Merged> {
     quadtree.validate()?;
     let n = layout.tiles[0] * layout.tiles[1];
-    let mut slots: Vec<Option<(Tile, NodeValues, NodeValues)>> = (0..n).map(|_| None).collect();
+    let mut slots: Vec<Option<(Tile, NodeValues, Option<NodeValues>)>> =
+        (0..n).map(|_| None).collect();
     let mut fill: Option<FillReport> = None;
     for out in outputs {
         if let Some(f) = out.fill {
@@ -506,7 +570,9 @@ pub fn merge(
             acc.fallback += f.fallback;
             acc.empty += f.empty;
         }
-        for ((t, d), e) in out.tiles.into_iter().zip(out.d2).zip(out.vertical_error) {
+        let mut errors = out.vertical_error.into_iter();
+        for (t, d) in out.tiles.into_iter().zip(out.d2) {
+            let e = errors.next();
             let k = t.row * layout.tiles[0] + t.col;
             match slots.get_mut(k) {
                 Some(slot @ None) => *slot = Some((t, d, e)),
@@ -532,7 +598,11 @@ pub fn merge(
         })?;
         set_tiles.push(t);
         d2.push(d);
-        err.push(e);
+        err.extend(e);
+    }
+    if err.len() != d2.len() {
+        // Some shard left the vertical error out: the merged set has none.
+        err.clear();
     }
     let k = quadtree.k();
     quadtree::merge(layout.tiles, k as f32, &mut d2);

@@ -26,7 +26,7 @@
 //! under a temporary name and renamed when complete) are not redone.
 
 use super::bricks::{self, BrickLattice, BrickPoints, BrickWriter, SourceTransform};
-use super::{complete_coarse, finish, merge, prepare, ShardLayout, ShardOutput};
+use super::{complete_coarse, finish_with, merge, prepare, ShardLayout, ShardOutput};
 use crate::config::LoadedPipeline;
 use crate::error::{Error, Result};
 use crate::fsutil::write_bytes_atomic;
@@ -313,7 +313,9 @@ struct TempDir {
 }
 
 const JOB_FILE: &str = "job.txt";
-const JOB_MAGIC: &str = "terratile streaming run v1\n";
+const JOB_MAGIC: &str = "terratile streaming run v3\n";
+/// What every version's marker starts with (an older run's directory is still ours).
+const JOB_MARK: &str = "terratile streaming run v";
 const BRICKS_FILE: &str = "bricks.json";
 
 /// True for the names the streaming run writes in its directory.
@@ -337,7 +339,7 @@ impl TempDir {
         let marker = path.join(JOB_FILE);
         if path.exists() {
             let text = std::fs::read_to_string(&marker).unwrap_or_default();
-            if !text.starts_with(JOB_MAGIC) {
+            if !text.starts_with(JOB_MARK) {
                 return Err(Error::Usage(format!(
                     "{}: exists and was not made by terratile's streaming run; remove it or set \
                      scale.temp_dir",
@@ -454,6 +456,7 @@ fn bucket(
     let mut seq = 0u64;
     let mut b = Bounds::EMPTY;
     let mut cloud = PointCloud::default();
+    let mut raw: Vec<Option<(u32, [i32; 3])>> = Vec::new();
     progress.start("bucketing points", scan.points);
     for info in &scan.sources {
         let path = &info.path;
@@ -465,22 +468,36 @@ fn bucket(
         let first = seq;
         let (h, kept) = points::for_each_decoded(path, &map, &o, BUCKET_BATCH, &mut cloud, {
             |c: &PointCloud, h: &points::LasHeader| {
-                for i in 0..c.len() {
-                    let (x, y, z) = (c.x[i], c.y[i], c.z[i]);
-                    let raw = [
-                        bricks::raw_of(x, h.scale[0], h.offset[0]),
-                        bricks::raw_of(y, h.scale[1], h.offset[1]),
-                        bricks::raw_of(z, h.scale[2], h.offset[2]),
-                    ];
-                    let [Some(rx), Some(ry), Some(rz)] = raw else {
-                        return Err(Error::format(
-                            path,
-                            0,
-                            format!("point {i} of a batch does not round-trip its scale"),
-                        ));
-                    };
-                    b.add([x, y, z]);
-                    w.push(x, y, [rx, ry, rz], seq)?;
+                // Each point's brick and raw integers, in parallel over the batch (`None`:
+                // the point does not round-trip its file's scale); then the appends, in order.
+                raw.clear();
+                (0..c.len())
+                    .into_par_iter()
+                    .with_min_len(1 << 14)
+                    .map(|i| {
+                        let (x, y, z) = (c.x[i], c.y[i], c.z[i]);
+                        match [
+                            bricks::raw_of(x, h.scale[0], h.offset[0]),
+                            bricks::raw_of(y, h.scale[1], h.offset[1]),
+                            bricks::raw_of(z, h.scale[2], h.offset[2]),
+                        ] {
+                            [Some(rx), Some(ry), Some(rz)] => {
+                                Some((lattice.brick(x, y) as u32, [rx, ry, rz]))
+                            }
+                            _ => None,
+                        }
+                    })
+                    .collect_into_vec(&mut raw);
+                if let Some(i) = raw.iter().position(Option::is_none) {
+                    return Err(Error::format(
+                        path,
+                        0,
+                        format!("point {i} of a batch does not round-trip its scale"),
+                    ));
+                }
+                b = b.union(crate::terrain::bounds_of(&c.x, &c.y, &c.z, None).0);
+                for &(brick, r) in raw.iter().flatten() {
+                    w.push_to(brick as usize, r, seq)?;
                     seq += 1;
                 }
                 progress.advance(c.len() as u64);
@@ -518,8 +535,18 @@ impl KeepBits {
     fn get(&self, i: u64) -> bool {
         (self.0[(i / 64) as usize] >> (i % 64)) & 1 == 1
     }
-    fn set(&mut self, i: u64) {
-        self.0[(i / 64) as usize] |= 1 << (i % 64);
+    /// `n` flags, all set.
+    fn all(n: u64) -> KeepBits {
+        let mut v = vec![u64::MAX; n.div_ceil(64) as usize];
+        if !n.is_multiple_of(64) {
+            if let Some(last) = v.last_mut() {
+                *last = (1 << (n % 64)) - 1;
+            }
+        }
+        KeepBits(v)
+    }
+    fn clear(&mut self, i: u64) {
+        self.0[(i / 64) as usize] &= !(1 << (i % 64));
     }
     fn count(&self) -> u64 {
         self.0.iter().map(|w| u64::from(w.count_ones())).sum()
@@ -529,6 +556,8 @@ impl KeepBits {
 /// What the denoise pass leaves.
 struct DenoisePass {
     keep: KeepBits,
+    /// The kept points' exact bounds (the grid's).
+    bounds: Bounds,
     windows: usize,
     resumed: usize,
     steps: u32,
@@ -548,7 +577,36 @@ fn read_u64s(path: &Path) -> Option<Vec<u64>> {
     })
 }
 
+/// Words before the sequence numbers in a window's keep file: the voxel height steps, the
+/// points of its own columns failing the count, and the kept points' bounds (six f64 bit
+/// patterns). The sequence numbers that follow are those of its own removed points.
+const KEEP_HEAD: usize = 8;
+
+/// A window's keep file, read back: (steps, failing, kept bounds, kept sequence numbers).
+fn read_keep(path: &Path) -> Option<(u64, u64, Bounds, Vec<u64>)> {
+    let mut v = read_u64s(path)?;
+    if v.len() < KEEP_HEAD {
+        return None;
+    }
+    let f = |i: usize| f64::from_bits(v[i]);
+    let b = Bounds {
+        min: [f(2), f(3), f(4)],
+        max: [f(5), f(6), f(7)],
+    };
+    let (q, failing) = (v[0], v[1]);
+    v.drain(..KEEP_HEAD);
+    Some((q, failing, b, v))
+}
+
 /// Pass 3a: noise removal by windows of low-layer columns read from the bricks.
+///
+/// Each window is read once and filtered at voxel height steps 1 (the height the
+/// in-memory run tries first, and the only one when `voxel_height` is given): its keep
+/// flags, its points failing the count and its kept points' bounds are saved. When the
+/// failing points of all windows are within the automatic height's budget, that is the
+/// in-memory run's choice and the pass is done (the common case). Otherwise the counts at
+/// every height are taken (`shard_counts`, one more read per window), the sums pick the
+/// height (`choose_steps`), and the windows are filtered again at that height.
 fn denoise_pass(
     pipeline: &LoadedPipeline,
     dir: &Path,
@@ -591,7 +649,8 @@ fn denoise_pass(
         }
     };
     let inv = s.voxel_size;
-    // The points a window reads: its columns and the halo, as `denoise_sharded` buckets them.
+    // The points a window reads: its columns and the halo, as `denoise_sharded` buckets them
+    // (in brick order: noise removal does not depend on the order of its points).
     let load = |k: usize| -> Result<BrickPoints> {
         let own = window(k);
         let rx = own.x.start.saturating_sub(halo)..(own.x.end + halo).min(cx);
@@ -606,10 +665,17 @@ fn denoise_pass(
             [lo, hi]
         };
         let cover = bk.lattice.covering(world(&rx, 0, cx), world(&ry, 1, cy));
-        bricks::load(dir, &cover, &bk.counts, &bk.sources, |_, x, y| {
-            let (a, b) = frame.column(&s, x, y);
-            rx.contains(&a) && ry.contains(&b)
-        })
+        bricks::load(
+            dir,
+            &cover,
+            &bk.counts,
+            &bk.sources,
+            bricks::Order::Bricks,
+            |_, x, y| {
+                let (a, b) = frame.column(&s, x, y);
+                rx.contains(&a) && ry.contains(&b)
+            },
+        )
     };
     let name = |kind: &str, k: usize| dir.join(format!("{kind}-{groups}-{k:07}.bin"));
     let run_batch = |ks: &[usize], f: &(dyn Fn(usize) -> Result<()> + Sync)| -> Result<()> {
@@ -619,68 +685,36 @@ fn denoise_pass(
         }
         Ok(())
     };
-    let all: Vec<usize> = (0..count).collect();
-    // The counts at every voxel height, per window (saved: resumable).
-    progress.start("denoise: counts", count as u64);
-    let counts_of = |k: usize| -> Result<()> {
-        let path = name("counts", k);
-        if read_u64s(&path).is_some() {
-            return Ok(());
-        }
-        let p = load(k)?;
-        let own = window(k);
-        let c = if p.is_empty() {
-            Vec::new()
-        } else {
-            let input = p.shard_input(&frame, params, mpu, &own);
-            denoise::shard_counts(&input)?
-        };
-        let flat: Vec<u64> = c.iter().flat_map(|c| c.map(|v| v as u64)).collect();
-        write_u64s(&path, &flat)
-    };
-    run_batch(&all, &counts_of)?;
-    progress.finish();
-    let mut sums: Vec<[usize; 3]> = Vec::new();
-    for k in 0..count {
-        let flat = read_u64s(&name("counts", k))
-            .ok_or_else(|| Error::Internal(format!("denoise window {k}: counts missing")))?;
-        let c: Vec<[usize; 3]> = flat
-            .chunks_exact(3)
-            .map(|c| [c[0] as usize, c[1] as usize, c[2] as usize])
-            .collect();
-        sums.resize(sums.len().max(c.len()), [0; 3]);
-        for (acc, c) in sums.iter_mut().zip(&c) {
-            for i in 0..3 {
-                acc[i] += c[i];
-            }
-        }
-    }
-    let q = denoise::choose_steps(params, &sums, frame.points);
-    // The keep flags of each window's own points (saved: resumable). The file holds q, then
-    // the kept points' sequence numbers.
-    let done: Vec<usize> = (0..count)
-        .filter(|&k| read_u64s(&name("keep", k)).is_some_and(|v| v.first() == Some(&(q as u64))))
-        .collect();
-    let todo: Vec<usize> = (0..count).filter(|k| !done.contains(k)).collect();
     let crash_after: Option<usize> = std::env::var("TERRATILE_STREAM_CRASH_AFTER")
         .ok()
         .and_then(|v| v.parse().ok());
     let written = std::sync::atomic::AtomicUsize::new(0);
-    let keep_of = |k: usize| -> Result<()> {
+    // One window filtered at `q`: its keep file (saved: resumable).
+    let keep_of = |k: usize, q: u32| -> Result<()> {
         let p = load(k)?;
         let own = window(k);
-        let mut out = vec![q as u64];
+        let mut out = vec![q as u64, 0];
+        let mut kept = Bounds::EMPTY;
+        let mut seqs = Vec::new();
         if !p.is_empty() {
             let input = p.shard_input(&frame, params, mpu, &own);
             let d = denoise::shard_denoise(&input, q)?;
-            out.extend(
-                d.keep
-                    .iter()
-                    .zip(&p.seq)
-                    .filter(|(k, _)| **k)
-                    .map(|(_, &s)| s),
-            );
+            out[1] = d.removed_sparse as u64;
+            kept = crate::terrain::bounds_of(&p.x, &p.y, &p.z, Some(&d.keep)).0;
+            // The removed points of its own columns (about 1 % of them: a small file where
+            // the kept ones would be most of the input); the windows' own columns partition
+            // the points, so every point not removed by its window is kept.
+            for (i, &k) in d.keep.iter().enumerate() {
+                if !k {
+                    let (a, b) = frame.column(&s, p.x[i], p.y[i]);
+                    if own.x.contains(&a) && own.y.contains(&b) {
+                        seqs.push(p.seq[i]);
+                    }
+                }
+            }
         }
+        out.extend(kept.min.iter().chain(&kept.max).map(|v| v.to_bits()));
+        out.extend(seqs);
         write_u64s(&name("keep", k), &out)?;
         let w = written.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
         if crash_after.is_some_and(|c| w >= c) {
@@ -690,34 +724,79 @@ fn denoise_pass(
         }
         Ok(())
     };
-    progress.start("denoise: keep flags", todo.len() as u64);
-    run_batch(&todo, &keep_of)?;
-    progress.finish();
-    let mut keep = KeepBits(vec![0; (bk.points as usize).div_ceil(64)]);
+    // Windows whose keep file at `q` is already there (a resumed run) are not redone.
+    let keep_at = |q: u32, label: &str| -> Result<usize> {
+        let done = |k: &usize| read_keep(&name("keep", *k)).is_some_and(|v| v.0 == q as u64);
+        let todo: Vec<usize> = (0..count).filter(|k| !done(k)).collect();
+        progress.start(label, todo.len() as u64);
+        run_batch(&todo, &|k| keep_of(k, q))?;
+        progress.finish();
+        Ok(count - todo.len())
+    };
+    let mut resumed = keep_at(1, "denoise")?;
+    let failing: u64 = (0..count)
+        .map(|k| read_keep(&name("keep", k)).map_or(0, |v| v.1))
+        .sum();
+    let mut q = 1;
+    if denoise::choose_steps(params, &[[failing as usize; 3]], frame.points) != 1 {
+        // More than the budget fails at q = 1: the counts at every height decide.
+        progress.start("denoise: counts", count as u64);
+        let counts_of = |k: usize| -> Result<()> {
+            let path = name("counts", k);
+            if read_u64s(&path).is_some() {
+                return Ok(());
+            }
+            let p = load(k)?;
+            let own = window(k);
+            let c = if p.is_empty() {
+                Vec::new()
+            } else {
+                let input = p.shard_input(&frame, params, mpu, &own);
+                denoise::shard_counts(&input)?
+            };
+            let flat: Vec<u64> = c.iter().flat_map(|c| c.map(|v| v as u64)).collect();
+            write_u64s(&path, &flat)
+        };
+        let all: Vec<usize> = (0..count).collect();
+        run_batch(&all, &counts_of)?;
+        progress.finish();
+        let mut sums: Vec<[usize; 3]> = Vec::new();
+        for k in 0..count {
+            let flat = read_u64s(&name("counts", k))
+                .ok_or_else(|| Error::Internal(format!("denoise window {k}: counts missing")))?;
+            let c: Vec<[usize; 3]> = flat
+                .chunks_exact(3)
+                .map(|c| [c[0] as usize, c[1] as usize, c[2] as usize])
+                .collect();
+            sums.resize(sums.len().max(c.len()), [0; 3]);
+            for (acc, c) in sums.iter_mut().zip(&c) {
+                for i in 0..3 {
+                    acc[i] += c[i];
+                }
+            }
+        }
+        q = denoise::choose_steps(params, &sums, frame.points);
+        if q != 1 {
+            resumed = keep_at(q, "denoise: keep flags")?;
+        }
+    }
+    let mut keep = KeepBits::all(bk.points);
+    let mut bounds = Bounds::EMPTY;
     for k in 0..count {
-        let v = read_u64s(&name("keep", k))
+        let (_, _, b, seqs) = read_keep(&name("keep", k))
             .ok_or_else(|| Error::Internal(format!("denoise window {k}: keep flags missing")))?;
-        for &s in &v[1..] {
-            keep.set(s);
+        bounds = bounds.union(b);
+        for s in seqs {
+            keep.clear(s);
         }
     }
     Ok(DenoisePass {
         keep,
+        bounds,
         windows: count,
-        resumed: done.len(),
+        resumed,
         steps: q,
     })
-}
-
-/// The kept points' exact bounds (one more read of the bricks: a min/max reduction).
-fn kept_bounds(dir: &Path, bk: &Bucketed, keep: &KeepBits) -> Result<Bounds> {
-    let all: Vec<usize> = (0..bk.lattice.count()).collect();
-    all.par_chunks(16)
-        .map(|c| {
-            let p = bricks::load(dir, c, &bk.counts, &bk.sources, |s, _, _| keep.get(s))?;
-            Ok(crate::terrain::bounds_of(&p.x, &p.y, &p.z, None).0)
-        })
-        .try_reduce(|| Bounds::EMPTY, |a, b| Ok(a.union(b)))
 }
 
 /// Tiles per shard side for `sizing`: the shard's region with its one-tile ring within the
@@ -740,7 +819,7 @@ fn grid_pass(
     crs: Option<Crs>,
     sizing: &Sizing,
     progress: &dyn Progress,
-) -> Result<(ShardLayout, super::Merged)> {
+) -> Result<(ShardLayout, super::Merged, bool)> {
     let cfg = &pipeline.config;
     let fill = cfg.fill.enabled.then_some(&cfg.fill);
     let step = cfg.tiles.tile_size() - 1;
@@ -755,67 +834,107 @@ fn grid_pass(
         spec.z_offset,
         crs.clone(),
     );
+    // The unfilled cells `ci` × `cj` of the grid, from the kept points of the bricks they
+    // overlap (in input order: the resampling sums in it).
+    let cells_of =
+        |ci: std::ops::Range<usize>, cj: std::ops::Range<usize>| -> Result<Heightfield> {
+            let world = |r: &std::ops::Range<usize>, a: usize, n: usize| {
+                let lo = spec.corner[a] + (r.start as f64 - 1.0) * spec.cell_size[a];
+                let hi = if r.end >= n {
+                    f64::INFINITY
+                } else {
+                    spec.corner[a] + (r.end as f64 + 1.0) * spec.cell_size[a]
+                };
+                [lo, hi]
+            };
+            let cover = bk
+                .lattice
+                .covering(world(&ci, 0, spec.cols), world(&cj, 1, spec.rows));
+            let p = bricks::load(
+                dir,
+                &cover,
+                &bk.counts,
+                &bk.sources,
+                bricks::Order::Input,
+                |s, x, y| {
+                    keep.is_none_or(|k| k.get(s))
+                        && ci.contains(&spec.col(x))
+                        && cj.contains(&spec.row(y))
+                },
+            )?;
+            Ok(resample::resample_window(
+                [&p.x, &p.y, &p.z],
+                None,
+                spec,
+                [ci, cj],
+                cfg.resample.method,
+                crs.clone(),
+            ))
+        };
     let prepared_of = |i: usize| -> Result<super::Prepared> {
         let shard = layout.shard(i);
         let (ci, cj) = (shard.input(&layout, 0, fill), shard.input(&layout, 1, fill));
-        let world = |r: &std::ops::Range<usize>, a: usize, n: usize| {
-            let lo = spec.corner[a] + (r.start as f64 - 1.0) * spec.cell_size[a];
-            let hi = if r.end >= n {
-                f64::INFINITY
-            } else {
-                spec.corner[a] + (r.end as f64 + 1.0) * spec.cell_size[a]
-            };
-            [lo, hi]
-        };
-        let cover = bk
-            .lattice
-            .covering(world(&ci, 0, spec.cols), world(&cj, 1, spec.rows));
-        let p = bricks::load(dir, &cover, &bk.counts, &bk.sources, |s, x, y| {
-            keep.is_none_or(|k| k.get(s)) && ci.contains(&spec.col(x)) && cj.contains(&spec.row(y))
-        })?;
         let offset = [ci.start, cj.start];
-        let cells = resample::resample_window(
-            [&p.x, &p.y, &p.z],
-            None,
-            spec,
-            [ci, cj],
-            cfg.resample.method,
-            crs.clone(),
-        );
-        drop(p);
+        let cells = cells_of(ci, cj)?;
         prepare(&layout, &shard, &cells, offset, fill)
+    };
+    // The coarse cells alone: the shard's own cells and the fill's halo, no ring.
+    let coarse_of = |i: usize, f: &crate::terrain::fill::FillParams| -> Result<Vec<(usize, f32)>> {
+        let shard = layout.shard(i);
+        let (ci, cj) = (
+            shard.coarse_input(&layout, 0, f),
+            shard.coarse_input(&layout, 1, f),
+        );
+        let offset = [ci.start, cj.start];
+        let cells = cells_of(ci, cj)?;
+        super::prepare_coarse(&layout, &shard, &cells, offset, f)
     };
     let smooth = fill.is_some_and(|f| f.fallback == Fallback::Smooth);
     let n = layout.count();
     let all: Vec<usize> = (0..n).collect();
     // With the smooth fill every shard's coarse cells come first; the prepared shards are
-    // kept for the second step when they fit the budget, else prepared again.
+    // kept for the second step when they fit the budget, else the first step computes only
+    // the coarse cells (own cells, no ring) and the second prepares each shard with its ring.
     let keep_prepared = {
         let [w, h] = layout.samples;
         let ring = (b + 2) * (b + 2);
         (w * h) as u64 * PREPARED_BYTES_PER_CELL * ring as u64 / (b * b) as u64 <= sizing.budget / 2
     };
     let mut kept: Vec<Option<super::Prepared>> = (0..n).map(|_| None).collect();
-    let coarse = if smooth {
-        progress.start("grid shards: coarse level", n as u64);
-        let mut cells = Vec::new();
-        for chunk in all.chunks(sizing.parallel) {
-            let got: Vec<super::Prepared> = chunk
-                .par_iter()
-                .map(|&i| prepared_of(i))
-                .collect::<Result<_>>()?;
-            for (p, &i) in got.into_iter().zip(chunk) {
-                cells.extend(p.coarse(&layout));
-                if keep_prepared {
+    let coarse = match fill {
+        Some(f) if smooth && !keep_prepared => {
+            // Prepared again in the second step: the first computes the coarse cells only.
+            progress.start("grid shards: coarse level", n as u64);
+            let mut cells = Vec::new();
+            for chunk in all.chunks(sizing.parallel) {
+                let got: Vec<Vec<(usize, f32)>> = chunk
+                    .par_iter()
+                    .map(|&i| coarse_of(i, f))
+                    .collect::<Result<_>>()?;
+                cells.extend(got.into_iter().flatten());
+                progress.advance(chunk.len() as u64);
+            }
+            progress.finish();
+            complete_coarse(&layout, &cells)?
+        }
+        _ if smooth => {
+            progress.start("grid shards: coarse level", n as u64);
+            let mut cells = Vec::new();
+            for chunk in all.chunks(sizing.parallel) {
+                let got: Vec<super::Prepared> = chunk
+                    .par_iter()
+                    .map(|&i| prepared_of(i))
+                    .collect::<Result<_>>()?;
+                for (p, &i) in got.into_iter().zip(chunk) {
+                    cells.extend(p.coarse(&layout));
                     kept[i] = Some(p);
                 }
+                progress.advance(chunk.len() as u64);
             }
-            progress.advance(chunk.len() as u64);
+            progress.finish();
+            complete_coarse(&layout, &cells)?
         }
-        progress.finish();
-        complete_coarse(&layout, &cells)?
-    } else {
-        Vec::new()
+        _ => Vec::new(),
     };
     progress.start("grid shards", n as u64);
     let mut outputs: Vec<ShardOutput> = Vec::with_capacity(n);
@@ -829,7 +948,8 @@ fn grid_pass(
                     Some(p) => p,
                     None => prepared_of(i)?,
                 };
-                finish(&layout, p, &coarse, &cfg.tiles, &cfg.quadtree)
+                // The extraction builds its own vertical error from the merged tiles.
+                finish_with(&layout, p, &coarse, &cfg.tiles, &cfg.quadtree, false)
             })
             .collect::<Result<_>>()?;
         outputs.extend(got);
@@ -837,17 +957,52 @@ fn grid_pass(
     }
     progress.finish();
     let merged = merge(&layout, &geo, &cfg.tiles, &cfg.quadtree, outputs)?;
-    Ok((layout, merged))
+    Ok((layout, merged, smooth && keep_prepared))
 }
 
 fn fig(k: &str, v: impl ToString) -> (String, String) {
     (k.to_string(), v.to_string())
 }
 
-fn report(stage: &str, t: Instant, figures: Vec<(String, String)>) -> StageReport {
+/// Seconds of CPU (user and system) the process has used, all threads together: fields 14
+/// and 15 of `/proc/self/stat`, in the kernel's fixed user-visible tick of 1/100 s (`None`
+/// where it cannot be read). On a machine shared with other work, a pass's CPU time says
+/// what it costs where its wall time says how long it waited.
+fn cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // The command name (field 2) is in parentheses and may hold spaces: count after it.
+    let rest = &s[s.rfind(')')? + 1..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?;
+    Some(ticks as f64 / 100.0)
+}
+
+/// When a pass started: wall clock and CPU time.
+struct Clock {
+    wall: Instant,
+    cpu: Option<f64>,
+}
+
+impl Clock {
+    fn start() -> Clock {
+        Clock {
+            wall: Instant::now(),
+            cpu: cpu_seconds(),
+        }
+    }
+}
+
+/// A pass's report: its figures, then its CPU seconds and the peak memory so far.
+fn report(stage: &str, t: Clock, mut figures: Vec<(String, String)>) -> StageReport {
+    if let (Some(a), Some(b)) = (t.cpu, cpu_seconds()) {
+        figures.push(fig("cpu s", format!("{:.2}", b - a)));
+    }
+    if let Some(p) = peak_rss() {
+        figures.push(fig("peak memory", crate::memory::human(p)));
+    }
     StageReport {
         stage: stage.into(),
-        seconds: t.elapsed().as_secs_f64(),
+        seconds: t.wall.elapsed().as_secs_f64(),
         figures,
     }
 }
@@ -856,7 +1011,7 @@ fn report(stage: &str, t: Instant, figures: Vec<(String, String)>) -> StageRepor
 pub fn run_streaming(plan: &Plan<'_>, budget: u64, progress: &dyn Progress) -> Result<RunSummary> {
     let pipeline = plan.pipeline;
     let staged = plan.stage_output_dir()?;
-    let t = Instant::now();
+    let t = Clock::start();
     let sc = scan(pipeline, &plan.inputs)?;
     let mut stages = vec![report(
         "scan",
@@ -915,7 +1070,7 @@ fn stream_passes(
 ) -> Result<(Vec<String>, Bucketed)> {
     let cfg = &pipeline.config;
     let dir = &tmp.path;
-    let t = Instant::now();
+    let t = Clock::start();
     let done = dir.join(BRICKS_FILE);
     let previous: Option<Bucketed> = tmp
         .resumed
@@ -956,10 +1111,10 @@ fn stream_passes(
         max: bk.max,
     };
     let (keep, kept_bounds, kept) = if cfg.denoise.enabled {
-        let t = Instant::now();
+        let t = Clock::start();
         let d = denoise_pass(pipeline, dir, &bk, mpu, sizing, progress)?;
         let kept = d.keep.count();
-        let b = kept_bounds(dir, &bk, &d.keep)?;
+        let b = d.bounds;
         stages.push(report(
             "denoise",
             t,
@@ -984,8 +1139,8 @@ fn stream_passes(
     }
     let spec = GridSpec::new(&cfg.resample, &kept_bounds, kept as usize)
         .map_err(|e| pipeline.param_error(e))?;
-    let t = Instant::now();
-    let (layout, merged) = grid_pass(
+    let t = Clock::start();
+    let (layout, merged, kept_prepared) = grid_pass(
         pipeline,
         dir,
         &bk,
@@ -1003,6 +1158,7 @@ fn stream_passes(
             "tiles per shard",
             format!("{}×{}", layout.block[0], layout.block[1]),
         ),
+        fig("prepared shards kept", kept_prepared),
     ];
     if let Some(f) = &merged.fill {
         figures.extend(fill_figures(f));

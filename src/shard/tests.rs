@@ -524,3 +524,49 @@ mod from_points {
         }
     }
 }
+
+#[test]
+fn coarse_cells_without_the_ring_are_the_prepared_ones() {
+    // `prepare_coarse` reads a shard's own cells and the fill's halo only; its coarse cells
+    // are those `prepare` gives with the ring, bit for bit, on voids across tile borders,
+    // grids that end inside a block and radii of 1 to 8 cells.
+    let (tp, _) = params(65);
+    for (seed, cols, rows) in [(3, 64 * 4 + 1, 64 * 3 + 1), (4, 64 * 5 + 9, 64 * 2 + 30)] {
+        let hf = voids_on_borders(seed, cols, rows, 64, 20);
+        for radius in [1.0, 3.0, 8.0] {
+            let fill = FillParams {
+                radius,
+                ..FillParams::default()
+            };
+            for block in [[1, 1], [2, 1], [3, 2]] {
+                let layout = ShardLayout::new([cols, rows], &tp, block).unwrap();
+                for i in 0..layout.count() {
+                    let shard = layout.shard(i);
+                    let (ci, cj) = (
+                        shard.input(&layout, 0, Some(&fill)),
+                        shard.input(&layout, 1, Some(&fill)),
+                    );
+                    let inp = crop(&hf, ci.clone(), cj.clone());
+                    let p = prepare(&layout, &shard, &inp, [ci.start, cj.start], Some(&fill));
+                    let want = p.unwrap().coarse(&layout);
+                    let (ci, cj) = (
+                        shard.coarse_input(&layout, 0, &fill),
+                        shard.coarse_input(&layout, 1, &fill),
+                    );
+                    let inp = crop(&hf, ci.clone(), cj.clone());
+                    let got =
+                        prepare_coarse(&layout, &shard, &inp, [ci.start, cj.start], &fill).unwrap();
+                    let bits = |v: &[(usize, f32)]| -> Vec<(usize, u32)> {
+                        v.iter().map(|&(k, x)| (k, x.to_bits())).collect()
+                    };
+                    assert!(!want.is_empty());
+                    assert_eq!(
+                        bits(&got),
+                        bits(&want),
+                        "seed {seed} r {radius} {block:?} {i}"
+                    );
+                }
+            }
+        }
+    }
+}
