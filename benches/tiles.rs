@@ -15,7 +15,6 @@ mod common;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
-use std::path::Path;
 use terratile::mesh::io::MeshFormat;
 use terratile::output::exr::{encode_tile, ExrCompression};
 use terratile::points::{self, ReadOptions};
@@ -51,31 +50,6 @@ fn grid_4097() -> TileSet {
     .expect("tile")
 }
 
-/// A real survey through the pipeline's own grid stages (default resampling, holes filled),
-/// tiled at `size`.
-fn real_set(rel: &str, size: usize) -> Option<TileSet> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data/lidar")
-        .join(rel);
-    if !path.is_file() {
-        eprintln!("skipping: {} not found", path.display());
-        return None;
-    }
-    let c = points::read(&path, &ReadOptions::default(), &NoProgress).ok()?;
-    // The pipeline's grid stages without noise removal.
-    let mut cfg = terratile::config::Pipeline::default();
-    cfg.denoise.enabled = false;
-    let g = terratile::pipeline::grid_stages(&c, &cfg, &NoProgress).ok()?;
-    tile(
-        &g.resampled.grid,
-        &TileParams {
-            size: Some(size),
-            ..Default::default()
-        },
-    )
-    .ok()
-}
-
 /// What a refiner at the default 0.5 m tolerance borrows: CSite4 tiled at 257, its
 /// quadtree, its vertical error tree and the criterion.
 struct Csite4 {
@@ -87,7 +61,7 @@ struct Csite4 {
 
 impl Csite4 {
     fn load() -> Option<Csite4> {
-        let set = real_set("CSite4_orig-utm.laz", 257)?;
+        let set = common::real_set("CSite4_orig-utm.laz", 257, false)?;
         let qt = build(&set, &QuadtreeParams::default()).expect("d2");
         let err = quadtree::vertical_error(&set);
         let crit = ExtractParams::default()
@@ -119,7 +93,7 @@ fn d2_vs_decode(c: &mut Criterion) {
 }
 
 fn exr_compression(c: &mut Criterion) {
-    let Some(set) = real_set("CSite4_orig-utm.laz", 257) else {
+    let Some(set) = common::real_set("CSite4_orig-utm.laz", 257, false) else {
         return;
     };
     let qt = build(&set, &QuadtreeParams::default()).expect("d2");
@@ -193,7 +167,7 @@ fn mesh_encoding(c: &mut Criterion) {
 }
 
 fn quantized_mesh(c: &mut Criterion) {
-    let Some(set) = real_set("CSite4_orig-utm.laz", 257) else {
+    let Some(set) = common::real_set("CSite4_orig-utm.laz", 257, false) else {
         return;
     };
     let qt = build(&set, &QuadtreeParams::default()).expect("d2");
@@ -205,13 +179,7 @@ fn quantized_mesh(c: &mut Criterion) {
     );
     let mut g = c.benchmark_group("quantized_mesh");
     g.sample_size(10);
-    g.bench_function("exr_tiles_reference", |b| {
-        b.iter(|| {
-            for t in 0..set.tiles.len() {
-                black_box(encode_tile(&set, &qt, t, ExrCompression::None).expect("encode"));
-            }
-        })
-    });
+    common::exr_tiles_reference(&mut g, &set, &qt);
     g.bench_function("tileset", |b| {
         b.iter(|| black_box(terratile::geo::tms::tileset(&set, 0.5).expect("tileset")))
     });

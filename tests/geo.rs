@@ -97,17 +97,21 @@ fn check_survey(file: &str, extra: &str, expected_crs: &str) {
     let m: Value =
         serde_json::from_slice(&std::fs::read(out.join("manifest.json")).unwrap()).unwrap();
     let values = d.path().join("dem.f32");
+    let tile_values = d.path().join("tiles.f32");
     let o = Command::new(&py)
         .arg(repo().join("tests/geo/check_outputs.py"))
         .arg(&out)
         .arg(expected_crs)
         .arg(&values)
+        .arg(&tile_values)
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let r: Value = serde_json::from_slice(&o.stdout).unwrap();
     let ctx = format!("{file}: {r:#}");
     assert_schema_valid(&py, &[out.join("manifest.json")]);
+    // The manifest names the whole grid's GeoTIFF.
+    assert_eq!(m["grid_files"]["geotiff"], "dem.tif");
     // The manifest's WGS 84 bounds hold the GeoTIFF's extent, reprojected.
     let b: Vec<f64> = m["geographic"]["wgs84_bounds"]
         .as_array()
@@ -159,38 +163,55 @@ fn check_survey(file: &str, extra: &str, expected_crs: &str) {
         differ, 0,
         "{file}: {differ} values differ from the EXR tiles"
     );
-    // Every per-tile GeoTIFF: the tile's valid extent of the grid, bit for bit (the `tiff`
-    // crate's decoder), at the tile's place (ModelTiepoint: its north-west pixel corner).
-    for mt in m["tiles"].as_array().unwrap() {
-        let path = out.join(mt["files"]["tif"].as_str().unwrap());
-        let mut dec = tiff::decoder::Decoder::new(std::fs::File::open(&path).unwrap()).unwrap();
-        let (w, h) = dec.dimensions().unwrap();
+    // Every per-tile GeoTIFF, read by GDAL: the input's CRS, the geotransform of the tile's
+    // valid extent as the manifest places it (outer north-west corner from `grid_offset`, and
+    // the centre of its south-west pixel at the tile's `origin`), nodata NaN exactly when the
+    // tile has holes, the band offset of dem.tif, and the tile's valid extent of the EXR
+    // tiles bit for bit.
+    let tifs = r["tifs"].as_array().unwrap();
+    let mts = m["tiles"].as_array().unwrap();
+    assert_eq!(tifs.len(), mts.len(), "{ctx}");
+    let tile_bytes = std::fs::read(&tile_values).unwrap();
+    let mut tile_vals = tile_bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes(c.try_into().unwrap()));
+    for (t, mt) in tifs.iter().zip(mts) {
+        let name = t["tif"].as_str().unwrap();
+        assert_eq!(Some(name), mt["files"]["tif"].as_str());
         let n = |k: &str, i: usize| mt[k][i].as_u64().unwrap() as usize;
-        assert_eq!([w as usize, h as usize], [n("valid", 0), n("valid", 1)]);
-        let tie = dec
-            .get_tag_f64_vec(tiff::tags::Tag::ModelTiepointTag)
-            .unwrap();
+        let (w, h) = (n("valid", 0), n("valid", 1));
+        assert_eq!(t["size"], serde_json::json!([w, h]), "{name}");
+        assert_eq!(t["dtype"], "float32", "{name}");
+        assert_eq!(t["crs_equals"], true, "{name}: {t}");
+        assert_eq!(t["offset"], r["offset"], "{name}");
+        let has_holes = mt["holes"].as_u64().unwrap() > 0;
+        assert_eq!(t["nodata"].as_str() == Some("nan"), has_holes, "{name}");
         let west = f(&g["corner"][0]) + n("grid_offset", 0) as f64 * cx;
-        let north = f(&g["corner"][1]) + (n("grid_offset", 1) + h as usize) as f64 * cy;
-        assert_eq!((tie[3], tie[4]), (west, north), "{}", path.display());
-        let tiff::decoder::DecodingResult::F32(v) = dec.read_image().unwrap() else {
-            panic!("{}: not f32", path.display())
-        };
-        for j in 0..h as usize {
+        let north = f(&g["corner"][1]) + (n("grid_offset", 1) + h) as f64 * cy;
+        let got: Vec<f64> = t["transform"].as_array().unwrap().iter().map(f).collect();
+        assert_eq!(got, [cx, 0.0, west, 0.0, -cy, north], "{name}");
+        let sw = [west + 0.5 * cx, north - (h as f64 - 0.5) * cy];
+        for a in 0..2 {
+            let want = f(&mt["origin"][a]);
+            assert!((sw[a] - want).abs() < 1e-6, "{name}: {} vs {want}", sw[a]);
+        }
+        let mut differ = 0;
+        for j in 0..h {
             // Both north row first; the tile's north row is grid row (from the north)
             // rows − (offset + h).
-            let gr = nrows - (n("grid_offset", 1) + h as usize) + j;
-            for i in 0..w as usize {
+            let gr = nrows - (n("grid_offset", 1) + h) + j;
+            for i in 0..w {
                 let want = exr[gr * cols + n("grid_offset", 0) + i];
-                assert_eq!(
-                    v[j * w as usize + i].to_bits(),
-                    want.to_bits(),
-                    "{}",
-                    path.display()
-                );
+                let got = tile_vals.next().expect("a value per pixel");
+                differ += usize::from(got.to_bits() != want.to_bits());
             }
         }
+        assert_eq!(
+            differ, 0,
+            "{name}: {differ} values differ from the EXR tiles"
+        );
     }
+    assert!(tile_vals.next().is_none(), "more tile values than pixels");
     // Every PNG heightmap lands where the manifest puts its tile.
     let tiles = r["tiles"].as_array().unwrap();
     assert_eq!(tiles.len(), m["tiles"].as_array().unwrap().len());

@@ -42,3 +42,53 @@ pub fn load(name: &str) -> Option<TriMesh> {
     }
     Some(io::read(&path).expect("a readable mesh"))
 }
+
+/// A real survey of the shared data's `lidar/` through the pipeline's own grid stages
+/// (default resampling, holes filled, noise removal when `denoise`), tiled at `size`; `None`
+/// (and a note) when it is not there.
+pub fn real_set(
+    rel: &str,
+    size: usize,
+    denoise: bool,
+) -> Option<terratile::terrain::tiles::TileSet> {
+    use terratile::points::{self, ReadOptions};
+    use terratile::terrain::tiles::{tile, TileParams};
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/lidar")
+        .join(rel);
+    if !path.is_file() {
+        eprintln!("skipping: {} not found", path.display());
+        return None;
+    }
+    let c = points::read(&path, &ReadOptions::default(), &terratile::NoProgress).ok()?;
+    let mut cfg = terratile::config::Pipeline::default();
+    cfg.denoise.enabled = denoise;
+    let g = terratile::pipeline::grid_stages(&c, &cfg, &terratile::NoProgress).ok()?;
+    tile(
+        &g.resampled.grid,
+        &TileParams {
+            size: Some(size),
+            ..Default::default()
+        },
+    )
+    .ok()
+}
+
+/// The reference the output benchmarks are measured against in the same run: encoding every
+/// EXR tile of `set` (uncompressed), as `exr_tiles_reference` in group `g`.
+pub fn exr_tiles_reference(
+    g: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>,
+    set: &terratile::terrain::tiles::TileSet,
+    qt: &terratile::terrain::quadtree::Quadtree,
+) {
+    use terratile::output::exr::{encode_tile, ExrCompression};
+    g.bench_function("exr_tiles_reference", |b| {
+        b.iter(|| {
+            for t in 0..set.tiles.len() {
+                std::hint::black_box(
+                    encode_tile(set, qt, t, ExrCompression::None).expect("encode"),
+                );
+            }
+        })
+    });
+}

@@ -57,6 +57,10 @@ pub struct Manifest {
     /// Where the grid lies on the globe (WGS 84), when the CRS is known and reprojectable.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub geographic: Option<Geographic>,
+    /// Files of the whole grid, by kind, relative paths: `geotiff` (`dem.tif`) and
+    /// `cesium_terrain` (the Cesium tileset's `terrain/layer.json`), when written.
+    #[serde(default)]
+    pub grid_files: std::collections::BTreeMap<String, String>,
     /// The tiles, row by row from the south, west to east.
     pub tiles: Vec<TileEntry>,
 }
@@ -499,6 +503,19 @@ pub fn build(
             }
         }),
         geographic: geographic(set),
+        grid_files: grid_files(out),
         tiles,
     }
+}
+
+/// The whole-grid files `out` writes (the run fails as a whole if one of them cannot be).
+fn grid_files(out: &OutputConfig) -> std::collections::BTreeMap<String, String> {
+    let mut files = std::collections::BTreeMap::new();
+    if out.geotiff {
+        files.insert("geotiff".into(), super::georef::DEM_FILE.into());
+    }
+    if out.quantized_mesh {
+        files.insert("cesium_terrain".into(), super::qmesh::layer_path());
+    }
+    files
 }

@@ -169,8 +169,13 @@ pub fn write(dir: &Path, ts: &Tileset) -> Result<Vec<String>> {
         .map_err(|e| Error::Internal(e.to_string()))?;
     let p = root.join("layer.json");
     std::fs::write(&p, format!("{text}\n")).map_err(|e| Error::io(&p, e))?;
-    files.push(format!("{TERRAIN_DIR}/layer.json"));
+    files.push(layer_path());
     Ok(files)
+}
+
+/// `terrain/layer.json`, relative to the output directory.
+pub fn layer_path() -> String {
+    format!("{TERRAIN_DIR}/layer.json")
 }
 
 #[cfg(test)]

@@ -4,30 +4,16 @@
 // Usage: node cesium_sample.mjs NODE_MODULES_DIR TERRAIN_DIR POINTS_JSON
 // POINTS_JSON: [[lon, lat], ...] in degrees; prints [height, ...] in metres.
 import { createRequire } from 'node:module'
-import http from 'node:http'
 import fs from 'node:fs'
 import path from 'node:path'
 import { pathToFileURL } from 'node:url'
+import { serve } from './serve_terrain.mjs'
 
 const [modules, dir, pointsFile] = process.argv.slice(2)
 const require = createRequire(path.join(modules, 'x.js'))
 const Cesium = await import(pathToFileURL(require.resolve('@cesium/engine')).href)
-const server = http.createServer((req, res) => {
-  const p = path.join(dir, decodeURIComponent(new URL(req.url, 'http://x').pathname))
-  if (!p.startsWith(dir) || !fs.existsSync(p) || fs.statSync(p).isDirectory()) {
-    res.writeHead(404)
-    res.end()
-    return
-  }
-  const headers = p.endsWith('.terrain')
-    ? { 'Content-Type': 'application/vnd.quantized-mesh', 'Content-Encoding': 'gzip' }
-    : { 'Content-Type': 'application/json' }
-  res.writeHead(200, headers)
-  res.end(fs.readFileSync(p))
-})
-await new Promise((resolve) => server.listen(0, '127.0.0.1', resolve))
+const { server, url } = await serve({ '/': dir })
 try {
-  const url = `http://127.0.0.1:${server.address().port}/`
   const provider = await Cesium.CesiumTerrainProvider.fromUrl(url, { requestVertexNormals: true })
   const pts = JSON.parse(fs.readFileSync(pointsFile, 'utf8'))
     .map(([lon, lat]) => Cesium.Cartographic.fromDegrees(lon, lat))

@@ -71,9 +71,11 @@ fn mesh_height_at(d: &Decoded, lon: f64, lat: f64) -> Option<f64> {
     })
 }
 
-/// CesiumJS (its `CesiumTerrainProvider` and `sampleTerrainMostDetailed`, under Node) at 100
-/// random points over the grid: the height of our decoded finest-level mesh there (within
-/// 1 mm), and (printed) how far that is from our heightfield.
+/// CesiumJS (its `CesiumTerrainProvider` and `sampleTerrainMostDetailed`) at 100 random points
+/// over the grid, under Node (npm `@cesium/engine`) and, where there is a Chromium, in a
+/// headless browser (npm `cesium`'s browser build, tests/geo/cesium_browser.mjs): the height of
+/// our decoded finest-level mesh there (within 1 mm), and (printed) how far that is from our
+/// heightfield.
 fn check_cesium(terrain: &Path, dec: &[Decoded], levels: u32, fd: &Field, tolerance: f64) {
     let Some(modules) = npm_env("cesium-node", "@cesium/engine@26.3.0") else {
         return;
@@ -128,28 +130,93 @@ fn check_cesium(terrain: &Path, dec: &[Decoded], levels: u32, fd: &Field, tolera
         .arg(&file)
         .output()
         .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let node = cesium_heights(&o, &pts, "CesiumJS under Node", tolerance);
+    // The same in a browser: CesiumJS's browser build in headless Chromium.
+    let Some(chromium) = chromium() else { return };
+    let Some(web) = npm_env("cesium-web", "cesium@1.145.0") else {
+        return;
+    };
+    let o = Command::new("node")
+        .arg(repo().join("tests/geo/cesium_browser.mjs"))
+        .arg(&chromium)
+        .arg(&web)
+        .arg(terrain)
+        .arg(&file)
+        .output()
+        .unwrap();
+    let browser = cesium_heights(&o, &pts, "CesiumJS in headless Chromium", tolerance);
+    // One library, one tileset: the browser's heights are Node's.
+    for (b, n) in browser.iter().zip(&node) {
+        assert!((b - n).abs() < 1e-6, "Chromium {b} m, Node {n} m");
+    }
+}
+
+/// The heights a CesiumJS script printed for `pts` (lon, lat, our mesh's height, our grid's,
+/// the tile's height step): each within 1 mm plus the step of our decoded mesh; says how far
+/// they are from the mesh and the heightfield.
+fn cesium_heights(
+    o: &std::process::Output,
+    pts: &[(f64, f64, f64, f64, f64)],
+    who: &str,
+    tolerance: f64,
+) -> Vec<f64> {
+    assert!(
+        o.status.success(),
+        "{who}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let r: Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(r["hasVertexNormals"], true);
-    let heights = r["heights"].as_array().unwrap();
-    assert_eq!(heights.len(), pts.len());
+    assert_eq!(r["hasVertexNormals"], true, "{who}");
+    let heights: Vec<f64> = r["heights"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|h| h.as_f64().unwrap())
+        .collect();
+    assert_eq!(heights.len(), pts.len(), "{who}");
     let (mut worst_mesh, mut worst_grid): (f64, f64) = (0.0, 0.0);
-    for (h, p) in heights.iter().zip(&pts) {
-        let h = h.as_f64().unwrap();
+    for (&h, p) in heights.iter().zip(pts) {
         worst_mesh = worst_mesh.max((h - p.2).abs());
         worst_grid = worst_grid.max((h - p.3).abs());
         assert!(
             (h - p.2).abs() <= 1e-3 + p.4,
-            "CesiumJS {h} m at ({}, {}), our mesh {} m",
+            "{who}: {h} m at ({}, {}), our mesh {} m",
             p.0,
             p.1,
             p.2
         );
     }
+    let browser = r["userAgent"]
+        .as_str()
+        .map(|u| format!(" ({u}, CesiumJS {})", r["cesium"].as_str().unwrap_or("?")))
+        .unwrap_or_default();
     eprintln!(
-        "CesiumJS sampleTerrainMostDetailed at 100 points: within {worst_mesh:.4} m of our decoded mesh, \
-         {worst_grid:.3} m of the heightfield (mesh tolerance {tolerance} m at the lattice points)"
+        "{who}{browser}: sampleTerrainMostDetailed at {} points within {worst_mesh:.4} m of our \
+         decoded mesh, {worst_grid:.3} m of the heightfield (mesh tolerance {tolerance} m at the \
+         lattice points)",
+        pts.len()
     );
+    heights
+}
+
+/// The Chromium for the browser check: `TERRATILE_CHROMIUM`, else `chromium` or
+/// `chromium-browser` on the PATH (Debian's `chromium` package; `.ci/run` installs it where
+/// it can); None (after saying why) without one.
+fn chromium() -> Option<PathBuf> {
+    if let Some(p) = std::env::var_os("TERRATILE_CHROMIUM") {
+        return Some(PathBuf::from(p));
+    }
+    let path = std::env::var_os("PATH").unwrap_or_default();
+    let found = std::env::split_paths(&path)
+        .flat_map(|d| [d.join("chromium"), d.join("chromium-browser")])
+        .find(|p| p.is_file());
+    if found.is_none() {
+        eprintln!(
+            "skipping the CesiumJS browser check: no chromium on the PATH (Debian: apt-get \
+             install chromium; or set TERRATILE_CHROMIUM)"
+        );
+    }
+    found
 }
 
 fn ecef(lon: f64, lat: f64, h: f64) -> [f64; 3] {
@@ -451,6 +518,14 @@ fn check_tileset(file: &str, crs: terratile::points::Crs, tolerance: f64, cesium
     let out = d.path().join("out");
     let m: Value =
         serde_json::from_slice(&std::fs::read(out.join("manifest.json")).unwrap()).unwrap();
+    // The manifest points at the tileset (and is valid against the schema where the Python
+    // environment can be built).
+    let layer = m["grid_files"]["cesium_terrain"].as_str().unwrap();
+    assert_eq!(layer, "terrain/layer.json");
+    assert!(out.join(layer).is_file());
+    if let Some(py) = super::python_env() {
+        super::assert_schema_valid(&py, &[out.join("manifest.json")]);
+    }
     let fd = field(&out, &m, crs);
     let o = Command::new("node")
         .arg(repo().join("tests/geo/decode_terrain.mjs"))

@@ -1,0 +1,68 @@
+//! The Cloud-Optimized GeoTIFF of a whole grid (issue 17's figure: autzen_full's 3253² grid
+//! with overviews in at most 0.5 s on 2 cores): `output::georef::dem_geotiff` (gathering the
+//! grid north row first, the overviews, the predictor and DEFLATE of every tile, the file
+//! layout) against the reference measured in the same run, encoding the same grid's
+//! uncompressed EXR tiles.
+//!
+//! `cargo bench --bench geotiff`; without the shared data it says it skips.
+
+mod common;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use std::hint::black_box;
+use terratile::output::georef::dem_geotiff;
+use terratile::terrain::quadtree::{build, QuadtreeParams};
+
+fn geotiff(c: &mut Criterion) {
+    // The pipeline's defaults: noise removal on, 257-sample tiles (3253 × 3253 samples).
+    let Some(set) = common::real_set("autzen_full.laz", 257, true) else {
+        return;
+    };
+    let qt = build(&set, &QuadtreeParams::default()).expect("d2");
+    let bytes = dem_geotiff(&set).expect("geotiff").len();
+    eprintln!(
+        "geotiff: {} × {} samples, {:.2} MB ({:.2} bytes/sample), {} rayon threads",
+        set.samples[0],
+        set.samples[1],
+        bytes as f64 / 1e6,
+        bytes as f64 / (set.samples[0] * set.samples[1]) as f64,
+        rayon::current_num_threads()
+    );
+    // CPU time, which the other processes of a shared machine cannot inflate (the wall times
+    // below can): five encodings, process user + system time per encoding (Linux).
+    if let Some(t0) = cpu_seconds() {
+        let wall = std::time::Instant::now();
+        for _ in 0..5 {
+            black_box(dem_geotiff(&set).expect("geotiff"));
+        }
+        if let Some(t1) = cpu_seconds() {
+            eprintln!(
+                "geotiff: {:.3} CPU-s and {:.3} s of wall time per encoding",
+                (t1 - t0) / 5.0,
+                wall.elapsed().as_secs_f64() / 5.0
+            );
+        }
+    }
+    let mut g = c.benchmark_group("geotiff_autzen_full");
+    g.sample_size(10);
+    common::exr_tiles_reference(&mut g, &set, &qt);
+    g.bench_function("dem_geotiff", |b| {
+        b.iter(|| black_box(dem_geotiff(&set).expect("geotiff")))
+    });
+    g.finish();
+}
+
+/// This process's user + system CPU time in seconds, from /proc/self/stat (clock ticks of
+/// 10 ms, the kernel's USER_HZ); None elsewhere.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may hold spaces) in parentheses: utime and stime
+    // are the 12th and 13th.
+    let rest = stat.rsplit_once(')')?.1;
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+criterion_group!(benches, geotiff);
+criterion_main!(benches);
