@@ -86,6 +86,11 @@ struct Vertex {
     p: DVec3,
     /// Never moved: locked (not a manifold, a seam) or joined by a vertex pair.
     frozen: bool,
+    /// The vertex's corners (of live faces): `pool[start..start + len]`, with room for
+    /// `cap` in place before the list must move to the pool's end.
+    start: u32,
+    len: u32,
+    cap: u32,
 }
 
 /// A candidate collapse: the merged quadric, the placed point and its cost.
@@ -115,7 +120,10 @@ pub struct Collapse<'m> {
     /// Per vertex: a visit mark (see `epoch`).
     mark: Vec<u32>,
     epoch: u32,
-    head: Vec<u32>,
+    /// The vertices' corner lists (see [`Vertex::start`]).
+    pool: Vec<u32>,
+    /// Scratch of a collapse: the removed vertex's corners that move to the survivor.
+    moved_corners: Vec<u32>,
     /// The input vertex whose attributes a dense vertex carries.
     source: Vec<u32>,
     normals: Option<Vec<Vec3>>,
@@ -125,7 +133,6 @@ pub struct Collapse<'m> {
     faces: Vec<[u32; 3]>,
     face_alive: Vec<bool>,
     orig_face: Vec<u32>,
-    next: Vec<u32>,
     // Candidates and scratch.
     /// Canonical corners of the edges not known to be invalid, keyed by [`key`].
     heap: IndexedHeap,
@@ -162,7 +169,7 @@ pub struct Collapse<'m> {
     /// Scratch of that check: the moved faces (face, corners, new corner positions) and
     /// the faces near them.
     moved: Vec<(u32, [u32; 3], [DVec3; 3])>,
-    near: Vec<u32>,
+    near: Vec<(u32, DVec3, DVec3)>,
     // Vertex pairs (`params.pair_distance`): heap slot `3 × faces + i` is pair i.
     /// Per pair: its two ends, renamed as their vertices are collapsed.
     pub(crate) pair_ends: Vec<[u32; 2]>,
@@ -195,19 +202,31 @@ fn live_faces(prep: &Prepared<'_>) -> (Vec<[u32; 3]>, Vec<u32>) {
     (faces, orig_face)
 }
 
-/// The corners around each of `n` vertices as linked lists: `head` per vertex, `next` per
-/// corner, `NONE` ending a list.
-fn corner_lists(n: usize, faces: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
-    let mut head = vec![NONE; n];
-    let mut next = vec![NONE; faces.len() * 3];
-    for (f, t) in faces.iter().enumerate() {
-        for k in 0..3 {
-            let c = 3 * f + k;
-            next[c] = head[t[k] as usize];
-            head[t[k] as usize] = c as u32;
+/// The corners around each of `n` vertices, each vertex's in one run of a flat pool (one
+/// or two cache lines per walk, where linked lists cost a dependent load per corner), in
+/// decreasing order: per vertex (start, len), and the pool (with room to grow:
+/// [`Collapse::collapse`] moves a list that outgrows its run to the pool's end).
+fn corner_lists(n: usize, faces: &[[u32; 3]]) -> (Vec<(u32, u32)>, Vec<u32>) {
+    let mut span = vec![(0u32, 0u32); n];
+    for t in faces {
+        for &v in t {
+            span[v as usize].1 += 1;
         }
     }
-    (head, next)
+    let mut at = 0u32;
+    for s in span.iter_mut() {
+        s.0 = at;
+        at += s.1;
+        s.1 = 0;
+    }
+    let mut pool = Vec::with_capacity(2 * at as usize);
+    pool.resize(at as usize, NONE);
+    for c in (0..3 * faces.len()).rev() {
+        let s = &mut span[faces[c / 3][c % 3] as usize];
+        pool[(s.0 + s.1) as usize] = c as u32;
+        s.1 += 1;
+    }
+    (span, pool)
 }
 
 /// Manifold analysis: border edges, non-manifold edges, and fans that are neither a disk
@@ -343,7 +362,7 @@ impl<'m> Collapse<'m> {
         let pos: Vec<DVec3> = prep.dense_pos.iter().map(|p| p.as_dvec3()).collect();
         let mut quad: Vec<Quadric> = prep.active.iter().map(|&v| qs[v as usize]).collect();
         let (faces, orig_face) = live_faces(prep);
-        let (head, next) = corner_lists(n, &faces);
+        let (span, pool) = corner_lists(n, &faces);
         let ef = EdgeFaces::new(&faces);
         let (border, mut locked) = manifold(n, &faces, &ef);
         let non_manifold = locked.iter().filter(|&&l| l).count();
@@ -363,8 +382,15 @@ impl<'m> Collapse<'m> {
             }
             weight = Vec::new();
         }
-        let vx: Vec<Vertex> = (pos.iter().zip(&quad).zip(&locked))
-            .map(|((&p, &q), &frozen)| Vertex { q, p, frozen })
+        let vx: Vec<Vertex> = (pos.iter().zip(&quad).zip(&locked).zip(&span))
+            .map(|(((&p, &q), &frozen), &(start, len))| Vertex {
+                q,
+                p,
+                frozen,
+                start,
+                len,
+                cap: len,
+            })
             .collect();
         let diag = prep.bounds.diagonal();
         let tris = faces.len();
@@ -380,7 +406,8 @@ impl<'m> Collapse<'m> {
             refused_at: vec![0; n],
             mark: vec![0; n],
             epoch: 0,
-            head,
+            pool,
+            moved_corners: Vec::new(),
             normals: mesh.normals.as_deref().map(|a| pick(a, &source)),
             colors: mesh.colors.as_deref().map(|a| pick(a, &source)),
             uvs: mesh.uvs.as_deref().map(|a| pick(a, &source)),
@@ -388,7 +415,6 @@ impl<'m> Collapse<'m> {
             face_alive: vec![true; faces.len()],
             faces,
             orig_face,
-            next,
             heap: IndexedHeap::default(),
             refused: Vec::new(),
             ring: Vec::new(),
@@ -510,14 +536,9 @@ impl<'m> Collapse<'m> {
     fn find_pairs(&mut self, d: f64) {
         let cap = super::pairs::MAX_PAIRS_PER_VERTEX * self.vx.len();
         let adjacent = |u: u32, v: u32| {
-            let mut c = self.head[u as usize];
-            while c != NONE {
-                if self.faces[c as usize / 3].contains(&v) {
-                    return true;
-                }
-                c = self.next[c as usize];
-            }
-            false
+            self.corners(u)
+                .iter()
+                .any(|&c| self.faces[c as usize / 3].contains(&v))
         };
         let eligible = |v: u32| !self.locked[v as usize];
         let pos: Vec<DVec3> = self.vx.iter().map(|v| v.p).collect();
@@ -619,7 +640,22 @@ impl<'m> Collapse<'m> {
             }
             let mut near = std::mem::take(&mut self.near);
             guard.collect(lo, hi, &mut near);
-            hit = near.iter().any(|&g| {
+            let boxes = |tri: &[DVec3; 3]| {
+                (
+                    tri[0].min(tri[1]).min(tri[2]),
+                    tri[0].max(tri[1]).max(tri[2]),
+                )
+            };
+            hit = near.iter().any(|&(g, glo, ghi)| {
+                // Disjoint boxes cannot meet: a face whose box meets no moved face's box is
+                // passed without loading its corners.
+                let meets = |tri: &[DVec3; 3]| {
+                    let (tlo, thi) = boxes(tri);
+                    !(tlo.cmpgt(ghi).any() || glo.cmpgt(thi).any())
+                };
+                if !moved.iter().any(|(_, _, tri)| meets(tri)) {
+                    return false;
+                }
                 let g = g as usize;
                 if !self.face_alive[g] {
                     return false;
@@ -630,17 +666,10 @@ impl<'m> Collapse<'m> {
                     return false;
                 }
                 let gp = self.faces[g].map(|u| self.vx[u as usize].p);
-                let (glo, ghi) = (gp[0].min(gp[1]).min(gp[2]), gp[0].max(gp[1]).max(gp[2]));
                 moved.iter().any(|(_, ids, tri)| {
-                    if gt.iter().any(|u| ids.contains(u)) {
-                        return false;
-                    }
-                    let tlo = tri[0].min(tri[1]).min(tri[2]);
-                    let thi = tri[0].max(tri[1]).max(tri[2]);
-                    if tlo.cmpgt(ghi).any() || glo.cmpgt(thi).any() {
-                        return false;
-                    }
-                    crate::mesh::intersect::triangles_intersect(*tri, gp)
+                    !gt.iter().any(|u| ids.contains(u))
+                        && meets(tri)
+                        && crate::mesh::intersect::triangles_intersect(*tri, gp)
                 })
             });
             self.near = near;
@@ -795,16 +824,21 @@ impl<'m> Collapse<'m> {
         }
     }
 
+    /// The corners in `v`'s list.
+    #[inline]
+    fn corners(&self, v: u32) -> &[u32] {
+        let x = &self.vx[v as usize];
+        &self.pool[x.start as usize..(x.start + x.len) as usize]
+    }
+
     /// Calls `f` on every live face of `v` (as a face index).
     #[inline]
     fn each_face(&self, v: u32, mut f: impl FnMut(usize)) {
-        let mut c = self.head[v as usize];
-        while c != NONE {
+        for &c in self.corners(v) {
             let face = c as usize / 3;
             if self.face_alive[face] {
                 f(face);
             }
-            c = self.next[c as usize];
         }
     }
 
@@ -812,9 +846,9 @@ impl<'m> Collapse<'m> {
     fn neighbours(&mut self, v: u32, out: &mut Vec<u32>) {
         out.clear();
         let e = self.next_epoch();
-        let mut c = self.head[v as usize];
-        while c != NONE {
-            let face = c as usize / 3;
+        let x = &self.vx[v as usize];
+        for i in x.start..x.start + x.len {
+            let face = self.pool[i as usize] as usize / 3;
             if self.face_alive[face] {
                 for u in self.faces[face] {
                     if u != v && self.mark[u as usize] != e {
@@ -823,7 +857,6 @@ impl<'m> Collapse<'m> {
                     }
                 }
             }
-            c = self.next[c as usize];
         }
     }
 
@@ -1053,10 +1086,11 @@ impl<'m> Collapse<'m> {
         }
         // Faces of g: those on the edge die, the others move to s.
         let dead_before = self.dead.len();
-        let mut cnr = self.head[ug];
-        let mut moved = NONE;
-        while cnr != NONE {
-            let nxt = self.next[cnr as usize];
+        let mut moved = std::mem::take(&mut self.moved_corners);
+        moved.clear();
+        let (gs, gl) = (self.vx[ug].start as usize, self.vx[ug].len as usize);
+        for i in gs..gs + gl {
+            let cnr = self.pool[i];
             let f = cnr as usize / 3;
             if self.face_alive[f] {
                 if self.faces[f].contains(&s) {
@@ -1065,24 +1099,47 @@ impl<'m> Collapse<'m> {
                     self.dead.push(f as u32);
                 } else {
                     self.faces[f][cnr as usize % 3] = s;
-                    self.next[cnr as usize] = moved;
-                    moved = cnr;
+                    moved.push(cnr);
                 }
             }
-            cnr = nxt;
         }
-        self.head[ug] = NONE;
-        // s's own list without the dead faces, then the moved corners.
-        let mut cnr = self.head[us];
-        while cnr != NONE {
-            let nxt = self.next[cnr as usize];
+        self.vx[ug].len = 0;
+        // s's new list: its own corners without the dead faces, reversed, then the moved
+        // corners, reversed (the order the linked lists this replaced gave: the two-local-
+        // mappings point sums over the fan in this order).
+        let (ss, sl, cap) = (
+            self.vx[us].start as usize,
+            self.vx[us].len as usize,
+            self.vx[us].cap as usize,
+        );
+        let mut w = ss;
+        for i in ss..ss + sl {
+            let cnr = self.pool[i];
             if self.face_alive[cnr as usize / 3] {
-                self.next[cnr as usize] = moved;
-                moved = cnr;
+                self.pool[w] = cnr;
+                w += 1;
             }
-            cnr = nxt;
         }
-        self.head[us] = moved;
+        self.pool[ss..w].reverse();
+        let live = w - ss;
+        let len = live + moved.len();
+        let start = if len <= cap {
+            ss
+        } else {
+            // Outgrown: to the pool's end, with room for half as many again.
+            let at = self.pool.len();
+            let cap = len + len / 2 + 2;
+            self.pool.extend_from_within(ss..w);
+            self.pool.resize(at + cap, NONE);
+            self.vx[us].cap = cap as u32;
+            at
+        };
+        for (k, &cnr) in moved.iter().rev().enumerate() {
+            self.pool[start + live + k] = cnr;
+        }
+        self.vx[us].start = start as u32;
+        self.vx[us].len = len as u32;
+        self.moved_corners = moved;
         if !self.weight.is_empty() {
             self.weight[us] = self.merged_weight(s, g);
         }
@@ -1118,21 +1175,18 @@ impl<'m> Collapse<'m> {
         self.refit(s);
     }
 
-    /// Drops the corners of dead faces from `v`'s list.
+    /// Drops the corners of dead faces from `v`'s list (in order).
     fn prune(&mut self, v: u32) {
-        let mut prev = NONE;
-        let mut cnr = self.head[v as usize];
-        while cnr != NONE {
-            let nxt = self.next[cnr as usize];
+        let (start, len) = (self.vx[v as usize].start, self.vx[v as usize].len);
+        let mut w = start as usize;
+        for i in start as usize..(start + len) as usize {
+            let cnr = self.pool[i];
             if self.face_alive[cnr as usize / 3] {
-                prev = cnr;
-            } else if prev == NONE {
-                self.head[v as usize] = nxt;
-            } else {
-                self.next[prev as usize] = nxt;
+                self.pool[w] = cnr;
+                w += 1;
             }
-            cnr = nxt;
         }
+        self.vx[v as usize].len = (w - start as usize) as u32;
     }
 
     /// After a collapse into `s`: the corners of the dead faces leave the heap; the edges of
@@ -1176,9 +1230,9 @@ impl<'m> Collapse<'m> {
             if self.refused_at[w as usize] == 0 {
                 continue;
             }
-            let mut c = self.head[w as usize];
-            while c != NONE {
-                let f = c as usize / 3;
+            let (start, len) = (self.vx[w as usize].start, self.vx[w as usize].len);
+            for i in start..start + len {
+                let f = self.pool[i as usize] as usize / 3;
                 if self.face_alive[f] {
                     for corner in 3 * f as u32..3 * f as u32 + 3 {
                         if self.refused[corner as usize] {
@@ -1190,7 +1244,6 @@ impl<'m> Collapse<'m> {
                         }
                     }
                 }
-                c = self.next[c as usize];
             }
             let mut e = self.pair_head[w as usize];
             while e != NONE {
