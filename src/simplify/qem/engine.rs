@@ -1,7 +1,8 @@
-//! The collapse engine: flat per-vertex and per-face arrays, vertex → corner lists as
-//! intrusive linked lists (a collapse splices one list into another: no allocation), an
-//! indexed heap of candidates over face corners, and scratch vectors reused across
-//! collapses. See the module above for the order and the checks.
+//! The collapse engine: flat per-face arrays, one record per vertex with what a candidate's
+//! cost reads, vertex → corner lists as runs of one flat pool (reserved at twice the
+//! corners; a list that outgrows its run moves to the pool's end), an indexed heap of
+//! candidates over face corners, and scratch vectors reused across collapses. See the
+//! module above for the order and the checks.
 //!
 //! Edges as corners: corner `3f + k` stands for the edge from face f's k-th vertex to its
 //! next one. Corner slots never move (a collapse renames vertices in place), so an edge
@@ -93,6 +94,10 @@ struct Vertex {
     cap: u32,
 }
 
+/// A face a collapse would move (intersection check): its index, its corners with the
+/// removed vertex renamed, its corners' new positions and their box.
+type Moved = (u32, [u32; 3], [DVec3; 3], DVec3, DVec3);
+
 /// A candidate collapse: the merged quadric, the placed point and its cost.
 #[derive(Debug, Clone, Copy)]
 struct Candidate {
@@ -168,7 +173,7 @@ pub struct Collapse<'m> {
     fold_hint: Vec<u32>,
     /// Scratch of that check: the moved faces (face, corners, new corner positions) and
     /// the faces near them.
-    moved: Vec<(u32, [u32; 3], [DVec3; 3])>,
+    moved: Vec<Moved>,
     near: Vec<(u32, DVec3, DVec3)>,
     // Vertex pairs (`params.pair_distance`): heap slot `3 × faces + i` is pair i.
     /// Per pair: its two ends, renamed as their vertices are collapsed.
@@ -626,34 +631,28 @@ impl<'m> Collapse<'m> {
                         self.vx[u as usize].p
                     }
                 });
-                moved.push((f as u32, ids, tri));
+                let (lo, hi) = (
+                    tri[0].min(tri[1]).min(tri[2]),
+                    tri[0].max(tri[1]).max(tri[2]),
+                );
+                moved.push((f as u32, ids, tri, lo, hi));
             });
         }
         let mut hit = self.folds(&moved);
         if !hit && !moved.is_empty() {
             let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
-            for (_, _, tri) in &moved {
-                for &p in tri {
-                    lo = lo.min(p);
-                    hi = hi.max(p);
-                }
+            for &(_, _, _, tlo, thi) in &moved {
+                lo = lo.min(tlo);
+                hi = hi.max(thi);
             }
             let mut near = std::mem::take(&mut self.near);
             guard.collect(lo, hi, &mut near);
-            let boxes = |tri: &[DVec3; 3]| {
-                (
-                    tri[0].min(tri[1]).min(tri[2]),
-                    tri[0].max(tri[1]).max(tri[2]),
-                )
-            };
             hit = near.iter().any(|&(g, glo, ghi)| {
                 // Disjoint boxes cannot meet: a face whose box meets no moved face's box is
                 // passed without loading its corners.
-                let meets = |tri: &[DVec3; 3]| {
-                    let (tlo, thi) = boxes(tri);
-                    !(tlo.cmpgt(ghi).any() || glo.cmpgt(thi).any())
-                };
-                if !moved.iter().any(|(_, _, tri)| meets(tri)) {
+                let meets =
+                    |tlo: DVec3, thi: DVec3| !(tlo.cmpgt(ghi).any() || glo.cmpgt(thi).any());
+                if !moved.iter().any(|&(_, _, _, tlo, thi)| meets(tlo, thi)) {
                     return false;
                 }
                 let g = g as usize;
@@ -665,11 +664,16 @@ impl<'m> Collapse<'m> {
                 if gt.contains(&a) {
                     return false;
                 }
-                let gp = self.faces[g].map(|u| self.vx[u as usize].p);
-                moved.iter().any(|(_, ids, tri)| {
-                    !gt.iter().any(|u| ids.contains(u))
-                        && meets(tri)
-                        && crate::mesh::intersect::triangles_intersect(*tri, gp)
+                // Its corners only once a moved face shares no vertex with it and meets
+                // its box (most faces found are next to the fan and share a vertex).
+                let mut gp = None;
+                moved.iter().any(|(_, ids, tri, tlo, thi)| {
+                    if gt.iter().any(|u| ids.contains(u)) || !meets(*tlo, *thi) {
+                        return false;
+                    }
+                    let gp =
+                        *gp.get_or_insert_with(|| self.faces[g].map(|u| self.vx[u as usize].p));
+                    crate::mesh::intersect::triangles_intersect(*tri, gp)
                 })
             });
             self.near = near;
@@ -682,11 +686,11 @@ impl<'m> Collapse<'m> {
     /// The fold-over half of [`Collapse::intersects`]: whether a moved face (with its new
     /// corners) has a normal opposite to the input's at the input point nearest its
     /// centroid.
-    fn folds(&mut self, moved: &[(u32, [u32; 3], [DVec3; 3])]) -> bool {
+    fn folds(&mut self, moved: &[Moved]) -> bool {
         let Some(bvh) = &self.orig_bvh else {
             return false;
         };
-        for &(f, _, tri) in moved {
+        for &(f, _, tri, _, _) in moved {
             let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
             if n == DVec3::ZERO {
                 continue;
