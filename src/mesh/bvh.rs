@@ -151,6 +151,33 @@ impl Bvh {
         self.tris.is_empty()
     }
 
+    /// [`Bvh::closest`] with no `max_dist2`, found faster from a triangle near `p` (the
+    /// build slot `hint` of an earlier [`Hit`]): its distance bounds the search. The result
+    /// is the very one of `closest(p, None, f64::INFINITY)`, ties included (same walk, the
+    /// first triangle of least distance; the bound only prunes boxes and triangles farther
+    /// than it, and the least distance is at most the hint's), so a caller that must agree
+    /// with an unhinted query elsewhere (the fold-over check of `compare --check-folds`)
+    /// may use it. A `hint` out of range is ignored.
+    pub fn closest_bounded_by(&self, p: DVec3, hint: u32) -> Option<Hit> {
+        let bound = match self.tris.get(hint as usize) {
+            // Above the hint's own distance by far more than its rounding.
+            Some(t) => closest_on_tri(t, p).1 * (1.0 + 1e-6) + f64::MIN_POSITIVE,
+            None => f64::INFINITY,
+        };
+        self.closest(p, None, bound)
+            .or_else(|| self.closest(p, None, f64::INFINITY))
+    }
+
+    /// The build slot of each of the mesh's triangles (the inverse of [`Hit::triangle`]
+    /// to [`Hit::slot`]), for seeding [`Bvh::closest_bounded_by`].
+    pub fn slots(&self) -> Vec<u32> {
+        let mut out = vec![u32::MAX; self.tris.len()];
+        for (s, t) in self.tris.iter().enumerate() {
+            out[t.id as usize] = s as u32;
+        }
+        out
+    }
+
     /// The nearest point of the surface to `p`. `hint` (a previous [`Hit::slot`]) seeds the
     /// search; `max_dist2` stops it early: when nothing is closer than that, the result is
     /// None. Returns None for an empty hierarchy.
@@ -170,6 +197,7 @@ impl Bvh {
         // Box tests run in f32: pad every box by a few ulps of the largest coordinate in
         // play, so that the rounded query point never prunes a box it should open.
         let pf = p.as_vec3a();
+        let scale = self.magnitude as f64 + p.abs().max_element();
         let pad =
             4.0 * f32::EPSILON * self.magnitude.max(pf.abs().max_element()) + f32::MIN_POSITIVE;
         let boxed = |n: &Node| box_dist2(n, pf, pad);
@@ -185,9 +213,15 @@ impl Bvh {
             if n.count > 0 {
                 for s in n.index..n.index + n.count {
                     let t = &self.tris[s as usize];
-                    // Lower bound from the bounding sphere before the exact test.
-                    let gap = (p - t.centre).length() - t.radius;
-                    if gap > 0.0 && gap * gap > bound {
+                    // Lower bound from the bounding sphere before the exact test, made
+                    // conservative against rounding (of the distance, the radius and the
+                    // exact test's own point) so that it never skips a triangle the exact
+                    // test would take: the result is then the first triangle of least
+                    // computed distance in the walk's order, whatever `max_dist2` above
+                    // that least distance was given (see `closest_bounded_by`).
+                    let len = (p - t.centre).length();
+                    let gap = len - t.radius - 1e-12 * (len + t.radius + scale);
+                    if gap > 0.0 && gap * gap > bound * (1.0 + 1e-9) {
                         continue;
                     }
                     let (q, d2) = closest_on_tri(t, p);
@@ -536,6 +570,46 @@ mod tests {
         let d2 = brute(&m, p);
         assert!(bvh.closest(p, None, d2 * 0.99).is_none());
         assert_eq!(bvh.closest(p, None, d2 * 1.01).unwrap().dist2, d2);
+    }
+
+    /// The hinted search gives the unhinted one's very hit (the fold-over check relies on
+    /// it), ties included: on a grid of triangles, points above shared vertices and edges
+    /// are equally near to several triangles.
+    #[test]
+    fn bounded_by_a_hint_equals_the_unhinted_search() {
+        let mut rng = SplitMix64::new(11);
+        let mut m = random_mesh(&mut rng, 200);
+        let n = 12u32;
+        let k = m.positions.len() as u32;
+        for j in 0..=n {
+            for i in 0..=n {
+                m.positions
+                    .push(Vec3::new(i as f32, j as f32, 0.5 * (i % 3) as f32));
+            }
+        }
+        for j in 0..n {
+            for i in 0..n {
+                let v = k + j * (n + 1) + i;
+                m.indices.push([v, v + 1, v + n + 2]);
+                m.indices.push([v, v + n + 2, v + n + 1]);
+            }
+        }
+        let bvh = Bvh::new(&m);
+        let slots = bvh.slots();
+        assert!(slots.iter().all(|&s| (s as usize) < bvh.len()));
+        for q in 0..3000 {
+            let p = if q % 2 == 0 {
+                DVec3::new(rng.unit(), rng.unit(), rng.unit()) * 14.0 - 2.0
+            } else {
+                // Above a grid vertex or edge midpoint: ties.
+                let (i, j) = ((rng.unit() * 24.0).floor(), (rng.unit() * 24.0).floor());
+                DVec3::new(i * 0.5, j * 0.5, rng.unit() * 3.0 - 1.0)
+            };
+            let want = bvh.closest(p, None, f64::INFINITY).unwrap();
+            let hint = slots[(rng.unit() * m.indices.len() as f64) as usize % slots.len()];
+            assert_eq!(bvh.closest_bounded_by(p, hint), Some(want));
+            assert_eq!(bvh.closest_bounded_by(p, want.slot), Some(want));
+        }
     }
 
     #[test]

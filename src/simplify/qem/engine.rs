@@ -1,7 +1,8 @@
-//! The collapse engine: flat per-vertex and per-face arrays, vertex → corner lists as
-//! intrusive linked lists (a collapse splices one list into another: no allocation), an
-//! indexed heap of candidates over face corners, and scratch vectors reused across
-//! collapses. See the module above for the order and the checks.
+//! The collapse engine: flat per-face arrays, one record per vertex with what a candidate's
+//! cost reads, vertex → corner lists as runs of one flat pool (reserved at twice the
+//! corners; a list that outgrows its run moves to the pool's end), an indexed heap of
+//! candidates over face corners, and scratch vectors reused across collapses. See the
+//! module above for the order and the checks.
 //!
 //! Edges as corners: corner `3f + k` stands for the edge from face f's k-th vertex to its
 //! next one. Corner slots never move (a collapse renames vertices in place), so an edge
@@ -76,6 +77,27 @@ fn key(cost: f64, a: u32, b: u32) -> u128 {
     (cost.to_bits() as u128) << 64 | (a as u128) << 32 | b as u128
 }
 
+/// What a candidate's cost reads of a vertex, in one record (two cache lines) rather than
+/// in four arrays: the candidates of a collapse's new edges are computed for vertices all
+/// over the mesh, and each array touched was a cache miss of its own.
+#[derive(Debug, Clone, Copy)]
+#[repr(align(64))]
+struct Vertex {
+    q: Quadric,
+    p: DVec3,
+    /// Never moved: locked (not a manifold, a seam) or joined by a vertex pair.
+    frozen: bool,
+    /// The vertex's corners (of live faces): `pool[start..start + len]`, with room for
+    /// `cap` in place before the list must move to the pool's end.
+    start: u32,
+    len: u32,
+    cap: u32,
+}
+
+/// A face a collapse would move (intersection check): its index, its corners with the
+/// removed vertex renamed, its corners' new positions and their box.
+type Moved = (u32, [u32; 3], [DVec3; 3], DVec3, DVec3);
+
 /// A candidate collapse: the merged quadric, the placed point and its cost.
 #[derive(Debug, Clone, Copy)]
 struct Candidate {
@@ -91,8 +113,7 @@ pub struct Collapse<'m> {
     /// Public so that tests and later stages can switch checks.
     pub checks: Checks,
     // Per dense vertex.
-    pos: Vec<DVec3>,
-    quad: Vec<Quadric>,
+    vx: Vec<Vertex>,
     alive: Vec<bool>,
     border: Vec<bool>,
     locked: Vec<bool>,
@@ -104,7 +125,10 @@ pub struct Collapse<'m> {
     /// Per vertex: a visit mark (see `epoch`).
     mark: Vec<u32>,
     epoch: u32,
-    head: Vec<u32>,
+    /// The vertices' corner lists (see [`Vertex::start`]).
+    pool: Vec<u32>,
+    /// Scratch of a collapse: the removed vertex's corners that move to the survivor.
+    moved_corners: Vec<u32>,
     /// The input vertex whose attributes a dense vertex carries.
     source: Vec<u32>,
     normals: Option<Vec<Vec3>>,
@@ -114,7 +138,6 @@ pub struct Collapse<'m> {
     faces: Vec<[u32; 3]>,
     face_alive: Vec<bool>,
     orig_face: Vec<u32>,
-    next: Vec<u32>,
     // Candidates and scratch.
     /// Canonical corners of the edges not known to be invalid, keyed by [`key`].
     heap: IndexedHeap,
@@ -145,6 +168,13 @@ pub struct Collapse<'m> {
     guard: Option<super::guard::Guard>,
     /// The input's closest-point hierarchy, for the fold-over half of that check.
     orig_bvh: Option<crate::mesh::Bvh>,
+    /// Per face, with that check: the build slot of the input triangle last found nearest
+    /// to its centroid (a hint that only speeds the next search up).
+    fold_hint: Vec<u32>,
+    /// Scratch of that check: the moved faces (face, corners, new corner positions) and
+    /// the faces near them.
+    moved: Vec<Moved>,
+    near: Vec<(u32, DVec3, DVec3)>,
     // Vertex pairs (`params.pair_distance`): heap slot `3 × faces + i` is pair i.
     /// Per pair: its two ends, renamed as their vertices are collapsed.
     pub(crate) pair_ends: Vec<[u32; 2]>,
@@ -177,19 +207,31 @@ fn live_faces(prep: &Prepared<'_>) -> (Vec<[u32; 3]>, Vec<u32>) {
     (faces, orig_face)
 }
 
-/// The corners around each of `n` vertices as linked lists: `head` per vertex, `next` per
-/// corner, `NONE` ending a list.
-fn corner_lists(n: usize, faces: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
-    let mut head = vec![NONE; n];
-    let mut next = vec![NONE; faces.len() * 3];
-    for (f, t) in faces.iter().enumerate() {
-        for k in 0..3 {
-            let c = 3 * f + k;
-            next[c] = head[t[k] as usize];
-            head[t[k] as usize] = c as u32;
+/// The corners around each of `n` vertices, each vertex's in one run of a flat pool (one
+/// or two cache lines per walk, where linked lists cost a dependent load per corner), in
+/// decreasing order: per vertex (start, len), and the pool (with room to grow:
+/// [`Collapse::collapse`] moves a list that outgrows its run to the pool's end).
+fn corner_lists(n: usize, faces: &[[u32; 3]]) -> (Vec<(u32, u32)>, Vec<u32>) {
+    let mut span = vec![(0u32, 0u32); n];
+    for t in faces {
+        for &v in t {
+            span[v as usize].1 += 1;
         }
     }
-    (head, next)
+    let mut at = 0u32;
+    for s in span.iter_mut() {
+        s.0 = at;
+        at += s.1;
+        s.1 = 0;
+    }
+    let mut pool = Vec::with_capacity(2 * at as usize);
+    pool.resize(at as usize, NONE);
+    for c in (0..3 * faces.len()).rev() {
+        let s = &mut span[faces[c / 3][c % 3] as usize];
+        pool[(s.0 + s.1) as usize] = c as u32;
+        s.1 += 1;
+    }
+    (span, pool)
 }
 
 /// Manifold analysis: border edges, non-manifold edges, and fans that are neither a disk
@@ -325,7 +367,7 @@ impl<'m> Collapse<'m> {
         let pos: Vec<DVec3> = prep.dense_pos.iter().map(|p| p.as_dvec3()).collect();
         let mut quad: Vec<Quadric> = prep.active.iter().map(|&v| qs[v as usize]).collect();
         let (faces, orig_face) = live_faces(prep);
-        let (head, next) = corner_lists(n, &faces);
+        let (span, pool) = corner_lists(n, &faces);
         let ef = EdgeFaces::new(&faces);
         let (border, mut locked) = manifold(n, &faces, &ef);
         let non_manifold = locked.iter().filter(|&&l| l).count();
@@ -345,14 +387,23 @@ impl<'m> Collapse<'m> {
             }
             weight = Vec::new();
         }
+        let vx: Vec<Vertex> = (pos.iter().zip(&quad).zip(&locked).zip(&span))
+            .map(|(((&p, &q), &frozen), &(start, len))| Vertex {
+                q,
+                p,
+                frozen,
+                start,
+                len,
+                cap: len,
+            })
+            .collect();
         let diag = prep.bounds.diagonal();
         let tris = faces.len();
         let mut c = Collapse {
             mesh,
             params: params.clone(),
             checks: Checks::default(),
-            pos,
-            quad,
+            vx,
             alive: vec![true; n],
             border,
             locked,
@@ -360,7 +411,8 @@ impl<'m> Collapse<'m> {
             refused_at: vec![0; n],
             mark: vec![0; n],
             epoch: 0,
-            head,
+            pool,
+            moved_corners: Vec::new(),
             normals: mesh.normals.as_deref().map(|a| pick(a, &source)),
             colors: mesh.colors.as_deref().map(|a| pick(a, &source)),
             uvs: mesh.uvs.as_deref().map(|a| pick(a, &source)),
@@ -368,7 +420,6 @@ impl<'m> Collapse<'m> {
             face_alive: vec![true; faces.len()],
             faces,
             orig_face,
-            next,
             heap: IndexedHeap::default(),
             refused: Vec::new(),
             ring: Vec::new(),
@@ -389,6 +440,9 @@ impl<'m> Collapse<'m> {
             steps: Vec::new(),
             guard: None,
             orig_bvh: None,
+            fold_hint: Vec::new(),
+            moved: Vec::new(),
+            near: Vec::new(),
             pair_ends: Vec::new(),
             pair_head: vec![NONE; n],
             pair_next: Vec::new(),
@@ -406,7 +460,10 @@ impl<'m> Collapse<'m> {
             let mut g = super::guard::Guard::default();
             g.build(c.faces.len(), |_| true, |f| c.face_box(f));
             c.guard = Some(g);
-            c.orig_bvh = Some(crate::mesh::Bvh::new(mesh));
+            let bvh = crate::mesh::Bvh::new(mesh);
+            let slots = bvh.slots();
+            c.fold_hint = c.orig_face.iter().map(|&o| slots[o as usize]).collect();
+            c.orig_bvh = Some(bvh);
         }
         c.seed_heap(&ef);
         c
@@ -482,19 +539,15 @@ impl<'m> Collapse<'m> {
     /// The candidate vertex pairs closer than `d` (see [`super::pairs`]) and their
     /// per-vertex lists; sets `pair_overflow` instead when there are too many.
     fn find_pairs(&mut self, d: f64) {
-        let cap = super::pairs::MAX_PAIRS_PER_VERTEX * self.pos.len();
+        let cap = super::pairs::MAX_PAIRS_PER_VERTEX * self.vx.len();
         let adjacent = |u: u32, v: u32| {
-            let mut c = self.head[u as usize];
-            while c != NONE {
-                if self.faces[c as usize / 3].contains(&v) {
-                    return true;
-                }
-                c = self.next[c as usize];
-            }
-            false
+            self.corners(u)
+                .iter()
+                .any(|&c| self.faces[c as usize / 3].contains(&v))
         };
         let eligible = |v: u32| !self.locked[v as usize];
-        let Some(pairs) = super::pairs::close_pairs(&self.pos, eligible, adjacent, d, cap) else {
+        let pos: Vec<DVec3> = self.vx.iter().map(|v| v.p).collect();
+        let Some(pairs) = super::pairs::close_pairs(&pos, eligible, adjacent, d, cap) else {
             self.pair_overflow = true;
             return;
         };
@@ -533,7 +586,7 @@ impl<'m> Collapse<'m> {
 
     /// The box of face `f` now.
     fn face_box(&self, f: usize) -> (DVec3, DVec3) {
-        let [a, b, c] = self.faces[f].map(|u| self.pos[u as usize]);
+        let [a, b, c] = self.faces[f].map(|u| self.vx[u as usize].p);
         (a.min(b).min(c), a.max(b).max(c))
     }
 
@@ -550,15 +603,24 @@ impl<'m> Collapse<'m> {
     /// computation of `compare --check-folds`, on the same f32 corners in the same order, so
     /// an output face that was ever moved passes that checker). The flip check compares
     /// with the current mesh only, which drifts from the input over many collapses.
+    ///
+    /// Speed, not semantics: the guard is walked once for the box of the whole moved fan
+    /// (not once per face), each face found is tested against the moved faces whose boxes
+    /// meet its box (disjoint boxes cannot meet), and the nearest input point is searched
+    /// from the face's last nearest triangle ([`crate::mesh::Bvh::closest_bounded_by`]:
+    /// the very hit of the unhinted search).
     fn intersects(&mut self, a: u32, b: u32, c: &Candidate) -> bool {
         let Some(mut guard) = self.guard.take() else {
             return false;
         };
-        let mut hit = false;
+        // The faces that move: a face of a or of b not on the edge, its corners with b
+        // renamed a, and its corners at the placed point.
+        let mut moved = std::mem::take(&mut self.moved);
+        moved.clear();
         for v in [a, b] {
             self.each_face(v, |f| {
                 let t = self.faces[f];
-                if hit || t.contains(&a) && t.contains(&b) {
+                if t.contains(&a) && t.contains(&b) {
                     return;
                 }
                 let ids = t.map(|u| if u == b { a } else { u });
@@ -566,45 +628,83 @@ impl<'m> Collapse<'m> {
                     if u == a || u == b {
                         c.p
                     } else {
-                        self.pos[u as usize]
+                        self.vx[u as usize].p
                     }
                 });
-                if let Some(bvh) = &self.orig_bvh {
-                    let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
-                    if n != DVec3::ZERO {
-                        let centre = (tri[0] + tri[1] + tri[2]) / 3.0;
-                        if let Some(h) = bvh.closest(centre, None, f64::INFINITY) {
-                            let [p, q, r] = self.mesh.corners(h.triangle as usize);
-                            if n.dot((q - p).cross(r - p)) < 0.0 {
-                                hit = true;
-                                return;
-                            }
-                        }
-                    }
-                }
-                let lo = tri[0].min(tri[1]).min(tri[2]);
-                let hi = tri[0].max(tri[1]).max(tri[2]);
-                hit = guard.any(lo, hi, |g| {
-                    let g = g as usize;
-                    if !self.face_alive[g] {
-                        return false;
-                    }
-                    let gt = self.faces[g];
-                    if gt
-                        .iter()
-                        .any(|&u| ids.contains(&if u == b { a } else { u }))
-                    {
-                        return false;
-                    }
-                    crate::mesh::intersect::triangles_intersect(
-                        tri,
-                        gt.map(|u| self.pos[u as usize]),
-                    )
-                });
+                let (lo, hi) = (
+                    tri[0].min(tri[1]).min(tri[2]),
+                    tri[0].max(tri[1]).max(tri[2]),
+                );
+                moved.push((f as u32, ids, tri, lo, hi));
             });
         }
+        let mut hit = self.folds(&moved);
+        if !hit && !moved.is_empty() {
+            let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+            for &(_, _, _, tlo, thi) in &moved {
+                lo = lo.min(tlo);
+                hi = hi.max(thi);
+            }
+            let mut near = std::mem::take(&mut self.near);
+            guard.collect(lo, hi, &mut near);
+            hit = near.iter().any(|&(g, glo, ghi)| {
+                // Disjoint boxes cannot meet: a face whose box meets no moved face's box is
+                // passed without loading its corners.
+                let meets =
+                    |tlo: DVec3, thi: DVec3| !(tlo.cmpgt(ghi).any() || glo.cmpgt(thi).any());
+                if !moved.iter().any(|&(_, _, _, tlo, thi)| meets(tlo, thi)) {
+                    return false;
+                }
+                let g = g as usize;
+                if !self.face_alive[g] {
+                    return false;
+                }
+                let gt = self.faces[g].map(|u| if u == b { a } else { u });
+                // Every moved face holds a (the new vertex): such a face shares it.
+                if gt.contains(&a) {
+                    return false;
+                }
+                // Its corners only once a moved face shares no vertex with it and meets
+                // its box (most faces found are next to the fan and share a vertex).
+                let mut gp = None;
+                moved.iter().any(|(_, ids, tri, tlo, thi)| {
+                    if gt.iter().any(|u| ids.contains(u)) || !meets(*tlo, *thi) {
+                        return false;
+                    }
+                    let gp =
+                        *gp.get_or_insert_with(|| self.faces[g].map(|u| self.vx[u as usize].p));
+                    crate::mesh::intersect::triangles_intersect(*tri, gp)
+                })
+            });
+            self.near = near;
+        }
+        self.moved = moved;
         self.guard = Some(guard);
         hit
+    }
+
+    /// The fold-over half of [`Collapse::intersects`]: whether a moved face (with its new
+    /// corners) has a normal opposite to the input's at the input point nearest its
+    /// centroid.
+    fn folds(&mut self, moved: &[Moved]) -> bool {
+        let Some(bvh) = &self.orig_bvh else {
+            return false;
+        };
+        for &(f, _, tri, _, _) in moved {
+            let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
+            if n == DVec3::ZERO {
+                continue;
+            }
+            let centre = (tri[0] + tri[1] + tri[2]) / 3.0;
+            if let Some(h) = bvh.closest_bounded_by(centre, self.fold_hint[f as usize]) {
+                self.fold_hint[f as usize] = h.slot;
+                let [p, q, r] = self.mesh.corners(h.triangle as usize);
+                if n.dot((q - p).cross(r - p)) < 0.0 {
+                    return true;
+                }
+            }
+        }
+        false
     }
 
     /// After a collapse into `s`: the moved faces' boxes grow into the guard (rebuilt when
@@ -652,7 +752,7 @@ impl<'m> Collapse<'m> {
     /// The merged quadric of `a` and `b`.
     #[inline]
     fn merged(&self, a: u32, b: u32) -> Quadric {
-        let q = self.quad[a as usize] + self.quad[b as usize];
+        let q = self.vx[a as usize].q + self.vx[b as usize].q;
         match self.params.merge {
             QuadricMerge::Sum => q,
             QuadricMerge::Mean => q * 0.5,
@@ -670,11 +770,12 @@ impl<'m> Collapse<'m> {
     /// border vertices).
     fn candidate(&self, a: u32, b: u32) -> Option<Candidate> {
         let (ua, ub) = (a as usize, b as usize);
-        if self.locked[ua] || self.locked[ub] || self.joined[ua] || self.joined[ub] {
+        let (va, vb) = (&self.vx[ua], &self.vx[ub]);
+        if va.frozen || vb.frozen {
             return None;
         }
         let q = self.merged(a, b);
-        let (pa, pb) = (self.pos[ua], self.pos[ub]);
+        let (pa, pb) = (va.p, vb.p);
         let pinned = self.params.lock_border;
         let p = match (pinned && self.border[ua], pinned && self.border[ub]) {
             (true, true) => return None,
@@ -727,16 +828,21 @@ impl<'m> Collapse<'m> {
         }
     }
 
+    /// The corners in `v`'s list.
+    #[inline]
+    fn corners(&self, v: u32) -> &[u32] {
+        let x = &self.vx[v as usize];
+        &self.pool[x.start as usize..(x.start + x.len) as usize]
+    }
+
     /// Calls `f` on every live face of `v` (as a face index).
     #[inline]
     fn each_face(&self, v: u32, mut f: impl FnMut(usize)) {
-        let mut c = self.head[v as usize];
-        while c != NONE {
+        for &c in self.corners(v) {
             let face = c as usize / 3;
             if self.face_alive[face] {
                 f(face);
             }
-            c = self.next[c as usize];
         }
     }
 
@@ -744,9 +850,9 @@ impl<'m> Collapse<'m> {
     fn neighbours(&mut self, v: u32, out: &mut Vec<u32>) {
         out.clear();
         let e = self.next_epoch();
-        let mut c = self.head[v as usize];
-        while c != NONE {
-            let face = c as usize / 3;
+        let x = &self.vx[v as usize];
+        for i in x.start..x.start + x.len {
+            let face = self.pool[i as usize] as usize / 3;
             if self.face_alive[face] {
                 for u in self.faces[face] {
                     if u != v && self.mark[u as usize] != e {
@@ -755,7 +861,6 @@ impl<'m> Collapse<'m> {
                     }
                 }
             }
-            c = self.next[c as usize];
         }
     }
 
@@ -844,11 +949,11 @@ impl<'m> Collapse<'m> {
                 for (_, t) in fan {
                     if !t.contains(&other) {
                         let k = t.iter().position(|&u| u == v).expect("a face of v");
-                        faces.push([0, 1, 2].map(|i| self.pos[t[(k + i) % 3] as usize]));
+                        faces.push([0, 1, 2].map(|i| self.vx[t[(k + i) % 3] as usize].p));
                     }
                 }
             }
-            let (pa, pb) = (self.pos[a as usize], self.pos[b as usize]);
+            let (pa, pb) = (self.vx[a as usize].p, self.vx[b as usize].p);
             let p = super::tlm::place(&c.q, &faces, pa, pb, c.p, self.diag);
             self.tlm_fan = faces;
             let Some(p) = p else {
@@ -945,8 +1050,8 @@ impl<'m> Collapse<'m> {
                     if t.contains(&a) && t.contains(&b) {
                         continue;
                     }
-                    let old = t.map(|u| self.pos[u as usize]);
-                    let new = t.map(|u| if u == v { c.p } else { self.pos[u as usize] });
+                    let old = t.map(|u| self.vx[u as usize].p);
+                    let new = t.map(|u| if u == v { c.p } else { self.vx[u as usize].p });
                     let n0 = (old[1] - old[0]).cross(old[2] - old[0]);
                     let n1 = (new[1] - new[0]).cross(new[2] - new[0]);
                     if self.checks.zero_area && n1.length() <= self.area_eps {
@@ -965,7 +1070,7 @@ impl<'m> Collapse<'m> {
     fn collapse(&mut self, a: u32, b: u32, c: &Candidate) {
         let (s, g) = (a, b);
         // Attributes, interpolated at the placed point's parameter on the edge.
-        let (ps, pg) = (self.pos[s as usize], self.pos[g as usize]);
+        let (ps, pg) = (self.vx[s as usize].p, self.vx[g as usize].p);
         let e = pg - ps;
         let t = if e.length_squared() > 0.0 {
             ((c.p - ps).dot(e) / e.length_squared()).clamp(0.0, 1.0) as f32
@@ -985,10 +1090,11 @@ impl<'m> Collapse<'m> {
         }
         // Faces of g: those on the edge die, the others move to s.
         let dead_before = self.dead.len();
-        let mut cnr = self.head[ug];
-        let mut moved = NONE;
-        while cnr != NONE {
-            let nxt = self.next[cnr as usize];
+        let mut moved = std::mem::take(&mut self.moved_corners);
+        moved.clear();
+        let (gs, gl) = (self.vx[ug].start as usize, self.vx[ug].len as usize);
+        for i in gs..gs + gl {
+            let cnr = self.pool[i];
             let f = cnr as usize / 3;
             if self.face_alive[f] {
                 if self.faces[f].contains(&s) {
@@ -997,24 +1103,47 @@ impl<'m> Collapse<'m> {
                     self.dead.push(f as u32);
                 } else {
                     self.faces[f][cnr as usize % 3] = s;
-                    self.next[cnr as usize] = moved;
-                    moved = cnr;
+                    moved.push(cnr);
                 }
             }
-            cnr = nxt;
         }
-        self.head[ug] = NONE;
-        // s's own list without the dead faces, then the moved corners.
-        let mut cnr = self.head[us];
-        while cnr != NONE {
-            let nxt = self.next[cnr as usize];
+        self.vx[ug].len = 0;
+        // s's new list: its own corners without the dead faces, reversed, then the moved
+        // corners, reversed (the order the linked lists this replaced gave: the two-local-
+        // mappings point sums over the fan in this order).
+        let (ss, sl, cap) = (
+            self.vx[us].start as usize,
+            self.vx[us].len as usize,
+            self.vx[us].cap as usize,
+        );
+        let mut w = ss;
+        for i in ss..ss + sl {
+            let cnr = self.pool[i];
             if self.face_alive[cnr as usize / 3] {
-                self.next[cnr as usize] = moved;
-                moved = cnr;
+                self.pool[w] = cnr;
+                w += 1;
             }
-            cnr = nxt;
         }
-        self.head[us] = moved;
+        self.pool[ss..w].reverse();
+        let live = w - ss;
+        let len = live + moved.len();
+        let start = if len <= cap {
+            ss
+        } else {
+            // Outgrown: to the pool's end, with room for half as many again.
+            let at = self.pool.len();
+            let cap = len + len / 2 + 2;
+            self.pool.extend_from_within(ss..w);
+            self.pool.resize(at + cap, NONE);
+            self.vx[us].cap = cap as u32;
+            at
+        };
+        for (k, &cnr) in moved.iter().rev().enumerate() {
+            self.pool[start + live + k] = cnr;
+        }
+        self.vx[us].start = start as u32;
+        self.vx[us].len = len as u32;
+        self.moved_corners = moved;
         if !self.weight.is_empty() {
             self.weight[us] = self.merged_weight(s, g);
         }
@@ -1030,9 +1159,10 @@ impl<'m> Collapse<'m> {
         }
         // No face died: a vertex pair was contracted.
         self.joined[us] |= self.dead.len() == dead_before;
+        self.vx[us].frozen |= self.joined[us];
         self.splice_pairs(s, g);
-        self.pos[us] = c.p;
-        self.quad[us] = c.q;
+        self.vx[us].p = c.p;
+        self.vx[us].q = c.q;
         self.border[us] |= self.border[ug];
         self.refused_at[us] += self.refused_at[ug];
         self.alive[ug] = false;
@@ -1049,21 +1179,18 @@ impl<'m> Collapse<'m> {
         self.refit(s);
     }
 
-    /// Drops the corners of dead faces from `v`'s list.
+    /// Drops the corners of dead faces from `v`'s list (in order).
     fn prune(&mut self, v: u32) {
-        let mut prev = NONE;
-        let mut cnr = self.head[v as usize];
-        while cnr != NONE {
-            let nxt = self.next[cnr as usize];
+        let (start, len) = (self.vx[v as usize].start, self.vx[v as usize].len);
+        let mut w = start as usize;
+        for i in start as usize..(start + len) as usize {
+            let cnr = self.pool[i];
             if self.face_alive[cnr as usize / 3] {
-                prev = cnr;
-            } else if prev == NONE {
-                self.head[v as usize] = nxt;
-            } else {
-                self.next[prev as usize] = nxt;
+                self.pool[w] = cnr;
+                w += 1;
             }
-            cnr = nxt;
         }
+        self.vx[v as usize].len = (w - start as usize) as u32;
     }
 
     /// After a collapse into `s`: the corners of the dead faces leave the heap; the edges of
@@ -1107,9 +1234,9 @@ impl<'m> Collapse<'m> {
             if self.refused_at[w as usize] == 0 {
                 continue;
             }
-            let mut c = self.head[w as usize];
-            while c != NONE {
-                let f = c as usize / 3;
+            let (start, len) = (self.vx[w as usize].start, self.vx[w as usize].len);
+            for i in start..start + len {
+                let f = self.pool[i as usize] as usize / 3;
                 if self.face_alive[f] {
                     for corner in 3 * f as u32..3 * f as u32 + 3 {
                         if self.refused[corner as usize] {
@@ -1121,7 +1248,6 @@ impl<'m> Collapse<'m> {
                         }
                     }
                 }
-                c = self.next[c as usize];
             }
             let mut e = self.pair_head[w as usize];
             while e != NONE {
@@ -1254,7 +1380,7 @@ impl<'m> Collapse<'m> {
         let mesh = self.mesh;
         // Output vertices: one per live dense vertex, in order; a locked seam vertex keeps
         // one output vertex per input copy (attributes of that copy).
-        let mut out_of = vec![NONE; self.pos.len()];
+        let mut out_of = vec![NONE; self.vx.len()];
         let mut copy_of: rustc_hash::FxHashMap<u32, u32> = Default::default();
         let mut out = TriMesh::default();
         let want_n = self.normals.is_some();
@@ -1276,7 +1402,7 @@ impl<'m> Collapse<'m> {
                     let next = out.positions.len() as u32;
                     let id = *copy_of.entry(o).or_insert(next);
                     if id == next {
-                        out.positions.push(self.pos[d].as_vec3());
+                        out.positions.push(self.vx[d].p.as_vec3());
                         if want_n {
                             on.push(mesh.normals.as_ref().map_or(Vec3::ZERO, |a| a[o as usize]));
                         }
@@ -1291,7 +1417,7 @@ impl<'m> Collapse<'m> {
                 } else {
                     if out_of[d] == NONE {
                         out_of[d] = out.positions.len() as u32;
-                        out.positions.push(self.pos[d].as_vec3());
+                        out.positions.push(self.vx[d].p.as_vec3());
                         if let Some(a) = &self.normals {
                             on.push(a[d]);
                         }

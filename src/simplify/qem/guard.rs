@@ -31,7 +31,12 @@ struct Node {
 pub(crate) struct Guard {
     nodes: Vec<Node>,
     items: Vec<u32>,
+    /// Per item: its face's current box (exact, not grown), so that a query keeps only
+    /// the faces whose own box meets it and no caller loads a far face's corners.
+    boxes: Vec<(DVec3, DVec3)>,
     leaf_of: Vec<u32>,
+    /// Per face: its index in `items`.
+    item_of: Vec<u32>,
     /// Live faces when last built.
     built_with: usize,
     stack: Vec<u32>,
@@ -49,6 +54,8 @@ impl Guard {
         self.nodes.clear();
         self.leaf_of.clear();
         self.leaf_of.resize(faces, NONE);
+        self.item_of.clear();
+        self.item_of.resize(faces, NONE);
         let mut items = std::mem::take(&mut self.scratch);
         items.clear();
         items.extend((0..faces).filter(|&f| live(f)).map(|f| {
@@ -61,6 +68,11 @@ impl Guard {
         }
         self.items.clear();
         self.items.extend(items.iter().map(|t| t.0));
+        self.boxes.clear();
+        self.boxes.extend(items.iter().map(|t| (t.1, t.2)));
+        for (i, &f) in self.items.iter().enumerate() {
+            self.item_of[f as usize] = i as u32;
+        }
         for (n, node) in self.nodes.iter().enumerate() {
             if node.count > 0 {
                 for s in node.index..node.index + node.count {
@@ -112,6 +124,9 @@ impl Guard {
 
     /// Face `f` now spans [lo, hi]: grow its leaf and the ancestors until one holds it.
     pub(crate) fn grow(&mut self, f: usize, lo: DVec3, hi: DVec3) {
+        if let Some(&i) = self.item_of.get(f).filter(|&&i| i != NONE) {
+            self.boxes[i as usize] = (lo, hi);
+        }
         let mut n = self.leaf_of.get(f).copied().unwrap_or(NONE);
         while n != NONE {
             let node = &mut self.nodes[n as usize];
@@ -124,9 +139,26 @@ impl Guard {
         }
     }
 
-    /// Calls `f` with every face in a leaf whose box meets [lo, hi] until `f` says stop
-    /// (returns true); returns whether it stopped.
-    pub(crate) fn any(&mut self, lo: DVec3, hi: DVec3, mut f: impl FnMut(u32) -> bool) -> bool {
+    /// Every face whose own box meets [lo, hi], with that box, into `out` (cleared first):
+    /// one walk for a whole fan of moved faces instead of one per face.
+    pub(crate) fn collect(&mut self, lo: DVec3, hi: DVec3, out: &mut Vec<(u32, DVec3, DVec3)>) {
+        out.clear();
+        let boxes = std::mem::take(&mut self.boxes);
+        let items = std::mem::take(&mut self.items);
+        self.any(lo, hi, |i| {
+            let (flo, fhi) = boxes[i as usize];
+            if !(flo.cmpgt(hi).any() || lo.cmpgt(fhi).any()) {
+                out.push((items[i as usize], flo, fhi));
+            }
+            false
+        });
+        self.boxes = boxes;
+        self.items = items;
+    }
+
+    /// Calls `f` with the item index of every face in a leaf whose box meets [lo, hi] until
+    /// `f` says stop (returns true); returns whether it stopped.
+    fn any(&mut self, lo: DVec3, hi: DVec3, mut f: impl FnMut(u32) -> bool) -> bool {
         if self.nodes.is_empty() {
             return false;
         }
@@ -141,7 +173,7 @@ impl Guard {
             }
             if node.count > 0 {
                 for s in node.index..node.index + node.count {
-                    if f(self.items[s as usize]) {
+                    if f(s) {
                         found = true;
                         break 'walk;
                     }

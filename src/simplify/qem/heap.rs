@@ -9,23 +9,37 @@
 
 const NONE: u32 = u32::MAX;
 
-/// A min-heap of (key, slot) with at most one entry per slot.
+/// Per slot: its position in the heap (or NONE) and the low half of its key (the tie
+/// break), side by side so that one cache line serves both.
+#[derive(Debug, Clone, Copy)]
+struct SlotInfo {
+    tie: u64,
+    at: u32,
+}
+
+/// A min-heap of (key, slot) with at most one entry per slot. Keys are u128; an entry
+/// holds only the key's high half (the cost) and its slot, 16 bytes, and the low half (the
+/// tie break) is read from the slot's record when two high halves are equal: half the
+/// bytes per level of a sift of the 32-byte (u128, u32) entries before.
 #[derive(Debug, Default)]
 pub(crate) struct IndexedHeap {
-    items: Vec<(u128, u32)>,
-    /// Slot → its index in `items`, or NONE.
-    at: Vec<u32>,
+    items: Vec<(u64, u32)>,
+    slots: Vec<SlotInfo>,
 }
 
 impl IndexedHeap {
     /// A heap of the given entries (each slot below `slots`, at most once).
     pub(crate) fn from_entries(slots: usize, items: Vec<(u128, u32)>) -> IndexedHeap {
         let mut h = IndexedHeap {
-            items,
-            at: vec![NONE; slots],
+            items: Vec::with_capacity(items.len()),
+            slots: vec![SlotInfo { tie: 0, at: NONE }; slots],
         };
-        for (i, &(_, s)) in h.items.iter().enumerate() {
-            h.at[s as usize] = i as u32;
+        for (i, &(k, s)) in items.iter().enumerate() {
+            h.items.push(((k >> 64) as u64, s));
+            h.slots[s as usize] = SlotInfo {
+                tie: k as u64,
+                at: i as u32,
+            };
         }
         for i in (0..h.items.len() / 2).rev() {
             h.down(i);
@@ -39,50 +53,62 @@ impl IndexedHeap {
         self.items.len()
     }
 
+    /// Whether entry x orders before entry y: by the key's high half, then its low half.
+    #[inline]
+    fn less(&self, x: (u64, u32), y: (u64, u32)) -> bool {
+        x.0 < y.0 || (x.0 == y.0 && self.slots[x.1 as usize].tie < self.slots[y.1 as usize].tie)
+    }
+
     /// Puts `slot` in with `key`, or changes its key.
     pub(crate) fn set(&mut self, slot: u32, key: u128) {
-        let i = self.at[slot as usize];
-        if i == NONE {
-            self.items.push((key, slot));
+        let info = self.slots[slot as usize];
+        let x = ((key >> 64) as u64, slot);
+        if info.at == NONE {
+            self.slots[slot as usize].tie = key as u64;
+            self.items.push(x);
             let i = self.items.len() - 1;
-            self.at[slot as usize] = i as u32;
+            self.slots[slot as usize].at = i as u32;
             self.up(i);
         } else {
-            let i = i as usize;
-            let old = self.items[i].0;
-            self.items[i].0 = key;
-            self.sift(i, key < old);
+            let i = info.at as usize;
+            let smaller = key < ((self.items[i].0 as u128) << 64 | info.tie as u128);
+            self.slots[slot as usize].tie = key as u64;
+            self.items[i].0 = x.0;
+            self.sift(i, smaller);
         }
     }
 
     /// Takes `slot` out, if it is in.
     pub(crate) fn remove(&mut self, slot: u32) {
-        let i = self.at[slot as usize];
+        let i = self.slots[slot as usize].at;
         if i == NONE {
             return;
         }
         let i = i as usize;
-        self.at[slot as usize] = NONE;
+        self.slots[slot as usize].at = NONE;
         let last = self.items.pop().expect("a slot in the heap");
         if i < self.items.len() {
-            let old = self.items[i].0;
+            let old = self.items[i];
+            // `old` is out of the heap but its tie is still in its record.
+            let smaller = self.less(last, old);
             self.place(i, last);
-            self.sift(i, last.0 < old);
+            self.sift(i, smaller);
         }
     }
 
     /// Takes out the entry of least key.
     pub(crate) fn pop(&mut self) -> Option<(u128, u32)> {
         let top = *self.items.first()?;
+        let key = (top.0 as u128) << 64 | self.slots[top.1 as usize].tie as u128;
         self.remove(top.1);
-        Some(top)
+        Some((key, top.1))
     }
 
     fn up(&mut self, mut i: usize) {
         let x = self.items[i];
         while i > 0 {
             let p = (i - 1) / 2;
-            if self.items[p].0 <= x.0 {
+            if !self.less(x, self.items[p]) {
                 break;
             }
             self.place(i, self.items[p]);
@@ -100,12 +126,12 @@ impl IndexedHeap {
                 break;
             }
             let r = l + 1;
-            let c = if r < n && self.items[r].0 < self.items[l].0 {
+            let c = if r < n && self.less(self.items[r], self.items[l]) {
                 r
             } else {
                 l
             };
-            if x.0 <= self.items[c].0 {
+            if !self.less(self.items[c], x) {
                 break;
             }
             self.place(i, self.items[c]);
@@ -115,9 +141,10 @@ impl IndexedHeap {
     }
 
     /// Stores entry `x` at position `i` and records where its slot now is.
-    fn place(&mut self, i: usize, x: (u128, u32)) {
+    #[inline]
+    fn place(&mut self, i: usize, x: (u64, u32)) {
         self.items[i] = x;
-        self.at[x.1 as usize] = i as u32;
+        self.slots[x.1 as usize].at = i as u32;
     }
 
     /// Restores the heap order at `i` after its key changed: up when it got smaller.
@@ -143,9 +170,13 @@ mod tests {
             init in proptest::collection::btree_map(0u32..64, 0u128..50, 0..40),
             ops in proptest::collection::vec((0u8..3, 0u32..64, 0u128..50), 0..200),
         ) {
+            // Keys with both halves in play: the high one decides, the low one breaks ties.
+            let spread = |k: u128| (k / 10) << 64 | (k % 10);
+            let init: BTreeMap<u32, u128> = init.into_iter().map(|(s, k)| (s, spread(k))).collect();
             let mut twin: BTreeMap<u32, u128> = init.clone();
             let mut h = IndexedHeap::from_entries(64, init.iter().map(|(&s, &k)| (k, s)).collect());
             for (op, slot, key) in ops {
+                let key = spread(key);
                 match op {
                     0 => { h.set(slot, key); twin.insert(slot, key); }
                     1 => { h.remove(slot); twin.remove(&slot); }
