@@ -150,16 +150,41 @@ fn bench_pipeline() -> Pipeline {
     }
 }
 
-/// Runs the pipeline's tile stages on `hf` into a fresh directory under the system's
-/// temporary directory (removed afterwards, untimed), then extracts the meshes beside them.
-fn tile_run(hf: &Heightfield, run: usize) -> Result<TileRun> {
-    let dir = std::env::temp_dir().join(format!("terratile-bench-{}-{run}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+/// The runs' output directories under the system's temporary directory, removed (untimed)
+/// when the benchmark ends, whether it succeeded or not.
+struct RunDirs(std::path::PathBuf);
+
+impl RunDirs {
+    fn new() -> RunDirs {
+        RunDirs(std::env::temp_dir().join(format!("terratile-bench-{}", std::process::id())))
+    }
+
+    /// A fresh directory for run `run`.
+    fn run(&self, run: usize) -> Result<std::path::PathBuf> {
+        let dir = self.0.join(format!("run-{run}"));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).map_err(|e| Error::io(&dir, e))?;
+        Ok(dir)
+    }
+}
+
+impl Drop for RunDirs {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// Runs the pipeline's tile stages on `hf` into a fresh directory of `dirs`, then extracts
+/// the meshes beside them. Every run's files stay until the benchmark ends: removing them
+/// between runs made the next run's file creation slower (ext4 without a journal, as on
+/// this machine, skips recently deleted inodes when it allocates one, so each new file
+/// scanned past the hundreds the previous run had just deleted), which a run writing into
+/// a fresh directory does not pay.
+fn tile_run(hf: &Heightfield, dirs: &RunDirs, run: usize) -> Result<TileRun> {
+    let dir = dirs.run(run)?;
     let cfg = bench_pipeline();
     let written = tile_stages(&cfg, hf, &dir, &NoProgress);
     let bytes = dir_bytes(&dir);
-    let _ = std::fs::remove_dir_all(&dir);
     let TileStages {
         reports,
         set,
@@ -216,10 +241,11 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
     let mut runs = vec![grid_run(path)?];
     let grid_peak = peak_rss();
     // The tile stages run after the peak above is taken, so that it stays the grid stages'.
-    let mut tile_runs = vec![tile_run(&runs[0].hf, 0)?];
+    let dirs = RunDirs::new();
+    let mut tile_runs = vec![tile_run(&runs[0].hf, &dirs, 0)?];
     for k in 1..repeats {
         let last = grid_run(path)?;
-        tile_runs.push(tile_run(&last.hf, k)?);
+        tile_runs.push(tile_run(&last.hf, &dirs, k)?);
         runs.push(last);
     }
     let tcol = |k: usize| median(tile_runs.iter().map(|r| r.t[k]).collect());
@@ -229,6 +255,7 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
             .map(|(g, t)| g.t.iter().sum::<f64>() + t.t[0] + t.t[1] + t.t[2])
             .collect(),
     );
+    drop(dirs);
     let tile_last = tile_runs
         .last()
         .ok_or_else(|| Error::Internal("no run".into()))?;

@@ -139,9 +139,12 @@ pub fn encode_tile(
         blocks: Blocks::ScanLines,
         line_order: LineOrder::Increasing,
     };
+    // Room for the uncompressed samples, the line offsets and chunk headers and the header,
+    // so that the buffer is not regrown (and copied) on the way.
+    let capacity = n * n * 4 * channels.len() + 16 * n + 4096;
     let layer = Layer::new((n, n), attrs, encoding, AnyChannels::sort(channels));
     let image = Image::from_layer(layer);
-    let mut buf = Cursor::new(Vec::new());
+    let mut buf = Cursor::new(Vec::with_capacity(capacity));
     image
         .write()
         .non_parallel()

@@ -98,18 +98,13 @@ fn encode_heights(
         .collect()
 }
 
-/// The rows of `values` (`width` wide, south first) in north-first order.
-fn north_first(values: &[u16], width: usize) -> Vec<u16> {
-    values.chunks(width).rev().flatten().copied().collect()
-}
-
 /// A 16-bit greyscale PNG of `values` (`width` wide, south row first), north row on top.
 pub fn png_bytes(values: &[u16], width: usize) -> Result<Vec<u8>> {
     let height = values.len() / width.max(1);
-    let rows = north_first(values, width);
-    let mut raw = Vec::with_capacity(rows.len() * 2);
-    for v in rows {
-        raw.extend_from_slice(&v.to_ne_bytes());
+    // The image's bytes, north row first, in one pass (no flipped copy of the values first).
+    let mut raw = Vec::with_capacity(values.len() * 2);
+    for row in values.chunks(width.max(1)).rev() {
+        raw.extend(row.iter().flat_map(|v| v.to_ne_bytes()));
     }
     let mut out = Vec::new();
     // Paeth: as small as the adaptive choice on real tiles, and faster (measured).
@@ -122,14 +117,12 @@ pub fn png_bytes(values: &[u16], width: usize) -> Result<Vec<u8>> {
 /// Little-endian u16 RAW; `north_first` flips the rows (Unreal) or keeps them south first
 /// (Unity).
 pub fn raw_bytes(values: &[u16], width: usize, north_first_rows: bool) -> Vec<u8> {
-    let rows = if north_first_rows {
-        north_first(values, width)
+    let mut out = Vec::with_capacity(values.len() * 2);
+    let mut put = |row: &[u16]| out.extend(row.iter().flat_map(|v| v.to_le_bytes()));
+    if north_first_rows {
+        values.chunks(width.max(1)).rev().for_each(&mut put);
     } else {
-        values.to_vec()
-    };
-    let mut out = Vec::with_capacity(rows.len() * 2);
-    for v in rows {
-        out.extend_from_slice(&v.to_le_bytes());
+        put(values);
     }
     out
 }

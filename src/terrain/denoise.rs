@@ -742,101 +742,116 @@ fn count_pass(
     owned: Option<&[bool]>,
 ) -> (usize, usize, usize) {
     let m = s.min_points as usize;
-    column_slices(flags, &t.starts)
+    let column = |c: usize, flags: &mut [bool]| -> (usize, usize, usize) {
+        let own = t.column(c);
+        if own.is_empty() {
+            return (0, 0, 0);
+        }
+        let base = t.starts[c] as usize;
+        // The 8 neighbour columns, fetched only when a voxel needs them.
+        let mut neigh: [&[u64]; 8] = [&[]; 8];
+        let mut nn = usize::MAX;
+        let (mut failing, mut lost, mut voxels) = (0, 0, 0);
+        let mut a = 0;
+        while a < own.len() {
+            // The voxel k: keys a..b with layers in [k·q, (k+1)·q). Bounds stay in fine
+            // layers so that no loop divides.
+            // (Integer division is slow; q is 1 for most surveys.)
+            let k = if q == 1 {
+                layer(own[a])
+            } else {
+                layer(own[a]) / q
+            };
+            let top = (k + 1).saturating_mul(q);
+            let mut b = a + 1;
+            while b < own.len() && layer(own[b]) < top {
+                b += 1;
+            }
+            voxels += 1;
+            // The block holds the voxel: a voxel that passes alone needs no neighbours
+            // (most voxels of a surface).
+            let mut count = b - a;
+            if s.neighbourhood && count < m {
+                // Layers [(k−1)·q, (k+2)·q) of the 3×3 columns, the own column first
+                // (its keys just below and above the voxel).
+                let lo = k.saturating_sub(1) * q;
+                let hi = (k + 2).saturating_mul(q);
+                count += own[..a]
+                    .iter()
+                    .rev()
+                    .take_while(|&&key| layer(key) >= lo)
+                    .count();
+                count += own[b..].iter().take_while(|&&key| layer(key) < hi).count();
+                if count < m && nn == usize::MAX {
+                    let (ci, cj) = (c as u32 % lat.ncx, c as u32 / lat.ncx);
+                    nn = 0;
+                    for nj in cj.saturating_sub(1)..(cj + 2).min(lat.ncy) {
+                        for ni in ci.saturating_sub(1)..(ci + 2).min(lat.ncx) {
+                            if (ni, nj) != (ci, cj) {
+                                neigh[nn] = t.column((nj * lat.ncx + ni) as usize);
+                                nn += 1;
+                            }
+                        }
+                    }
+                }
+                // A neighbour's start only moves on (layers grow), and the walk stops
+                // once the block holds min_points (starts left behind catch up later).
+                if count < m {
+                    for seg in neigh[..nn].iter_mut() {
+                        let skip = seg.iter().take_while(|&&key| layer(key) < lo).count();
+                        *seg = &seg[skip..];
+                        count += seg.iter().take_while(|&&key| layer(key) < hi).count();
+                        if count >= m {
+                            break;
+                        }
+                    }
+                }
+            }
+            let pass = count >= m;
+            flags[a..b].fill(pass);
+            if !pass {
+                failing += b - a;
+                if let Some(f) = coarse {
+                    lost += f[base + a..base + b].iter().filter(|&&p| p).count();
+                }
+            }
+            a = b;
+        }
+        // A shard counts its own columns only; its halo's flags are still set.
+        if owned.is_some_and(|o| !o[c]) {
+            return (0, 0, 0);
+        }
+        (failing, lost, voxels)
+    };
+    column_blocks(flags, &t.starts)
         .into_par_iter()
-        .enumerate()
-        .with_min_len(1024)
-        .map(|(c, flags)| {
-            let own = t.column(c);
-            if own.is_empty() {
-                return (0, 0, 0);
-            }
-            let base = t.starts[c] as usize;
-            // The 8 neighbour columns, fetched only when a voxel needs them.
-            let mut neigh: [&[u64]; 8] = [&[]; 8];
-            let mut nn = usize::MAX;
-            let (mut failing, mut lost, mut voxels) = (0, 0, 0);
-            let mut a = 0;
-            while a < own.len() {
-                // The voxel k: keys a..b with layers in [k·q, (k+1)·q). Bounds stay in fine
-                // layers so that no loop divides.
-                // (Integer division is slow; q is 1 for most surveys.)
-                let k = if q == 1 {
-                    layer(own[a])
-                } else {
-                    layer(own[a]) / q
-                };
-                let top = (k + 1).saturating_mul(q);
-                let mut b = a + 1;
-                while b < own.len() && layer(own[b]) < top {
-                    b += 1;
-                }
-                voxels += 1;
-                // The block holds the voxel: a voxel that passes alone needs no neighbours
-                // (most voxels of a surface).
-                let mut count = b - a;
-                if s.neighbourhood && count < m {
-                    // Layers [(k−1)·q, (k+2)·q) of the 3×3 columns, the own column first
-                    // (its keys just below and above the voxel).
-                    let lo = k.saturating_sub(1) * q;
-                    let hi = (k + 2).saturating_mul(q);
-                    count += own[..a]
-                        .iter()
-                        .rev()
-                        .take_while(|&&key| layer(key) >= lo)
-                        .count();
-                    count += own[b..].iter().take_while(|&&key| layer(key) < hi).count();
-                    if count < m && nn == usize::MAX {
-                        let (ci, cj) = (c as u32 % lat.ncx, c as u32 / lat.ncx);
-                        nn = 0;
-                        for nj in cj.saturating_sub(1)..(cj + 2).min(lat.ncy) {
-                            for ni in ci.saturating_sub(1)..(ci + 2).min(lat.ncx) {
-                                if (ni, nj) != (ci, cj) {
-                                    neigh[nn] = t.column((nj * lat.ncx + ni) as usize);
-                                    nn += 1;
-                                }
-                            }
-                        }
-                    }
-                    // A neighbour's start only moves on (layers grow), and the walk stops
-                    // once the block holds min_points (starts left behind catch up later).
-                    if count < m {
-                        for seg in neigh[..nn].iter_mut() {
-                            let skip = seg.iter().take_while(|&&key| layer(key) < lo).count();
-                            *seg = &seg[skip..];
-                            count += seg.iter().take_while(|&&key| layer(key) < hi).count();
-                            if count >= m {
-                                break;
-                            }
-                        }
-                    }
-                }
-                let pass = count >= m;
-                flags[a..b].fill(pass);
-                if !pass {
-                    failing += b - a;
-                    if let Some(f) = coarse {
-                        lost += f[base + a..base + b].iter().filter(|&&p| p).count();
-                    }
-                }
-                a = b;
-            }
-            // A shard counts its own columns only; its halo's flags are still set.
-            if owned.is_some_and(|o| !o[c]) {
-                return (0, 0, 0);
-            }
-            (failing, lost, voxels)
+        .map(|(cols, flags)| {
+            let base = t.starts[cols.start] as usize;
+            cols.fold((0, 0, 0), |acc, c| {
+                let r = t.starts[c] as usize - base..t.starts[c + 1] as usize - base;
+                let f = column(c, &mut flags[r]);
+                (acc.0 + f.0, acc.1 + f.1, acc.2 + f.2)
+            })
         })
         .reduce(|| (0, 0, 0), |p, q| (p.0 + q.0, p.1 + q.1, p.2 + q.2))
 }
 
-/// `v` cut into one slice per column (`starts` as in [`ColumnSort`]).
-fn column_slices<'a, T>(v: &'a mut [T], starts: &[u32]) -> Vec<&'a mut [T]> {
+/// `v` cut into blocks of whole columns (`starts` as in [`ColumnSort`]): the columns of each
+/// block and its part of `v`. A few blocks per worker (rayon balances them) instead of one
+/// slice per column: building hundreds of thousands of slices was a serial pass and a fresh
+/// allocation of 16 bytes per column.
+fn column_blocks<'a, T>(
+    v: &'a mut [T],
+    starts: &[u32],
+) -> Vec<(std::ops::Range<usize>, &'a mut [T])> {
+    let cols = starts.len().saturating_sub(1);
+    let blocks = (rayon::current_num_threads() * 64).clamp(1, cols.max(1));
     let mut rest = v;
-    let mut out = Vec::with_capacity(starts.len().saturating_sub(1));
-    for w in starts.windows(2) {
-        let (head, tail) = rest.split_at_mut((w[1] - w[0]) as usize);
-        out.push(head);
+    let mut out = Vec::with_capacity(blocks);
+    for b in 0..blocks {
+        let (c0, c1) = (b * cols / blocks, (b + 1) * cols / blocks);
+        let (head, tail) = rest.split_at_mut((starts[c1] - starts[c0]) as usize);
+        out.push((c0..c1, head));
         rest = tail;
     }
     out
@@ -909,10 +924,14 @@ fn sort_by_column(x: &[f64], y: &[f64], z: &[f64], lat: &Lattice) -> ColumnSort 
     let mut keys: Vec<u64> = out.into_iter().map(AtomicU64::into_inner).collect();
     // Sort inside each column by (layer, index): keys are unique, so unstable sorting is
     // deterministic.
-    column_slices(&mut keys, &starts)
+    column_blocks(&mut keys, &starts)
         .into_par_iter()
-        .with_min_len(256)
-        .for_each(|s| s.sort_unstable());
+        .for_each(|(cols, block)| {
+            let base = starts[cols.start] as usize;
+            for c in cols {
+                block[starts[c] as usize - base..starts[c + 1] as usize - base].sort_unstable();
+            }
+        });
     ColumnSort { keys, starts }
 }
 

@@ -128,10 +128,14 @@ pub fn fill(hf: &mut Heightfield, params: &FillParams) -> Result<FillReport> {
         hf.heights = hf.heights.as_standard_layout().into_owned();
         hf.state = hf.state.as_standard_layout().into_owned();
     }
-    // One band of rows per worker. A band reads measured cells up to `r` rows beyond its
-    // edges: those rows are copied first (measured cells never change, so the copies stay
-    // true while the bands are filled in parallel).
-    let bands = rayon::current_num_threads().clamp(1, 16).min(rows);
+    // Bands of rows, a few per worker so that rayon can balance them (with one band per
+    // worker, a band holding most of the holes keeps one core busy while the other idles). A band
+    // reads measured cells up to `r` rows beyond its edges: those rows are copied first
+    // (measured cells never change, so the copies stay true while the bands are filled in
+    // parallel): 2r rows per band, so bands are kept to about 2r rows or more.
+    let bands = (rayon::current_num_threads() * 4)
+        .min(rows.div_ceil((2 * r).max(16)))
+        .clamp(1, 64);
     let band_rows = rows.div_ceil(bands);
     let halo = |j0: usize, j1: usize| -> Halo {
         let (a, b) = (j0.min(rows), j1.min(rows));
@@ -245,35 +249,27 @@ fn fill_band(
         };
         k..k + cols
     };
-    // Nearest measured row above each cell of the band, sweeping top-down (0: none within
-    // r); `next` holds, per column, the nearest measured row seen so far (u32::MAX: none).
-    let mut up = vec![0u16; h.len()];
-    let mut next = vec![u32::MAX; cols];
-    for j in (j0..hi).rev() {
-        let sr = if j >= j1 {
-            &above.2[state_row(j)]
-        } else {
-            &s[state_row(j)]
-        };
-        if j < j1 {
-            let ur = &mut up[(j - j0) * cols..(j - j0 + 1) * cols];
-            for ((u, nx), st) in ur.iter_mut().zip(&mut next).zip(sr) {
-                let gap = nx.wrapping_sub(j as u32) as usize;
-                if gap <= r {
-                    *u = gap as u16;
-                }
-                if *st == CellState::Measured {
-                    *nx = j as u32;
-                }
+    // Distance to the nearest measured cell above (j, i) within r rows (0: none), looked up
+    // when a hole needs it (the scan stops at the first measured cell), instead of a top-down
+    // sweep that wrote a distance for every cell of the band. Rows above j are visited
+    // later, so their states are still the measured ones.
+    let up_gap = |s: &[CellState], j: usize, i: usize| -> usize {
+        for d in 1..=r {
+            let jj = j + d;
+            if jj >= hi {
+                break;
             }
-        } else {
-            for (nx, st) in next.iter_mut().zip(sr) {
-                if *st == CellState::Measured {
-                    *nx = j as u32;
-                }
+            let st = if jj >= j1 {
+                above.2[(jj - above.0) * cols + i]
+            } else {
+                s[(jj - j0) * cols + i]
+            };
+            if st == CellState::Measured {
+                return d;
             }
         }
-    }
+        0
+    };
     // Bottom-up: the nearest measured row below from a running record (`last`), the nearest
     // measured cell to the right from a backward scan of the row, to the left from a running
     // record along the row; then Kim & Shin's combination.
@@ -320,7 +316,7 @@ fn fill_band(
             let rt = right[i] as usize;
             let d = (j as u32).wrapping_sub(last[i]) as usize;
             let d = if last[i] != u32::MAX && d <= r { d } else { 0 };
-            let u = up[row + i] as usize;
+            let u = up_gap(s, j, i);
             let n = Neighbours {
                 left: (l > 0).then(|| (l as f64 * dx, h[row + i - l] as f64)),
                 right: (rt > 0).then(|| (rt as f64 * dx, h[row + i + rt] as f64)),
@@ -501,7 +497,8 @@ fn pull_level(v: &mut [f32], w: usize, above: &[f32], ah: usize, aw: usize) {
 fn bilinear_half(a: &[f32], ah: usize, aw: usize, i: usize, j: usize) -> f64 {
     let fx = ((i as f64 + 0.5) / 2.0 - 0.5).clamp(0.0, (aw - 1) as f64);
     let fy = ((j as f64 + 0.5) / 2.0 - 0.5).clamp(0.0, (ah - 1) as f64);
-    let (i0, j0) = (fx.floor() as usize, fy.floor() as usize);
+    // fx, fy ≥ 0: truncation is the floor (and no libm call on baseline x86-64).
+    let (i0, j0) = (fx as usize, fy as usize);
     let (i1, j1) = ((i0 + 1).min(aw - 1), (j0 + 1).min(ah - 1));
     let (tx, ty) = (fx - i0 as f64, fy - j0 as f64);
     let g = |j: usize, i: usize| a[j * aw + i] as f64;

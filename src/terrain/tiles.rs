@@ -237,6 +237,15 @@ pub fn tile(hf: &Heightfield, params: &TileParams) -> Result<TileSet> {
     let (cols, rows) = (hf.cols(), hf.rows());
     let grid = [tiles_for(cols, t), tiles_for(rows, t)];
     let step = t - 1;
+    // Row-major views (no copy when the heightfield already is, as the stages build it).
+    let (src_heights, src_state) = (
+        hf.heights.as_standard_layout(),
+        hf.state.as_standard_layout(),
+    );
+    let (src_heights, src_state) = (
+        src_heights.as_slice().unwrap_or_default(),
+        src_state.as_slice().unwrap_or_default(),
+    );
     let tiles: Vec<Tile> = (0..grid[0] * grid[1])
         .into_par_iter()
         .map(|k| {
@@ -246,17 +255,25 @@ pub fn tile(hf: &Heightfield, params: &TileParams) -> Result<TileSet> {
             let mut heights = Array2::<f32>::zeros((t, t));
             let mut holes = 0;
             let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-            for j in 0..t {
-                let gj = (origin[1] + j).min(rows - 1);
-                for i in 0..t {
-                    let gi = (origin[0] + i).min(cols - 1);
-                    let h = hf.heights[[gj, gi]];
-                    let h = if hf.state[[gj, gi]].has_height() && h.is_finite() {
+            // Whole rows at a time (the grid and the tile are row-major): the columns past the
+            // grid's edge repeat its last sample.
+            let (x0, inside) = (origin[0], (cols - origin[0]).min(t));
+            let out_rows = heights
+                .as_slice_mut()
+                .unwrap_or_default()
+                .chunks_exact_mut(t);
+            for (j, out) in out_rows.enumerate() {
+                let g = (origin[1] + j).min(rows - 1) * cols + x0;
+                let (src_h, src_s) = (&src_heights[g..g + inside], &src_state[g..g + inside]);
+                let valid_row = j < valid[1];
+                for (o, (&h, &s)) in out.iter_mut().zip(src_h.iter().zip(src_s)) {
+                    let h = if s.has_height() && h.is_finite() {
                         h
                     } else {
                         f32::NAN
                     };
-                    if i < valid[0] && j < valid[1] {
+                    // Inside the grid, i < valid[0] (valid[0] is the same minimum).
+                    if valid_row {
                         if h.is_nan() {
                             holes += 1;
                         } else {
@@ -264,8 +281,10 @@ pub fn tile(hf: &Heightfield, params: &TileParams) -> Result<TileSet> {
                             hi = hi.max(h);
                         }
                     }
-                    heights[[j, i]] = h;
+                    *o = h;
                 }
+                let last = out[inside - 1];
+                out[inside..].fill(last);
             }
             Tile {
                 col,
