@@ -7,8 +7,10 @@ use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use terratile::points::{self, PointCloud, ReadOptions};
+use terratile::points::{self, Bounds, PointCloud, ReadOptions};
 use terratile::terrain::ground::{classify, GroundParams, Scores};
+use terratile::terrain::resample::{resample_window, GridSpec};
+use terratile::terrain::{CellMethod, Fallback, FillParams, ResampleParams};
 use terratile::NoProgress;
 
 const SAMPLES: [&str; 8] = [
@@ -23,46 +25,209 @@ fn isprs(s: &str) -> Option<PathBuf> {
     common::data_file(&format!("lidar/isprs/{s}-utm.laz"))
 }
 
-/// Our scores on one labelled file, and the seconds the classification took.
-fn score(p: &Path) -> (Scores, f64) {
-    let c = read(p);
+/// Our ground flags on one labelled file, the seconds the classification took, and the
+/// file's labels (class 2: ground).
+fn ours(c: &PointCloud) -> (Vec<bool>, f64, Vec<bool>) {
     let mpu = c.crs().map_or(1.0, |c| c.metres_per_unit());
     let t = Instant::now();
     let g = classify(&c.x, &c.y, &c.z, None, &GroundParams::default(), mpu).unwrap();
     let secs = t.elapsed().as_secs_f64();
     let truth: Vec<bool> = c.classification.iter().map(|&k| k == 2).collect();
-    (Scores::of(&g.ground, &truth), secs)
+    (g.ground, secs, truth)
 }
 
-/// Mean kappa and total error over the eight samples, one default parameter set. The bars
-/// are what the defaults reach today (mean kappa 84.8 %, total error 4.10 %), so that a
-/// change that makes them worse fails; the issue's target (kappa ≥ 88 %) is not reached yet.
+/// The DTM of the points flagged in `ground`: the default grid of the whole sample (√N × √N
+/// over all its points' bounds, cell means), its holes filled as the pipeline fills a DTM
+/// (`fallback = "membrane"`). Both DTMs of a sample share the grid.
+fn dtm(c: &PointCloud, ground: &[bool]) -> Vec<f32> {
+    let mut b = Bounds::EMPTY;
+    for k in 0..c.len() {
+        b = b.union(Bounds {
+            min: [c.x[k], c.y[k], c.z[k]],
+            max: [c.x[k], c.y[k], c.z[k]],
+        });
+    }
+    let spec = GridSpec::new(&ResampleParams::default(), &b, c.len()).unwrap();
+    let mut hf = resample_window(
+        [&c.x, &c.y, &c.z],
+        Some(ground),
+        &spec,
+        [0..spec.cols, 0..spec.rows],
+        CellMethod::Mean,
+        None,
+    );
+    let fill_dtm = FillParams {
+        fallback: Fallback::Membrane,
+        ..Default::default()
+    };
+    terratile::terrain::fill(&mut hf, &fill_dtm).unwrap();
+    hf.heights.iter().copied().collect()
+}
+
+/// RMSE and 95th percentile of |difference| in metres between the DTM of our ground points
+/// and that of the reference ground points.
+fn dtm_errors(c: &PointCloud, ours: &[bool], truth: &[bool]) -> (f64, f64) {
+    let mpu = c.crs().map_or(1.0, |c| c.metres_per_unit());
+    let (a, b) = (dtm(c, ours), dtm(c, truth));
+    let mut d: Vec<f64> = a
+        .iter()
+        .zip(&b)
+        .map(|(p, q)| (*p as f64 - *q as f64).abs() * mpu)
+        .collect();
+    assert!(d.iter().all(|x| x.is_finite()), "a DTM kept a hole");
+    let rmse = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt();
+    d.sort_by(f64::total_cmp);
+    let p95 = d[((d.len() - 1) as f64 * 0.95).round() as usize];
+    (rmse, p95)
+}
+
+/// The sample whose CSF run fits the default suite (6 s here; CSF took 39 s on samp11, 28 s
+/// on samp12 and 22 s on samp61); the ignored `isprs_scores_all_csf` runs CSF on all eight.
+const CSF_CHEAP: [&str; 1] = ["samp21"];
+
+/// The pip package `cloth-simulation-filter` (Zhang et al. 2016) with its defaults on one
+/// sample: its ground flags and the seconds of its `setPointCloud` + `do_filtering`
+/// (measured inside Python: the interpreter's start and the file transfer are not counted).
+fn csf(py: &Path, c: &PointCloud) -> (Vec<bool>, f64) {
+    let dir = tempfile::tempdir().unwrap();
+    let mut xyz = Vec::with_capacity(c.len() * 24);
+    for k in 0..c.len() {
+        for v in [c.x[k], c.y[k], c.z[k]] {
+            xyz.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    std::fs::write(dir.path().join("xyz.f64"), xyz).unwrap();
+    let out = std::process::Command::new(py)
+        .current_dir(dir.path())
+        .args(["-c", CSF_SCRIPT, "xyz.f64", "ground.u8"])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "CSF failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let secs: f64 = stdout
+        .lines()
+        .filter_map(|l| l.strip_prefix("seconds "))
+        .next_back()
+        .and_then(|v| v.trim().parse().ok())
+        .expect("CSF printed its time");
+    let flags = std::fs::read(dir.path().join("ground.u8")).unwrap();
+    assert_eq!(flags.len(), c.len());
+    (flags.iter().map(|&f| f == 1).collect(), secs)
+}
+
+/// Runs CSF with the package's defaults (cloth resolution 1, rigidness 3, threshold 0.5,
+/// slope post-processing on, 500 iterations, time step 0.65); the cloth is not exported.
+const CSF_SCRIPT: &str = r#"
+import sys, time
+import numpy as np
+import CSF
+xyz = np.fromfile(sys.argv[1], dtype="<f8").reshape(-1, 3)
+t = time.perf_counter()
+csf = CSF.CSF()
+csf.setPointCloud(xyz)
+ground, other = CSF.VecInt(), CSF.VecInt()
+csf.do_filtering(ground, other, False)
+secs = time.perf_counter() - t
+flags = np.zeros(len(xyz), dtype=np.uint8)
+flags[np.array(list(ground), dtype=np.int64)] = 1
+flags.tofile(sys.argv[2])
+print("seconds", secs)
+"#;
+
+fn row(name: &str, sc: &Scores, secs: f64, dtm: Option<(f64, f64)>) -> String {
+    let dtm = dtm.map_or(String::new(), |(r, p)| format!(" | {r:8.3} | {p:8.3}"));
+    format!(
+        "| {name:<14} | {:6.2} | {:6.2} | {:6.2} | {:6.2} | {secs:8.3}{dtm} |",
+        100.0 * sc.type1,
+        100.0 * sc.type2,
+        100.0 * sc.total,
+        100.0 * sc.kappa,
+    )
+}
+
+/// Scores ours (and CSF on `csf_on`) on the eight samples, prints the table (type I, type II,
+/// total, kappa in %, seconds; DTM RMSE and 95th percentile in metres for ours) and returns
+/// our scores, and CSF's per sample with both times.
+fn isprs_table(csf_on: &[&str]) -> Vec<Scores> {
+    let py = common::python_venv(
+        "csf",
+        &["cloth-simulation-filter", "numpy"],
+        "cloth-simulation-filter",
+    );
+    println!(
+        "| sample         | type I | type II | total | kappa | seconds | DTM RMSE m | DTM p95 m |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    let (mut rows, mut theirs, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
+    for s in SAMPLES {
+        let Some(p) = isprs(s) else { return rows };
+        let c = read(&p);
+        let (g, secs, truth) = ours(&c);
+        let sc = Scores::of(&g, &truth);
+        println!("{}", row(s, &sc, secs, Some(dtm_errors(&c, &g, &truth))));
+        if let (Some(py), true) = (&py, csf_on.contains(&s)) {
+            let (cg, csecs) = csf(py, &c);
+            let csc = Scores::of(&cg, &truth);
+            let dtm = dtm_errors(&c, &cg, &truth);
+            println!("{}", row(&format!("{s} CSF"), &csc, csecs, Some(dtm)));
+            theirs.push(csc);
+            ratios.push((csecs, secs));
+        }
+        rows.push(sc);
+    }
+    let mean = |v: &[Scores], f: fn(&Scores) -> f64| v.iter().map(f).sum::<f64>() / v.len() as f64;
+    println!(
+        "ours: mean kappa {:.2} %, total {:.2} %",
+        100.0 * mean(&rows, |s| s.kappa),
+        100.0 * mean(&rows, |s| s.total)
+    );
+    if !theirs.is_empty() {
+        let (c, o) = ratios
+            .iter()
+            .fold((0.0, 0.0), |a, r| (a.0 + r.0, a.1 + r.1));
+        let worst = ratios
+            .iter()
+            .map(|r| r.0 / r.1)
+            .fold(f64::INFINITY, f64::min);
+        println!(
+            "CSF on {} samples: mean kappa {:.2} %, total {:.2} %; CSF {c:.2} s vs ours {o:.3} s: {:.0}× (slowest ratio of a sample {worst:.0}×)",
+            theirs.len(),
+            100.0 * mean(&theirs, |s| s.kappa),
+            100.0 * mean(&theirs, |s| s.total),
+            c / o
+        );
+    }
+    rows
+}
+
+/// Mean kappa and total error over the eight samples, one default parameter set, beside
+/// CSF on the samples where it is quick (the table and the speed ratio are printed; run
+/// with `--nocapture`). The bars are what the defaults reach today (mean kappa 84.8 %,
+/// total error 4.10 %), so that a change that makes them worse fails; the issue's target
+/// (kappa ≥ 88 %) is not reached yet.
 #[test]
 fn isprs_scores() {
-    let mut rows = Vec::new();
-    for s in SAMPLES {
-        let Some(p) = isprs(s) else { return };
-        let (sc, secs) = score(&p);
-        println!(
-            "{s}  type I {:5.2} %  type II {:5.2} %  total {:5.2} %  kappa {:5.2} %  {:.3} s",
-            100.0 * sc.type1,
-            100.0 * sc.type2,
-            100.0 * sc.total,
-            100.0 * sc.kappa,
-            secs
-        );
-        rows.push(sc);
+    let rows = isprs_table(&CSF_CHEAP);
+    if rows.len() < SAMPLES.len() {
+        return;
     }
     let n = rows.len() as f64;
     let kappa = rows.iter().map(|s| s.kappa).sum::<f64>() / n;
     let total = rows.iter().map(|s| s.total).sum::<f64>() / n;
-    println!(
-        "mean  kappa {:.2} %  total {:.2} %",
-        100.0 * kappa,
-        100.0 * total
-    );
     assert!(kappa >= 0.845, "mean kappa {kappa}");
     assert!(total <= 0.045, "mean total error {total}");
+}
+
+/// [`isprs_scores`] with CSF on all eight samples (minutes: CSF takes tens of seconds on the
+/// large ones).
+#[test]
+#[ignore]
+fn isprs_scores_all_csf() {
+    isprs_table(&SAMPLES);
 }
 
 /// `terratile classify` writes the input's records in order with only the class changed,

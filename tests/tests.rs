@@ -16,6 +16,7 @@ mod cli_terrain;
 mod cli_tiles;
 mod geo;
 mod ground;
+mod ground_fill;
 mod intersect;
 mod mesh_io;
 mod outputs;

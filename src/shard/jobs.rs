@@ -193,6 +193,11 @@ fn check_supported(p: &LoadedPipeline) -> Result<()> {
             "the mean fallback needs the whole grid's mean",
         ),
         (
+            c.fill.enabled && c.fill.fallback == Fallback::Membrane,
+            "fill.fallback",
+            "the membrane fill is solved over the whole grid",
+        ),
+        (
             c.tiles.preset == Preset::Unreal,
             "tiles.preset",
             "the unreal preset resamples the whole grid",

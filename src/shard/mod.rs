@@ -243,12 +243,23 @@ pub fn prepare(
     offset: [usize; 2],
     fill: Option<&FillParams>,
 ) -> Result<Prepared> {
-    if fill.is_some_and(|f| f.fallback == Fallback::Mean) {
+    let whole_grid = |f: &FillParams| match f.fallback {
+        Fallback::Mean => Some((
+            "mean",
+            "the mean of the whole grid is not available to a shard yet",
+        )),
+        Fallback::Membrane => Some((
+            "membrane",
+            "the membrane is solved over the whole grid, not shard by shard",
+        )),
+        _ => None,
+    };
+    if let Some((value, why)) = fill.and_then(whole_grid) {
         return Err(Error::param(
             "fill",
             "fallback",
-            "mean",
-            "the mean of the whole grid is not available to a shard yet: use smooth or nodata",
+            value,
+            format!("{why}: use smooth or nodata"),
         ));
     }
     let smooth = is_smooth(fill);

@@ -221,6 +221,12 @@ fn needs_memory(pipeline: &LoadedPipeline) -> Option<(&'static str, &'static str
     if c.fill.enabled && c.fill.fallback == Fallback::Mean {
         return Some(("fill.fallback", "the mean fallback (the whole grid's mean)"));
     }
+    if c.fill.enabled && c.fill.fallback == Fallback::Membrane {
+        return Some((
+            "fill.fallback",
+            "the membrane fill (solved over the whole grid)",
+        ));
+    }
     if c.tiles.preset == crate::terrain::tiles::Preset::Unreal {
         return Some((
             "tiles.preset",

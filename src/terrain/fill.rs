@@ -43,6 +43,9 @@ pub enum Fallback {
     /// holes and no plateaus; the default, because game tiles need both.
     #[default]
     Smooth,
+    /// The membrane (Laplace) surface of the cells around every large void (see
+    /// `largevoid`): also takes the cells the axis fill could only reach from one side.
+    Membrane,
 }
 
 /// Default `radius` in cells.
@@ -58,7 +61,7 @@ pub struct FillParams {
     /// (default 8).
     pub radius: f64,
     /// `smooth` (default), `mean` (the paper) or `nodata` for cells with no measured cell
-    /// within the radius.
+    /// within the radius; `membrane` for those and the cells reached from one side only.
     pub fallback: Fallback,
 }
 
@@ -181,8 +184,11 @@ pub fn fill(hf: &mut Heightfield, params: &FillParams) -> Result<FillReport> {
         fallback: 0,
         empty: missing,
     };
-    if missing > 0 {
+    if params.fallback == Fallback::Membrane {
+        super::largevoid::membrane_large_voids(hf, r, &mut report);
+    } else if missing > 0 {
         match params.fallback {
+            Fallback::Membrane => {}
             Fallback::Nodata => {}
             Fallback::Mean => {
                 let mean = sample_mean(hf) as f32;

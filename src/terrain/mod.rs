@@ -10,6 +10,7 @@ pub mod extract;
 pub mod fill;
 pub mod ground;
 pub mod heightfield;
+pub mod largevoid;
 pub mod quadtree;
 #[cfg(any(test, feature = "testing"))]
 pub mod reference;

@@ -7,7 +7,7 @@
 //! production use: they are single-threaded and allocate freely.
 
 use super::denoise::{DenoiseParams, DenoiseSettings, Lattice, HEIGHT_LOSS, MAX_HEIGHT_STEPS};
-use super::fill::{push_pull, sample_mean, Fallback, FillParams, Neighbours};
+use super::fill::{mark_fallback, push_pull, sample_mean, Fallback, FillParams, Neighbours};
 use super::heightfield::{CellState, Heightfield};
 use super::resample::{CellMethod, GridSpec, ResampleParams};
 use crate::error::Result;
@@ -223,7 +223,10 @@ pub fn fill(hf: &Heightfield, params: &FillParams) -> Result<Heightfield> {
                 down: find(j, i, -1, 0, dy),
                 up: find(j, i, 1, 0, dy),
             };
+            // The membrane fill leaves a cell without both complete pairs to the membrane.
+            let cross = n.left.is_some() && n.right.is_some() && n.down.is_some() && n.up.is_some();
             match n.interpolate() {
+                Some(_) if params.fallback == Fallback::Membrane && !cross => missing = true,
                 Some(v) => {
                     out.heights[[j, i]] = v as f32;
                     out.state[[j, i]] = CellState::Interpolated;
@@ -245,6 +248,19 @@ pub fn fill(hf: &Heightfield, params: &FillParams) -> Result<Heightfield> {
                 }
             }
             Fallback::Smooth => push_pull(&mut out),
+            Fallback::Membrane => {
+                let cols = out.cols();
+                for (h, s) in out.heights.iter_mut().zip(out.state.iter()) {
+                    if *s == CellState::Empty {
+                        *h = f32::NAN;
+                    }
+                }
+                if let Some(h) = out.heights.as_slice_mut() {
+                    let tol = super::voidfill::default_tolerance(h);
+                    super::voidfill::membrane_fill(h, cols, rows, tol);
+                }
+                mark_fallback(&mut out);
+            }
         }
     }
     Ok(out)
