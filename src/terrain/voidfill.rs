@@ -7,11 +7,16 @@
 //! instead of being extrapolated to heights the data never had.
 //!
 //! The solver is a cascadic multigrid (Bornemann & Deuflhard, "The cascadic multigrid method
-//! for elliptic problems", 1996): the grid is coarsened by injection (coarse cell (I, J) is
-//! fine cell (2I, 2J)) down to a few thousand cells, the coarsest level is solved by red-black
-//! Gauss-Seidel to convergence, and each finer level starts from the bilinear prolongation of
-//! the level below and is smoothed by red-black Gauss-Seidel until no cell moves more than
-//! the tolerance (or a sweep cap is reached). Red-black order makes a sweep independent of the
+//! for elliptic problems", 1996) whose levels are each solved by multigrid V-cycles
+//! (Briggs, Henson & McCormick, "A Multigrid Tutorial", 2000): the grid is coarsened by
+//! injection (coarse cell (I, J) is fine cell (2I, 2J)) down to a few thousand cells, the
+//! coarsest level is solved by red-black over-relaxed Gauss-Seidel to convergence, and each
+//! finer level starts from the bilinear prolongation of the level below and runs V-cycles
+//! (2 red-black Gauss-Seidel sweeps, the residual restricted by the transpose of bilinear
+//! prolongation, the coarse correction solved recursively on the injected mask, prolonged
+//! bilinearly, 2 sweeps) until a cycle moves no cell more than the tolerance. Should the
+//! cycles stop gaining, the level finishes with plain over-relaxed sweeps. Red-black order
+//! makes a sweep independent of the
 //! thread count: a red cell reads only black cells and the reverse, so the result is the same
 //! bits for any number of threads. Hand-written because no crate of the field solves a
 //! Laplace problem on a masked grid in place (the sparse solvers need an assembled matrix,
@@ -23,11 +28,6 @@ use rayon::prelude::*;
 const COARSEST: usize = 4096;
 /// Sweep cap of the coarsest level (it is at most a few thousand cells).
 const COARSE_SWEEPS: usize = 20_000;
-/// Sweep cap of every finer level: the prolonged coarse solution is already smooth, the
-/// sweeps only take out what the coarse grid could not represent.
-const FINE_SWEEPS: usize = 400;
-/// Unknown cells per parallel work item of a sweep.
-const CHUNK: usize = 1 << 14;
 /// Over-relaxation factor of the sweeps (successive over-relaxation, Young 1950): the smooth
 /// error the coarse level leaves decays in O(width) sweeps instead of O(width²).
 const OMEGA: f32 = 1.85;
@@ -71,7 +71,6 @@ pub fn default_tolerance(z: &[f32]) -> f32 {
 fn solve(z: &mut [f32], known: &[bool], cols: usize, rows: usize, tol: f32) {
     let (cc, cr) = (cols.div_ceil(2), rows.div_ceil(2));
     let coarse_ok = cols * rows > COARSEST && cc >= 2 && cr >= 2;
-    let mut sweeps = FINE_SWEEPS;
     if coarse_ok {
         let mut zc = vec![f32::NAN; cc * cr];
         let mut kc = vec![false; cc * cr];
@@ -95,13 +94,11 @@ fn solve(z: &mut [f32], known: &[bool], cols: usize, rows: usize, tol: f32) {
             prolong(z, known, cols, &zc, cc, cr);
         } else {
             seed_with_mean(z, known);
-            sweeps = COARSE_SWEEPS;
         }
     } else {
         seed_with_mean(z, known);
-        sweeps = COARSE_SWEEPS;
     }
-    smooth(z, known, cols, rows, tol, sweeps);
+    v_cycles(z, known, cols, rows, tol);
 }
 
 /// Starts every unknown cell at the mean of the known ones.
@@ -137,107 +134,333 @@ fn prolong(z: &mut [f32], known: &[bool], cols: usize, zc: &[f32], cc: usize, cr
     });
 }
 
-/// Rows per band of the parallel write-back of a half-sweep.
-const BAND_ROWS: usize = 32;
+/// Sweep cap of the plain over-relaxed sweeps a level falls back to when its V-cycles stop
+/// gaining.
+const FINE_SWEEPS: usize = 400;
+/// Sweeps of red-black Gauss-Seidel before and after each coarse-grid correction.
+const SMOOTH_SWEEPS: usize = 2;
+/// V-cycle cap of a level of the cascade (each cycle divides the error by about ten, so the
+/// cap is reached only when the tolerance lies below the rounding of `f32` heights).
+const MAX_CYCLES: usize = 40;
 
-/// Red-black Gauss-Seidel over the unknown cells until the largest change of a sweep is at
-/// most `tol`, at most `max_sweeps` sweeps.
-fn smooth(z: &mut [f32], known: &[bool], cols: usize, rows: usize, tol: f32, max_sweeps: usize) {
-    // Unknown cells by colour, as indices with a border flag in the top bits: bit 63 left
-    // neighbour exists, 62 right, 61 below, 60 above. Sorted by index, so the cells of a band
-    // of rows are one run (`starts`).
-    let mut colours: [Vec<u64>; 2] = [Vec::new(), Vec::new()];
-    for j in 0..rows {
-        for i in 0..cols {
-            let k = j * cols + i;
-            if known[k] {
-                continue;
-            }
-            let flags = ((i > 0) as u64) << 63
-                | ((i + 1 < cols) as u64) << 62
-                | ((j > 0) as u64) << 61
-                | ((j + 1 < rows) as u64) << 60;
-            colours[(i + j) & 1].push(k as u64 | flags);
+/// One level of the V-cycle hierarchy. Cells are split by colour: cell (i, j) of colour
+/// c = (i + j) mod 2 is `z[c][j * hw + i / 2]`, so a half-sweep writes one array while it
+/// reads only the other (the same values for any thread count, and no aliasing).
+struct Level {
+    cols: usize,
+    rows: usize,
+    hw: usize,
+    /// Heights (finest level) or corrections (coarser levels).
+    z: [Vec<f32>; 2],
+    /// Right-hand side (restricted residual); all zero on the finest level.
+    f: [Vec<f32>; 2],
+    /// Cells that are solved for; the others are held fixed (zero correction when coarse).
+    free: [Vec<bool>; 2],
+}
+
+impl Level {
+    fn new(cols: usize, rows: usize, free_full: &[bool]) -> Self {
+        let hw = cols.div_ceil(2);
+        Level {
+            cols,
+            rows,
+            hw,
+            z: [vec![0.0; hw * rows], vec![0.0; hw * rows]],
+            f: [vec![0.0; hw * rows], vec![0.0; hw * rows]],
+            free: split(free_full, cols, rows, false),
         }
     }
-    let band = BAND_ROWS * cols;
-    let starts: [Vec<usize>; 2] = std::array::from_fn(|c| {
-        (0..=rows.div_ceil(BAND_ROWS))
-            .map(|b| colours[c].partition_point(|&x| ((x & MASK) as usize) < b * band))
-            .collect()
-    });
-    let mut buf = vec![0.0f32; colours[0].len().max(colours[1].len())];
-    for _ in 0..max_sweeps {
+
+    /// One red-black half-sweep over the free cells of colour `c`, over-relaxed by `omega`;
+    /// returns the largest change.
+    fn relax(&mut self, c: usize, omega: f32) -> f32 {
+        let (cols, rows, hw) = (self.cols, self.rows, self.hw);
+        let [z0, z1] = &mut self.z;
+        let (zc, zo): (&mut Vec<f32>, &Vec<f32>) = if c == 0 { (z0, z1) } else { (z1, z0) };
+        let (free, f) = (&self.free[c], &self.f[c]);
+        zc.par_chunks_mut(hw)
+            .enumerate()
+            .map(|(j, row)| {
+                let (s, e) = (j * hw, (j + 1) * hw);
+                let (fr, ff, mid) = (&free[s..e], &f[s..e], &zo[s..e]);
+                let up = (j > 0).then(|| &zo[s - hw..s]);
+                let dn = (j + 1 < rows).then(|| &zo[e..e + hw]);
+                let mut change = 0.0f32;
+                for i in ((j + c) & 1..cols).step_by(2) {
+                    let m = i / 2;
+                    if !fr[m] {
+                        continue;
+                    }
+                    let (mut sum, mut n) = (ff[m], 0.0f32);
+                    if i > 0 {
+                        sum += mid[(i - 1) / 2];
+                        n += 1.0;
+                    }
+                    if i + 1 < cols {
+                        sum += mid[i.div_ceil(2)];
+                        n += 1.0;
+                    }
+                    if let Some(u) = up {
+                        sum += u[m];
+                        n += 1.0;
+                    }
+                    if let Some(d) = dn {
+                        sum += d[m];
+                        n += 1.0;
+                    }
+                    if n > 0.0 {
+                        let v = row[m] + omega * (sum / n - row[m]);
+                        change = change.max((v - row[m]).abs());
+                        row[m] = v;
+                    }
+                }
+                change
+            })
+            .reduce(|| 0.0, f32::max)
+    }
+
+    /// The residual f − L z of every cell as a full row-major grid (zero at fixed cells).
+    fn residual(&self) -> Vec<f32> {
+        let (cols, rows, hw) = (self.cols, self.rows, self.hw);
+        let mut r = vec![0.0f32; cols * rows];
+        r.par_chunks_mut(cols).enumerate().for_each(|(j, row)| {
+            for (i, out) in row.iter_mut().enumerate() {
+                let c = (i + j) & 1;
+                let k = j * hw + i / 2;
+                if !self.free[c][k] {
+                    continue;
+                }
+                let zo = &self.z[1 - c];
+                let (mut sum, mut n) = (self.f[c][k], 0.0f32);
+                if i > 0 {
+                    sum += zo[j * hw + (i - 1) / 2];
+                    n += 1.0;
+                }
+                if i + 1 < cols {
+                    sum += zo[j * hw + i.div_ceil(2)];
+                    n += 1.0;
+                }
+                if j > 0 {
+                    sum += zo[k - hw];
+                    n += 1.0;
+                }
+                if j + 1 < rows {
+                    sum += zo[k + hw];
+                    n += 1.0;
+                }
+                *out = sum - n * self.z[c][k];
+            }
+        });
+        r
+    }
+
+    /// Adds the bilinear prolongation of the coarse correction `ec` (full row-major,
+    /// `cc` × `cr`) to the free cells; returns the largest correction.
+    fn add_prolonged(&mut self, ec: &[f32], cc: usize, cr: usize) -> f32 {
+        let (cols, hw) = (self.cols, self.hw);
         let mut change = 0.0f32;
-        for (cells, starts) in colours.iter().zip(&starts) {
-            change = change.max(sweep(z, cols, cells, starts, &mut buf, OMEGA));
+        for c in 0..2 {
+            let free = &self.free[c];
+            let m = self.z[c]
+                .par_chunks_mut(hw)
+                .enumerate()
+                .map(|(j, row)| {
+                    let (j0, j1) = (j / 2, j.div_ceil(2).min(cr - 1));
+                    let mut change = 0.0f32;
+                    for i in ((j + c) & 1..cols).step_by(2) {
+                        let m = i / 2;
+                        if !free[j * hw + m] {
+                            continue;
+                        }
+                        let (i0, i1) = (i / 2, i.div_ceil(2).min(cc - 1));
+                        let a = ec[j0 * cc + i0] + ec[j0 * cc + i1];
+                        let b = ec[j1 * cc + i0] + ec[j1 * cc + i1];
+                        let e = (a + b) * 0.25;
+                        change = change.max(e.abs());
+                        row[m] += e;
+                    }
+                    change
+                })
+                .reduce(|| 0.0, f32::max);
+            change = change.max(m);
         }
-        if change <= tol {
-            break;
-        }
+        change
     }
 }
 
-/// Index bits of a cell entry of [`smooth`] (the top four are its border flags).
-const MASK: u64 = (1 << 60) - 1;
-
-/// One half-sweep over the cells of one colour; returns the largest change. A cell of one
-/// colour reads only cells of the other, so the new values are computed first from the grid
-/// as it is (in parallel, into `buf`), then written back band by band (in parallel, each band
-/// its own rows): the same values whatever the order or the thread count.
-fn sweep(
-    z: &mut [f32],
-    cols: usize,
-    cells: &[u64],
-    starts: &[usize],
-    buf: &mut [f32],
-    omega: f32,
-) -> f32 {
-    let zr: &[f32] = z;
-    let change = buf[..cells.len()]
-        .par_chunks_mut(CHUNK)
-        .zip(cells.par_chunks(CHUNK))
-        .map(|(out, chunk)| {
-            let mut change = 0.0f32;
-            for (o, &c) in out.iter_mut().zip(chunk) {
-                let k = (c & MASK) as usize;
-                let (mut s, mut n) = (0.0f32, 0.0f32);
-                if c & (1 << 63) != 0 {
-                    s += zr[k - 1];
-                    n += 1.0;
-                }
-                if c & (1 << 62) != 0 {
-                    s += zr[k + 1];
-                    n += 1.0;
-                }
-                if c & (1 << 61) != 0 {
-                    s += zr[k - cols];
-                    n += 1.0;
-                }
-                if c & (1 << 60) != 0 {
-                    s += zr[k + cols];
-                    n += 1.0;
-                }
-                let v = if n > 0.0 {
-                    zr[k] + omega * (s / n - zr[k])
-                } else {
-                    zr[k]
-                };
-                change = change.max((v - zr[k]).abs());
-                *o = v;
+/// Cells of colour c of a full row-major grid, as [`Level`] stores them (`pad` beyond the
+/// last column).
+fn split<T: Copy + Send + Sync>(full: &[T], cols: usize, rows: usize, pad: T) -> [Vec<T>; 2] {
+    let hw = cols.div_ceil(2);
+    std::array::from_fn(|c| {
+        let mut out = vec![pad; hw * rows];
+        out.par_chunks_mut(hw).enumerate().for_each(|(j, row)| {
+            for i in ((j + c) & 1..cols).step_by(2) {
+                row[i / 2] = full[j * cols + i];
             }
-            change
-        })
-        .reduce(|| 0.0, f32::max);
-    let band = BAND_ROWS * cols;
-    let buf: &[f32] = buf;
-    z.par_chunks_mut(band).enumerate().for_each(|(b, zb)| {
-        let (s, e) = (starts[b], starts[b + 1]);
-        for (&c, &v) in cells[s..e].iter().zip(&buf[s..e]) {
-            zb[(c & MASK) as usize - b * band] = v;
+        });
+        out
+    })
+}
+
+/// The inverse of [`split`].
+fn join(parts: &[Vec<f32>; 2], cols: usize, rows: usize) -> Vec<f32> {
+    let hw = cols.div_ceil(2);
+    let mut full = vec![0.0f32; cols * rows];
+    full.par_chunks_mut(cols).enumerate().for_each(|(j, row)| {
+        for (i, v) in row.iter_mut().enumerate() {
+            *v = parts[(i + j) & 1][j * hw + i / 2];
         }
     });
-    change
+    full
+}
+
+/// Weight of fine index `i` in coarse index `ic` under bilinear prolongation (coarse `ic`
+/// is fine `2 ic`; an odd fine index lies half-way; past the last coarse index, the last).
+fn weight(i: usize, ic: usize, nc: usize) -> f32 {
+    0.5 * ((i / 2 == ic) as u8 + (i.div_ceil(2).min(nc - 1) == ic) as u8) as f32
+}
+
+/// The transpose of the bilinear prolongation applied to the full grid `r` (`cols` × `rows`):
+/// the coarse right-hand side (full weighting times four, the unscaled operator's h²).
+fn restrict(r: &[f32], cols: usize, rows: usize, cc: usize, cr: usize) -> Vec<f32> {
+    let mut t = vec![0.0f32; cc * rows];
+    t.par_chunks_mut(cc).enumerate().for_each(|(j, row)| {
+        let src = &r[j * cols..(j + 1) * cols];
+        for (ic, out) in row.iter_mut().enumerate() {
+            let (lo, hi) = ((2 * ic).saturating_sub(1), (2 * ic + 2).min(cols));
+            *out = (lo..hi).map(|i| weight(i, ic, cc) * src[i]).sum();
+        }
+    });
+    let mut fc = vec![0.0f32; cc * cr];
+    fc.par_chunks_mut(cc).enumerate().for_each(|(jc, row)| {
+        let (lo, hi) = ((2 * jc).saturating_sub(1), (2 * jc + 2).min(rows));
+        for j in lo..hi {
+            let w = weight(j, jc, cr);
+            if w != 0.0 {
+                for (out, v) in row.iter_mut().zip(&t[j * cc..(j + 1) * cc]) {
+                    *out += w * v;
+                }
+            }
+        }
+    });
+    fc
+}
+
+/// The levels below a level of `cols` × `rows` with the free cells `free` (full layout):
+/// a coarse cell is free when the fine cell it sits on is (injection of the mask), except
+/// the last coarse column (row) of a fine grid of even width (height): that column sits one
+/// fine cell, not two, from its neighbour beyond, so the coarse operator would not match
+/// the fine one there (the cycles diverged); its correction is held at zero and the fine
+/// sweeps take care of the edge. Stops
+/// above [`COARSEST`] cells, or where a level would have no free or no fixed cell (a level
+/// without fixed cells is singular).
+fn hierarchy(free: &[bool], cols: usize, rows: usize) -> Vec<Level> {
+    let mut levels = vec![Level::new(cols, rows, free)];
+    let (mut cols, mut rows, mut free) = (cols, rows, free.to_vec());
+    while cols * rows > COARSEST && cols >= 3 && rows >= 3 {
+        let (cc, cr) = (cols.div_ceil(2), rows.div_ceil(2));
+        let fc: Vec<bool> = (0..cc * cr)
+            .into_par_iter()
+            .map(|k| {
+                let (ic, jc) = (k % cc, k / cc);
+                let edge = (cols % 2 == 0 && ic + 1 == cc) || (rows % 2 == 0 && jc + 1 == cr);
+                !edge && free[2 * jc * cols + 2 * ic]
+            })
+            .collect();
+        let nf = fc.iter().filter(|f| **f).count();
+        if nf == 0 || nf == fc.len() {
+            break;
+        }
+        levels.push(Level::new(cc, cr, &fc));
+        (cols, rows, free) = (cc, cr, fc);
+    }
+    levels
+}
+
+/// Over-relaxed red-black sweeps on `level` until a sweep moves no cell more than `tol`
+/// or than `rel` times the first sweep's largest change (a correction needs only relative
+/// accuracy), at most `cap` sweeps; returns the sum of the sweeps' largest changes.
+fn solve_coarsest(level: &mut Level, tol: f32, rel: f32, cap: usize) -> f32 {
+    let (mut total, mut first) = (0.0f32, None);
+    for _ in 0..cap {
+        let change = level.relax(0, OMEGA).max(level.relax(1, OMEGA));
+        total += change;
+        let first = *first.get_or_insert(change);
+        if change <= tol || change <= rel * first {
+            break;
+        }
+    }
+    total
+}
+
+/// One V-cycle from level 0 of `levels`; returns the sum of the largest changes of its
+/// steps on that level (a bound on the largest change of a cell in the cycle).
+fn v_cycle(levels: &mut [Level], tol: f32) -> f32 {
+    let (this, below) = levels.split_first_mut().expect("a level");
+    let Some(coarse) = below.first_mut() else {
+        // The coarsest level: over-relaxed sweeps until it has converged.
+        return solve_coarsest(this, tol * 0.1, 1e-4, COARSE_SWEEPS);
+    };
+    let mut total = 0.0f32;
+    for _ in 0..SMOOTH_SWEEPS {
+        total += this.relax(0, 1.0).max(this.relax(1, 1.0));
+    }
+    let r = this.residual();
+    let fc = restrict(&r, this.cols, this.rows, coarse.cols, coarse.rows);
+    drop(r);
+    coarse.f = split(&fc, coarse.cols, coarse.rows, 0.0);
+    for z in &mut coarse.z {
+        z.par_iter_mut().for_each(|v| *v = 0.0);
+    }
+    v_cycle(below, tol);
+    let (cc, cr) = (below[0].cols, below[0].rows);
+    let ec = join(&below[0].z, cc, cr);
+    total += this.add_prolonged(&ec, cc, cr);
+    for _ in 0..SMOOTH_SWEEPS {
+        total += this.relax(0, 1.0).max(this.relax(1, 1.0));
+    }
+    total
+}
+
+/// Multigrid V-cycles on the grid `z` (unknown cells hold the initial guess) until a cycle
+/// moves no cell more than `tol`.
+fn v_cycles(z: &mut [f32], known: &[bool], cols: usize, rows: usize, tol: f32) {
+    let free: Vec<bool> = known.par_iter().map(|k| !k).collect();
+    let mut levels = hierarchy(&free, cols, rows);
+    drop(free);
+    levels[0].z = split(z, cols, rows, 0.0);
+    if levels.len() == 1 {
+        solve_coarsest(&mut levels[0], tol, 0.0, COARSE_SWEEPS);
+    } else {
+        let mut last = f32::INFINITY;
+        for _ in 0..MAX_CYCLES {
+            let before = levels[0].z.clone();
+            let change = v_cycle(&mut levels, tol);
+            if change <= tol {
+                break;
+            }
+            if change > 0.8 * last {
+                // The cycles no longer gain: the changes are down to the rounding of f32
+                // heights, or the coarse levels do not match the fine one (a mask the
+                // injection coarsens badly, which can diverge). Undo the cycle and finish
+                // with plain over-relaxed sweeps, which always converge.
+                levels[0].z = before;
+                solve_coarsest(&mut levels[0], tol, 0.0, FINE_SWEEPS);
+                break;
+            }
+            last = change;
+        }
+    }
+    let out = join(&levels[0].z, cols, rows);
+    z.par_iter_mut()
+        .zip(out.par_iter())
+        .zip(known.par_iter())
+        .for_each(|((v, o), k)| {
+            if !k {
+                *v = *o;
+            }
+        });
 }
 
 #[cfg(test)]
