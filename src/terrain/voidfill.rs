@@ -13,7 +13,7 @@
 //! coarsest level is solved by red-black over-relaxed Gauss-Seidel to convergence, and each
 //! finer level starts from the bilinear prolongation of the level below and runs V-cycles
 //! (2 red-black Gauss-Seidel sweeps, the residual restricted by the transpose of bilinear
-//! prolongation, the coarse correction solved recursively on the injected mask, prolonged
+//! prolongation, the coarse correction solved recursively where the whole stencil is unknown, prolonged
 //! bilinearly, 2 sweeps) until a cycle moves no cell more than the tolerance. Should the
 //! cycles stop gaining, the level finishes with plain over-relaxed sweeps. Red-black order
 //! makes a sweep independent of the
@@ -348,11 +348,12 @@ fn restrict(r: &[f32], cols: usize, rows: usize, cc: usize, cr: usize) -> Vec<f3
 }
 
 /// The levels below a level of `cols` × `rows` with the free cells `free` (full layout):
-/// a coarse cell is free when the fine cell it sits on is (injection of the mask), except
-/// the last coarse column (row) of a fine grid of even width (height): that column sits one
-/// fine cell, not two, from its neighbour beyond, so the coarse operator would not match
-/// the fine one there (the cycles diverged); its correction is held at zero and the fine
-/// sweeps take care of the edge. Stops
+/// a coarse cell is free when every fine cell its prolongation reaches (the 3 × 3 around
+/// the fine cell it sits on) is free, so the coarse operator (the same five-point stencil,
+/// not the Galerkin product) is used only where it matches the fine one; the injected mask
+/// alone (free when the fine cell under it is) diverged on scattered one-cell voids. The
+/// last coarse column (row) of a fine grid of even width (height) is held fixed too: it
+/// sits one fine cell, not two, from its neighbour beyond. Stops
 /// above [`COARSEST`] cells, or where a level would have no free or no fixed cell (a level
 /// without fixed cells is singular).
 fn hierarchy(free: &[bool], cols: usize, rows: usize) -> Vec<Level> {
@@ -365,7 +366,10 @@ fn hierarchy(free: &[bool], cols: usize, rows: usize) -> Vec<Level> {
             .map(|k| {
                 let (ic, jc) = (k % cc, k / cc);
                 let edge = (cols % 2 == 0 && ic + 1 == cc) || (rows % 2 == 0 && jc + 1 == cr);
-                !edge && free[2 * jc * cols + 2 * ic]
+                let (i, j) = (2 * ic, 2 * jc);
+                let all = (j.saturating_sub(1)..(j + 2).min(rows))
+                    .all(|j| (i.saturating_sub(1)..(i + 2).min(cols)).all(|i| free[j * cols + i]));
+                !edge && all
             })
             .collect();
         let nf = fc.iter().filter(|f| **f).count();
