@@ -139,8 +139,10 @@ fn prolong(z: &mut [f32], known: &[bool], cols: usize, zc: &[f32], cc: usize, cr
 const FINE_SWEEPS: usize = 400;
 /// Sweeps of red-black Gauss-Seidel before and after each coarse-grid correction.
 const SMOOTH_SWEEPS: usize = 2;
-/// V-cycle cap of a level of the cascade (each cycle divides the error by about ten, so the
-/// cap is reached only when the tolerance lies below the rounding of `f32` heights).
+/// V-cycle cap of a level of the cascade. With the same five-point stencil on every level
+/// (no Galerkin coarse operator) a cycle cuts the change only by about 1.6 on the fine levels
+/// of scattered voids (about 20 cycles at 4097²); the cap bounds the cases where the
+/// tolerance lies below the rounding of `f32` heights.
 const MAX_CYCLES: usize = 40;
 
 /// One level of the V-cycle hierarchy. Cells are split by colour: cell (i, j) of colour
