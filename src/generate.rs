@@ -293,6 +293,8 @@ fn scan_line(world: &World, v0: f64, spacing: f64, seed: u64, out: &mut Vec<Ret>
 
 /// Most tiles `generate --tiles` writes (files in one directory).
 pub const MAX_TILES: u64 = 65_536;
+/// Fewest points a scene has (fewer cannot show its features).
+pub const MIN_POINTS: u64 = 100;
 /// Largest scene area in m² (200 km × 200 km): the tree index is one cell per 400 m².
 pub const MAX_AREA: f64 = 4e10;
 /// Bytes `generate` holds per point at its peak: the scan returns (about 1.1 per point,
@@ -302,6 +304,13 @@ pub const BYTES_PER_POINT: u64 = 120;
 /// Checks `generate`'s counts against what the machine can do before any work: the points
 /// against the memory budget, the area and the tile count against fixed bounds.
 pub fn check_bounds(points: u64, size: Option<[f64; 2]>, tiles: (usize, usize)) -> Result<()> {
+    // The point count first: the tile bound below is "no more than the points", which
+    // would otherwise report a too-small count as too many tiles.
+    if points < MIN_POINTS {
+        return Err(Error::Usage(format!(
+            "--points {points}: at least {MIN_POINTS}"
+        )));
+    }
     let need = points.saturating_mul(BYTES_PER_POINT);
     let budget = crate::memory::budget();
     if need > budget {
@@ -339,7 +348,7 @@ pub fn check_bounds(points: u64, size: Option<[f64; 2]>, tiles: (usize, usize)) 
 /// assert!(scene.cloud.classification.contains(&2), "ground points");
 /// ```
 pub fn generate(params: &GenerateParams) -> Result<Scene> {
-    if params.points < 100 {
+    if params.points < MIN_POINTS {
         return Err(Error::param(
             "generate",
             "points",

@@ -484,3 +484,21 @@ fn closed_stdout_pipe_panicked() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert_eq!(out.status.code(), Some(0), "{stderr}");
 }
+
+/// `generate --points 0` was refused as "--tiles 1x1: 1 tiles, at most 0": the tile bound
+/// ("no more than the points") was checked before the point count itself.
+#[test]
+fn generate_too_few_points_names_points() {
+    let d = tempfile::tempdir().unwrap();
+    for n in ["0", "99"] {
+        let r = terratile(d.path(), &["generate", "-o", "g.las", "--points", n]);
+        assert_eq!(r.code, 2, "{}", r.context());
+        one_clean_line(&r);
+        assert!(
+            r.stderr.contains(&format!("--points {n}: at least 100")),
+            "{}",
+            r.context()
+        );
+    }
+    assert!(!d.path().join("g.las").exists());
+}
