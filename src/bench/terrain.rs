@@ -114,27 +114,48 @@ pub struct TerrainBench {
     pub delaunay_cpu_s: [f64; 2],
     /// The faster Delaunay's CPU time / the whole pipeline's CPU time.
     pub total_cpu_ratio: f64,
+    /// Median CPU seconds of each step's serial part (the calling thread's own CPU time).
+    pub stage_serial_cpu_s: [f64; 7],
+    /// The whole pipeline's wall time on an otherwise idle machine as the CPU times predict
+    /// it: per step, the serial part plus the rest spread over `threads` workers (an
+    /// estimate: it assumes the parallel parts balance and ignores memory bandwidth).
+    pub idle_estimate_s: f64,
+    /// The faster Delaunay's CPU time (one thread: its wall time when idle) / idle_estimate_s.
+    pub idle_ratio_estimate: f64,
 }
 
-/// CPU seconds this process has used so far, user + system, all threads.
+/// CPU seconds used so far, user + system: by the whole process (all threads), and by the
+/// calling thread. The pipeline's stages run on the calling thread and hand their parallel
+/// parts to rayon's workers, where the calling thread waits without using CPU: its own CPU
+/// time in a stage is the stage's serial part.
 #[cfg(unix)]
-fn cpu_seconds() -> f64 {
-    let t = rustix::time::clock_gettime(rustix::time::ClockId::ProcessCPUTime);
-    t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
+fn cpu_now() -> [f64; 2] {
+    use rustix::time::{clock_gettime, ClockId};
+    let s = |id| {
+        let t = clock_gettime(id);
+        t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
+    };
+    [s(ClockId::ProcessCPUTime), s(ClockId::ThreadCPUTime)]
 }
 
-/// No process CPU clock here: CPU times read 0.
+/// No CPU clocks here: CPU times read 0.
 #[cfg(not(unix))]
-fn cpu_seconds() -> f64 {
-    0.0
+fn cpu_now() -> [f64; 2] {
+    [0.0; 2]
+}
+
+/// The CPU seconds (process, calling thread) since `start`.
+fn cpu_since(start: [f64; 2]) -> [f64; 2] {
+    let now = cpu_now();
+    [now[0] - start[0], now[1] - start[1]]
 }
 
 /// The CPU time of each step the pipeline announces to its progress (`grid_stages` opens
 /// and closes one per stage around exactly what it times).
 #[derive(Default)]
 struct StageClock {
-    open: Mutex<Option<(String, f64)>>,
-    done: Mutex<Vec<(String, f64)>>,
+    open: Mutex<Option<(String, [f64; 2])>>,
+    done: Mutex<Vec<(String, [f64; 2])>>,
 }
 
 fn locked<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -142,23 +163,23 @@ fn locked<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl StageClock {
-    /// CPU seconds of the step `label` (0 if it did not run).
-    fn cpu(&self, label: &str) -> f64 {
+    /// CPU seconds (all threads, calling thread) of the step `label` (0 if it did not run).
+    fn cpu(&self, label: &str) -> [f64; 2] {
         locked(&self.done)
             .iter()
             .find(|(l, _)| l == label)
-            .map_or(0.0, |(_, c)| *c)
+            .map_or([0.0; 2], |(_, c)| *c)
     }
 }
 
 impl Progress for StageClock {
     fn start(&self, label: &str, _: u64) {
-        *locked(&self.open) = Some((label.to_string(), cpu_seconds()));
+        *locked(&self.open) = Some((label.to_string(), cpu_now()));
     }
     fn advance(&self, _: u64) {}
     fn finish(&self) {
         if let Some((label, c0)) = locked(&self.open).take() {
-            locked(&self.done).push((label, cpu_seconds() - c0));
+            locked(&self.done).push((label, cpu_since(c0)));
         }
     }
 }
@@ -170,16 +191,16 @@ struct GridRun {
     grid: [usize; 2],
     hf: Heightfield,
     t: [f64; 4],
-    /// CPU seconds of the same four steps.
-    cpu: [f64; 4],
+    /// CPU seconds (all threads, calling thread) of the same four steps.
+    cpu: [[f64; 2]; 4],
 }
 
 /// One run of the tile stages on a filled grid.
 struct TileRun {
     /// tiles, quadtree, write, extract.
     t: [f64; 4],
-    /// CPU seconds of tiles, quadtree, write.
-    cpu: [f64; 3],
+    /// CPU seconds (all threads, calling thread) of tiles, quadtree, write.
+    cpu: [[f64; 2]; 3],
     tiling: [usize; 3],
     bytes: u64,
     triangles: usize,
@@ -255,14 +276,14 @@ fn tile_run(hf: &Heightfield, dirs: &RunDirs, run: usize) -> Result<TileRun> {
     use crate::terrain::{quadtree, tiles};
     let dir = dirs.run(run)?;
     let cfg = bench_pipeline();
-    let mut marks = vec![(cpu_seconds(), Instant::now())];
+    let mut marks = vec![(cpu_now(), Instant::now())];
     let mut set = tiles::tile(hf, &cfg.tiles)?;
     with_input_crs(&cfg, &mut set);
-    marks.push((cpu_seconds(), Instant::now()));
+    marks.push((cpu_now(), Instant::now()));
     let qt = quadtree::build(&set, &cfg.quadtree)?;
-    marks.push((cpu_seconds(), Instant::now()));
+    marks.push((cpu_now(), Instant::now()));
     let written = product_stages(&cfg, set, qt, Vec::new(), &dir, &NoProgress);
-    marks.push((cpu_seconds(), Instant::now()));
+    marks.push((cpu_now(), Instant::now()));
     let bytes = dir_bytes(&dir);
     let TileStages { set, quadtree, .. } = written?;
     let t4 = Instant::now();
@@ -273,7 +294,10 @@ fn tile_run(hf: &Heightfield, dirs: &RunDirs, run: usize) -> Result<TileRun> {
     };
     let extract_s = t4.elapsed().as_secs_f64();
     let wall = |k: usize| (marks[k + 1].1 - marks[k].1).as_secs_f64();
-    let cpu = |k: usize| marks[k + 1].0 - marks[k].0;
+    let cpu = |k: usize| {
+        let (a, b) = (marks[k].0, marks[k + 1].0);
+        [b[0] - a[0], b[1] - a[1]]
+    };
     Ok(TileRun {
         t: [wall(0), wall(1), wall(2), extract_s],
         cpu: [cpu(0), cpu(1), cpu(2)],
@@ -284,11 +308,11 @@ fn tile_run(hf: &Heightfield, dirs: &RunDirs, run: usize) -> Result<TileRun> {
 }
 
 fn grid_run(path: &Path) -> Result<GridRun> {
-    let c0 = cpu_seconds();
+    let c0 = cpu_now();
     let t0 = Instant::now();
     let cloud = points::read(path, &ReadOptions::default(), &NoProgress)?;
     let t1 = Instant::now();
-    let read_cpu = cpu_seconds() - c0;
+    let read_cpu = cpu_since(c0);
     let clock = StageClock::default();
     let g = grid_stages(&cloud, &bench_pipeline(), &clock)?;
     let Some(d) = g.denoised else {
@@ -334,18 +358,30 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
         runs.push(last);
     }
     let tcol = |k: usize| median(tile_runs.iter().map(|r| r.t[k]).collect());
-    let stage_cpu_s: [f64; 7] = std::array::from_fn(|k| {
-        median(
-            runs.iter()
-                .zip(&tile_runs)
-                .map(|(g, t)| if k < 4 { g.cpu[k] } else { t.cpu[k - 4] })
-                .collect(),
-        )
-    });
+    // Per run, the seven steps' CPU seconds (all threads, calling thread).
+    let run_cpu: Vec<[[f64; 2]; 7]> = runs
+        .iter()
+        .zip(&tile_runs)
+        .map(|(g, t)| std::array::from_fn(|k| if k < 4 { g.cpu[k] } else { t.cpu[k - 4] }))
+        .collect();
+    let cpu_col = |k: usize, c: usize| median(run_cpu.iter().map(|r| r[k][c]).collect());
+    let stage_cpu_s: [f64; 7] = std::array::from_fn(|k| cpu_col(k, 0));
+    let stage_serial_cpu_s: [f64; 7] = std::array::from_fn(|k| cpu_col(k, 1));
     let total_cpu_s = median(
-        runs.iter()
-            .zip(&tile_runs)
-            .map(|(g, t)| g.cpu.iter().sum::<f64>() + t.cpu.iter().sum::<f64>())
+        run_cpu
+            .iter()
+            .map(|r| r.iter().map(|c| c[0]).sum())
+            .collect(),
+    );
+    let threads = rayon::current_num_threads();
+    let idle_estimate_s = median(
+        run_cpu
+            .iter()
+            .map(|r| {
+                r.iter()
+                    .map(|c| c[1] + (c[0] - c[1]).max(0.0) / threads as f64)
+                    .sum()
+            })
             .collect(),
     );
     let total_s = median(
@@ -393,10 +429,10 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
             (TinMethod::Bulk, &mut bulk, &mut bulk_cpu),
             (TinMethod::Incremental, &mut incr, &mut incr_cpu),
         ] {
-            let (c, t) = (cpu_seconds(), Instant::now());
+            let (c, t) = (cpu_now(), Instant::now());
             let tin = delaunay::triangulate(&tin_points, method)?;
             out.push(t.elapsed().as_secs_f64());
-            out_cpu.push(cpu_seconds() - c);
+            out_cpu.push(cpu_since(c)[0]);
             vertices = tin.vertices();
             triangles = tin.triangles();
         }
@@ -447,11 +483,14 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
         written_bytes,
         mesh_triangles,
         repeats,
-        threads: rayon::current_num_threads(),
+        threads,
         stage_cpu_s,
         total_cpu_s,
         delaunay_cpu_s,
         total_cpu_ratio: delaunay_cpu_s[0].min(delaunay_cpu_s[1]) / total_cpu_s,
+        stage_serial_cpu_s,
+        idle_estimate_s,
+        idle_ratio_estimate: delaunay_cpu_s[0].min(delaunay_cpu_s[1]) / idle_estimate_s,
     })
 }
 
@@ -537,6 +576,17 @@ impl std::fmt::Display for TerrainBench {
             f,
             "  CPU (user + system, all threads): whole pipeline {:.3} s, Delaunay bulk {:.3} s, incremental {:.3} s; total_cpu_ratio {:.1}",
             self.total_cpu_s, self.delaunay_cpu_s[0], self.delaunay_cpu_s[1], self.total_cpu_ratio
+        )?;
+        let sc = &self.stage_serial_cpu_s;
+        writeln!(
+            f,
+            "  serial part (calling thread's CPU): read {:.3}, denoise {:.3}, resample {:.3}, fill {:.3}, tiles {:.3}, quadtree {:.3}, write {:.3} s",
+            sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6]
+        )?;
+        writeln!(
+            f,
+            "  idle-machine estimate (serial parts + the rest over {} threads): {:.3} s, ratio {:.1}",
+            self.threads, self.idle_estimate_s, self.idle_ratio_estimate
         )?;
         writeln!(
             f,
