@@ -215,4 +215,27 @@ fn bench_terrain_json() {
     assert_eq!(v["exr_compression"], "none");
     assert_eq!(v["points"], 55057);
     assert!(v["tin_triangles"].as_u64().unwrap() > 100_000);
+    // CPU times: with one run, the steps add up to the total; a step's serial part (the
+    // calling thread's clock) is part of it; the idle estimate lies between the CPU time
+    // spread over the threads and the CPU time.
+    let f = |k: &str| {
+        v[k].as_f64()
+            .unwrap_or_else(|| panic!("{k}\n{}", r.context()))
+    };
+    let cpu: Vec<f64> = serde_json::from_value(v["stage_cpu_s"].clone()).unwrap();
+    let serial: Vec<f64> = serde_json::from_value(v["stage_serial_cpu_s"].clone()).unwrap();
+    assert_eq!((cpu.len(), serial.len()), (7, 7));
+    let total_cpu = f("total_cpu_s");
+    assert!(total_cpu > 0.0 && (cpu.iter().sum::<f64>() - total_cpu).abs() < 1e-9);
+    for (c, s) in cpu.iter().zip(&serial) {
+        assert!(*s >= 0.0 && *s <= c + 1e-3, "serial {s} of a step of {c} s");
+    }
+    let threads = f("threads");
+    let idle = f("idle_estimate_s");
+    assert!(idle >= total_cpu / threads - 1e-9 && idle <= total_cpu + 1e-3);
+    let delaunay: Vec<f64> = serde_json::from_value(v["delaunay_cpu_s"].clone()).unwrap();
+    let faster = delaunay[0].min(delaunay[1]);
+    assert!(faster > 0.0);
+    assert!((f("total_cpu_ratio") - faster / total_cpu).abs() < 1e-9 * faster / total_cpu);
+    assert!((f("idle_ratio_estimate") - faster / idle).abs() < 1e-9 * faster / idle);
 }

@@ -4,21 +4,29 @@
 //! stages follow (tiles, quadtree d2, writing the EXR tiles with the default compression, the
 //! manifest and the 16-bit heightmaps), so that `total_s` is the whole pipeline from file to
 //! written tiles; mesh extraction at the default tolerance is timed beside it.
+//!
+//! Every stage and each Delaunay build is also timed in CPU seconds (user + system, all
+//! threads of the process: `CLOCK_PROCESS_CPUTIME_ID`), because on a shared machine the wall
+//! times move with whatever else runs while CPU time moves much less; `total_cpu_ratio` is
+//! the faster Delaunay's CPU time over the whole pipeline's. Our stages use every core and
+//! spade one, so on an idle machine the wall ratio is up to the thread count times the CPU
+//! ratio.
 
 use super::median;
 use crate::config::Pipeline;
 use crate::error::{Error, Result};
 use crate::output::OutputConfig;
 use crate::pipeline::{
-    grid_stages, peak_rss, reset_peak_rss, stage_seconds, tile_stages, TileStages,
+    grid_stages, peak_rss, product_stages, reset_peak_rss, with_input_crs, TileStages,
 };
 use crate::points::{self, PointCloud, ReadOptions};
-use crate::progress::NoProgress;
+use crate::progress::{NoProgress, Progress};
 use crate::terrain::delaunay::{self, TinMethod};
 use crate::terrain::extract::extract_meshes;
 use crate::terrain::Heightfield;
 use serde::Serialize;
 use std::path::Path;
+use std::sync::{Mutex, MutexGuard};
 use std::time::Instant;
 
 /// Result of `bench terrain`.
@@ -97,6 +105,83 @@ pub struct TerrainBench {
     pub repeats: usize,
     /// Worker threads of the grid stages.
     pub threads: usize,
+    /// Median CPU seconds (user + system, all threads) of each step of the whole pipeline:
+    /// read, denoise, resample, fill, tiles, quadtree, write.
+    pub stage_cpu_s: [f64; 7],
+    /// Median CPU seconds of the whole pipeline (summed per run, then the median).
+    pub total_cpu_s: f64,
+    /// Median CPU seconds of spade's bulk loading and of its incremental insertion.
+    pub delaunay_cpu_s: [f64; 2],
+    /// The faster Delaunay's CPU time / the whole pipeline's CPU time.
+    pub total_cpu_ratio: f64,
+    /// Median CPU seconds of each step's serial part (the calling thread's own CPU time).
+    pub stage_serial_cpu_s: [f64; 7],
+    /// The whole pipeline's wall time on an otherwise idle machine as the CPU times predict
+    /// it: per step, the serial part plus the rest spread over `threads` workers (an
+    /// estimate: it assumes the parallel parts balance and ignores memory bandwidth).
+    pub idle_estimate_s: f64,
+    /// The faster Delaunay's CPU time (one thread: its wall time when idle) / idle_estimate_s.
+    pub idle_ratio_estimate: f64,
+}
+
+/// CPU seconds used so far, user + system: by the whole process (all threads), and by the
+/// calling thread. The pipeline's stages run on the calling thread and hand their parallel
+/// parts to rayon's workers, where the calling thread waits without using CPU: its own CPU
+/// time in a stage is the stage's serial part.
+#[cfg(unix)]
+fn cpu_now() -> [f64; 2] {
+    use rustix::time::{clock_gettime, ClockId};
+    let s = |id| {
+        let t = clock_gettime(id);
+        t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
+    };
+    [s(ClockId::ProcessCPUTime), s(ClockId::ThreadCPUTime)]
+}
+
+/// No CPU clocks here: CPU times read 0.
+#[cfg(not(unix))]
+fn cpu_now() -> [f64; 2] {
+    [0.0; 2]
+}
+
+/// The CPU seconds (process, calling thread) since `start`.
+fn cpu_since(start: [f64; 2]) -> [f64; 2] {
+    let now = cpu_now();
+    [now[0] - start[0], now[1] - start[1]]
+}
+
+/// The CPU time of each step the pipeline announces to its progress (`grid_stages` opens
+/// and closes one per stage around exactly what it times).
+#[derive(Default)]
+struct StageClock {
+    open: Mutex<Option<(String, [f64; 2])>>,
+    done: Mutex<Vec<(String, [f64; 2])>>,
+}
+
+fn locked<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+impl StageClock {
+    /// CPU seconds (all threads, calling thread) of the step `label` (0 if it did not run).
+    fn cpu(&self, label: &str) -> [f64; 2] {
+        locked(&self.done)
+            .iter()
+            .find(|(l, _)| l == label)
+            .map_or([0.0; 2], |(_, c)| *c)
+    }
+}
+
+impl Progress for StageClock {
+    fn start(&self, label: &str, _: u64) {
+        *locked(&self.open) = Some((label.to_string(), cpu_now()));
+    }
+    fn advance(&self, _: u64) {}
+    fn finish(&self) {
+        if let Some((label, c0)) = locked(&self.open).take() {
+            locked(&self.done).push((label, cpu_since(c0)));
+        }
+    }
 }
 
 /// One run of the grid stages.
@@ -106,12 +191,16 @@ struct GridRun {
     grid: [usize; 2],
     hf: Heightfield,
     t: [f64; 4],
+    /// CPU seconds (all threads, calling thread) of the same four steps.
+    cpu: [[f64; 2]; 4],
 }
 
 /// One run of the tile stages on a filled grid.
 struct TileRun {
     /// tiles, quadtree, write, extract.
     t: [f64; 4],
+    /// CPU seconds (all threads, calling thread) of tiles, quadtree, write.
+    cpu: [[f64; 2]; 3],
     tiling: [usize; 3],
     bytes: u64,
     triangles: usize,
@@ -180,17 +269,23 @@ impl Drop for RunDirs {
 /// this machine, skips recently deleted inodes when it allocates one, so each new file
 /// scanned past the hundreds the previous run had just deleted), which a run writing into
 /// a fresh directory does not pay.
+///
+/// The steps are `tile_stages`' own calls, made here one by one to read the CPU clock
+/// between them.
 fn tile_run(hf: &Heightfield, dirs: &RunDirs, run: usize) -> Result<TileRun> {
+    use crate::terrain::{quadtree, tiles};
     let dir = dirs.run(run)?;
     let cfg = bench_pipeline();
-    let written = tile_stages(&cfg, hf, &dir, &NoProgress);
+    let mut marks = vec![(cpu_now(), Instant::now())];
+    let mut set = tiles::tile(hf, &cfg.tiles)?;
+    with_input_crs(&cfg, &mut set);
+    marks.push((cpu_now(), Instant::now()));
+    let qt = quadtree::build(&set, &cfg.quadtree)?;
+    marks.push((cpu_now(), Instant::now()));
+    let written = product_stages(&cfg, set, qt, Vec::new(), &dir, &NoProgress);
+    marks.push((cpu_now(), Instant::now()));
     let bytes = dir_bytes(&dir);
-    let TileStages {
-        reports,
-        set,
-        quadtree,
-        ..
-    } = written?;
+    let TileStages { set, quadtree, .. } = written?;
     let t4 = Instant::now();
     let triangles = if set.holes() == 0 {
         extract_meshes(&set, &quadtree, &cfg.extract)?.triangles
@@ -198,9 +293,14 @@ fn tile_run(hf: &Heightfield, dirs: &RunDirs, run: usize) -> Result<TileRun> {
         0
     };
     let extract_s = t4.elapsed().as_secs_f64();
-    let s = |stage: &str| stage_seconds(&reports, stage);
+    let wall = |k: usize| (marks[k + 1].1 - marks[k].1).as_secs_f64();
+    let cpu = |k: usize| {
+        let (a, b) = (marks[k].0, marks[k + 1].0);
+        [b[0] - a[0], b[1] - a[1]]
+    };
     Ok(TileRun {
-        t: [s("tiles"), s("quadtree"), s("write"), extract_s],
+        t: [wall(0), wall(1), wall(2), extract_s],
+        cpu: [cpu(0), cpu(1), cpu(2)],
         tiling: [set.tile_size, set.grid[0], set.grid[1]],
         bytes,
         triangles,
@@ -208,10 +308,13 @@ fn tile_run(hf: &Heightfield, dirs: &RunDirs, run: usize) -> Result<TileRun> {
 }
 
 fn grid_run(path: &Path) -> Result<GridRun> {
+    let c0 = cpu_now();
     let t0 = Instant::now();
     let cloud = points::read(path, &ReadOptions::default(), &NoProgress)?;
     let t1 = Instant::now();
-    let g = grid_stages(&cloud, &bench_pipeline(), &NoProgress)?;
+    let read_cpu = cpu_since(c0);
+    let clock = StageClock::default();
+    let g = grid_stages(&cloud, &bench_pipeline(), &clock)?;
     let Some(d) = g.denoised else {
         return Err(Error::Internal(
             "denoise was asked for and did not run".into(),
@@ -228,6 +331,12 @@ fn grid_run(path: &Path) -> Result<GridRun> {
             g.seconds[0],
             g.seconds[1],
             g.seconds[2],
+        ],
+        cpu: [
+            read_cpu,
+            clock.cpu("denoise"),
+            clock.cpu("resample"),
+            clock.cpu("fill"),
         ],
     })
 }
@@ -249,6 +358,32 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
         runs.push(last);
     }
     let tcol = |k: usize| median(tile_runs.iter().map(|r| r.t[k]).collect());
+    // Per run, the seven steps' CPU seconds (all threads, calling thread).
+    let run_cpu: Vec<[[f64; 2]; 7]> = runs
+        .iter()
+        .zip(&tile_runs)
+        .map(|(g, t)| std::array::from_fn(|k| if k < 4 { g.cpu[k] } else { t.cpu[k - 4] }))
+        .collect();
+    let cpu_col = |k: usize, c: usize| median(run_cpu.iter().map(|r| r[k][c]).collect());
+    let stage_cpu_s: [f64; 7] = std::array::from_fn(|k| cpu_col(k, 0));
+    let stage_serial_cpu_s: [f64; 7] = std::array::from_fn(|k| cpu_col(k, 1));
+    let total_cpu_s = median(
+        run_cpu
+            .iter()
+            .map(|r| r.iter().map(|c| c[0]).sum())
+            .collect(),
+    );
+    let threads = rayon::current_num_threads();
+    let idle_estimate_s = median(
+        run_cpu
+            .iter()
+            .map(|r| {
+                r.iter()
+                    .map(|c| c[1] + (c[0] - c[1]).max(0.0) / threads as f64)
+                    .sum()
+            })
+            .collect(),
+    );
     let total_s = median(
         runs.iter()
             .zip(&tile_runs)
@@ -287,15 +422,17 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
     )?;
     let tin_prepare_s = t.elapsed().as_secs_f64();
     let (mut bulk, mut incr) = (Vec::new(), Vec::new());
+    let (mut bulk_cpu, mut incr_cpu) = (Vec::new(), Vec::new());
     let (mut vertices, mut triangles) = (0, 0);
     for _ in 0..repeats {
-        for (method, out) in [
-            (TinMethod::Bulk, &mut bulk),
-            (TinMethod::Incremental, &mut incr),
+        for (method, out, out_cpu) in [
+            (TinMethod::Bulk, &mut bulk, &mut bulk_cpu),
+            (TinMethod::Incremental, &mut incr, &mut incr_cpu),
         ] {
-            let t = Instant::now();
+            let (c, t) = (cpu_now(), Instant::now());
             let tin = delaunay::triangulate(&tin_points, method)?;
             out.push(t.elapsed().as_secs_f64());
+            out_cpu.push(cpu_since(c)[0]);
             vertices = tin.vertices();
             triangles = tin.triangles();
         }
@@ -307,6 +444,7 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
     } else {
         (b, "bulk")
     };
+    let delaunay_cpu_s = [median(bulk_cpu), median(incr_cpu)];
     let mb = |v: u64| v as f64 / 1e6;
     let record_bytes = record_length.map_or(0, |l| l * points);
     Ok(TerrainBench {
@@ -345,7 +483,14 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
         written_bytes,
         mesh_triangles,
         repeats,
-        threads: rayon::current_num_threads(),
+        threads,
+        stage_cpu_s,
+        total_cpu_s,
+        delaunay_cpu_s,
+        total_cpu_ratio: delaunay_cpu_s[0].min(delaunay_cpu_s[1]) / total_cpu_s,
+        stage_serial_cpu_s,
+        idle_estimate_s,
+        idle_ratio_estimate: delaunay_cpu_s[0].min(delaunay_cpu_s[1]) / idle_estimate_s,
     })
 }
 
@@ -361,10 +506,27 @@ impl std::fmt::Display for TerrainBench {
             self.grid[0],
             self.grid[1]
         )?;
-        writeln!(f, "  read               {:>8.3} s", self.read_s)?;
-        writeln!(f, "  denoise            {:>8.3} s", self.denoise_s)?;
-        writeln!(f, "  resample           {:>8.3} s", self.resample_s)?;
-        writeln!(f, "  fill               {:>8.3} s", self.fill_s)?;
+        let c = &self.stage_cpu_s;
+        writeln!(
+            f,
+            "  read               {:>8.3} s   cpu {:.3} s",
+            self.read_s, c[0]
+        )?;
+        writeln!(
+            f,
+            "  denoise            {:>8.3} s   cpu {:.3} s",
+            self.denoise_s, c[1]
+        )?;
+        writeln!(
+            f,
+            "  resample           {:>8.3} s   cpu {:.3} s",
+            self.resample_s, c[2]
+        )?;
+        writeln!(
+            f,
+            "  fill               {:>8.3} s   cpu {:.3} s",
+            self.fill_s, c[3]
+        )?;
         writeln!(f, "  denoise+resample+fill {:>5.3} s", self.stages_s)?;
         writeln!(
             f,
@@ -383,18 +545,24 @@ impl std::fmt::Display for TerrainBench {
         )?;
         writeln!(
             f,
-            "  tiles              {:>8.3} s   ({} tiles of {}², {} × {})",
+            "  tiles              {:>8.3} s   cpu {:.3} s   ({} tiles of {}², {} × {})",
             self.tiles_s,
+            c[4],
             self.tiling[1] * self.tiling[2],
             self.tiling[0],
             self.tiling[1],
             self.tiling[2]
         )?;
-        writeln!(f, "  quadtree d2        {:>8.3} s", self.quadtree_s)?;
         writeln!(
             f,
-            "  write              {:>8.3} s   (EXR {}, manifest, PNG + RAW heightmaps: {:.1} MB)",
+            "  quadtree d2        {:>8.3} s   cpu {:.3} s",
+            self.quadtree_s, c[5]
+        )?;
+        writeln!(
+            f,
+            "  write              {:>8.3} s   cpu {:.3} s   (EXR {}, manifest, PNG + RAW heightmaps: {:.1} MB)",
             self.write_s,
+            c[6],
             self.exr_compression,
             self.written_bytes as f64 / 1e6
         )?;
@@ -403,6 +571,22 @@ impl std::fmt::Display for TerrainBench {
             f,
             "  total_ratio (Delaunay {} / whole pipeline): {:.1}",
             self.delaunay_method, self.total_ratio
+        )?;
+        writeln!(
+            f,
+            "  CPU (user + system, all threads): whole pipeline {:.3} s, Delaunay bulk {:.3} s, incremental {:.3} s; total_cpu_ratio {:.1}",
+            self.total_cpu_s, self.delaunay_cpu_s[0], self.delaunay_cpu_s[1], self.total_cpu_ratio
+        )?;
+        let sc = &self.stage_serial_cpu_s;
+        writeln!(
+            f,
+            "  serial part (calling thread's CPU): read {:.3}, denoise {:.3}, resample {:.3}, fill {:.3}, tiles {:.3}, quadtree {:.3}, write {:.3} s",
+            sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6]
+        )?;
+        writeln!(
+            f,
+            "  idle-machine estimate (serial parts + the rest over {} threads): {:.3} s, ratio {:.1}",
+            self.threads, self.idle_estimate_s, self.idle_ratio_estimate
         )?;
         writeln!(
             f,
