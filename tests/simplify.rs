@@ -790,8 +790,10 @@ fn qem_runs_as_an_asset_and_its_keys_are_checked() {
 /// would otherwise lock the vertices along them and stop QEM near 580 triangles).
 /// Long (the multi-view saliency of five meshes): `cargo test --release --test tests
 /// simplify::saliency_table -- --ignored --nocapture`. SALIENCY_H_MIN, SALIENCY_SMOOTH (σ
-/// in ε), SALIENCY_SPREAD (0 or 1), SALIENCY_POWER try other weightings; SALIENCY_MESHES=cow,spot picks
-/// meshes.
+/// in ε), SALIENCY_SPREAD (0 or 1), SALIENCY_POWER, SALIENCY_AREA (0 or 1), SALIENCY_PLATEAU,
+/// SALIENCY_RULE (quadric or cost: the first three columns) try other weightings; SALIENCY_MESHES=cow,spot picks
+/// meshes. The last column is each simplification's seconds (weights known), for the speed
+/// ratio of weighted to plain QEM.
 #[test]
 #[ignore]
 fn saliency_table() {
@@ -804,6 +806,12 @@ fn saliency_table() {
         smooth: env("SALIENCY_SMOOTH").unwrap_or(d.smooth),
         spread: env("SALIENCY_SPREAD").map_or(d.spread, |x| x != 0.0),
         power: env("SALIENCY_POWER").unwrap_or(d.power),
+        area_rank: env("SALIENCY_AREA").map_or(d.area_rank, |x| x != 0.0),
+        plateau: env("SALIENCY_PLATEAU").unwrap_or(d.plateau),
+    };
+    let rule = match std::env::var("SALIENCY_RULE").as_deref() {
+        Ok("cost") => WeightRule::Cost,
+        _ => WeightRule::Quadric,
     };
     let only = std::env::var("SALIENCY_MESHES").ok();
     let wanted = |n: &str| {
@@ -833,9 +841,9 @@ fn saliency_table() {
         let t = m.triangle_count() as u64;
         cases.push((name.into(), m, vec![t / 10, t / 50]));
     }
-    println!("{w:?}");
-    println!("| mesh | triangles | weights | whole (%) | salient 20 % (%) | salient vs plain | whole vs plain |");
-    println!("|---|---|---|---|---|---|---|");
+    println!("{w:?} {rule}");
+    println!("| mesh | triangles | weights | whole (%) | salient 20 % (%) | salient vs plain | whole vs plain | QEM s |");
+    println!("|---|---|---|---|---|---|---|---|");
     for (name, m, targets) in cases {
         let t = std::time::Instant::now();
         let maps = saliency::maps(&m, &ViewParams::default()).unwrap();
@@ -853,9 +861,9 @@ fn saliency_table() {
             let mut plain = [0.0; 2];
             for (kind, ws, rule) in [
                 ("none", None, WeightRule::Quadric),
-                ("hybrid", wh.as_ref(), WeightRule::Quadric),
-                ("mesh", wm.as_ref(), WeightRule::Quadric),
-                ("image", wi.as_ref(), WeightRule::Quadric),
+                ("hybrid", wh.as_ref(), rule),
+                ("mesh", wm.as_ref(), rule),
+                ("image", wi.as_ref(), rule),
                 ("hybrid, thesis rule", wh.as_ref(), WeightRule::Cost),
             ] {
                 let p = qem::QemParams {
@@ -865,7 +873,9 @@ fn saliency_table() {
                     collapse_seams: name == "spot.obj",
                     ..p5k.clone()
                 };
+                let t = std::time::Instant::now();
                 let s = qem::simplify(&m, &p).unwrap().mesh;
+                let secs = t.elapsed().as_secs_f64();
                 let bvh = terratile::mesh::Bvh::new(&s);
                 let e =
                     [&m, &salient].map(|part| hausdorff::one_sided(part, &bvh, &hp, diag).mean_pct);
@@ -874,7 +884,7 @@ fn saliency_table() {
                 }
                 let rel = |i: usize| 100.0 * (e[i] / plain[i] - 1.0);
                 println!(
-                    "| {name} | {} | {kind} | {:.4} | {:.4} | {:+.1} % | {:+.1} % |",
+                    "| {name} | {} | {kind} | {:.4} | {:.4} | {:+.1} % | {:+.1} % | {secs:.3} |",
                     s.triangle_count(),
                     e[0],
                     e[1],

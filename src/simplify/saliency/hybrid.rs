@@ -40,9 +40,9 @@ pub const RANGES: [(f64, f64); 5] = [
     (0.15, 0.6),
 ];
 
-/// The percentile rank of every value in [0, 1] (ties get the mean of their ranks; a
-/// single value or all equal: 0.5).
-pub fn ranks(values: &[f64]) -> Vec<f64> {
+/// Calls `f` with each run of equal values of `values` (their indices), lowest value
+/// first; the order is total (ties by index).
+fn tie_groups(values: &[f64], mut f: impl FnMut(&[u32])) {
     let n = values.len();
     let mut order: Vec<u32> = (0..n as u32).collect();
     order.sort_by(|&a, &b| {
@@ -50,22 +50,33 @@ pub fn ranks(values: &[f64]) -> Vec<f64> {
             .total_cmp(&values[b as usize])
             .then(a.cmp(&b))
     });
-    let mut out = vec![0.5; n];
-    if n < 2 {
-        return out;
-    }
     let mut i = 0;
     while i < n {
         let mut j = i + 1;
         while j < n && values[order[j] as usize] == values[order[i] as usize] {
             j += 1;
         }
-        let r = 0.5 * (i + j - 1) as f64 / (n - 1) as f64;
-        for &k in &order[i..j] {
-            out[k as usize] = r;
-        }
+        f(&order[i..j]);
         i = j;
     }
+}
+
+/// The percentile rank of every value in [0, 1] (ties get the mean of their ranks; a
+/// single value or all equal: 0.5).
+pub fn ranks(values: &[f64]) -> Vec<f64> {
+    let n = values.len();
+    let mut out = vec![0.5; n];
+    if n < 2 {
+        return out;
+    }
+    let mut below = 0;
+    tie_groups(values, |g| {
+        let r = 0.5 * (2 * below + g.len() - 1) as f64 / (n - 1) as f64;
+        for &k in g {
+            out[k as usize] = r;
+        }
+        below += g.len();
+    });
     out
 }
 
@@ -115,18 +126,49 @@ pub fn hybrid(
 /// A power below 1 keeps the bulk of the surface near h_min and spends the range on the
 /// top ranks, as Lee et al. (2005) amplify the salient vertices' weights and leave the rest
 /// alone. `None` (plain QEM) when every value is the same (a plane has zero curvature and
-/// saliency).
+/// saliency). These ranks count vertices; the simplifier's default ([`super::Weighting`])
+/// ranks by area ([`area_ranks`]).
 pub fn weights(values: &[f64], h_min: f64, power: f64) -> Option<Vec<f64>> {
-    let first = *values.first()?;
-    if values.iter().all(|&x| x == first) {
-        return None;
+    varies(values).then(|| weights_of_ranks(&ranks(values), h_min, power, 0.0))
+}
+
+/// Whether `values` holds two different values (else the weights would be all the same).
+pub fn varies(values: &[f64]) -> bool {
+    values
+        .first()
+        .is_some_and(|&f| values.iter().any(|&x| x != f))
+}
+
+/// H = h_min^((1 − u')^power) of ranks u ∈ [0, 1], u' = min(1, u / (1 − plateau)): the top
+/// `plateau` share of the ranks all get H = 1, the rest spread geometrically below.
+pub fn weights_of_ranks(ranks: &[f64], h_min: f64, power: f64, plateau: f64) -> Vec<f64> {
+    let span = (1.0 - plateau).max(f64::MIN_POSITIVE);
+    ranks
+        .iter()
+        .map(|&u| h_min.powf((1.0 - (u / span).min(1.0)).powf(power)))
+        .collect()
+}
+
+/// The percentile rank of every value in [0, 1] by `area`: the share of the total area of
+/// the vertices with smaller values plus half of the area of those with the same value
+/// (so ties share their rank, and the rank of the top fifth of the area is 0.8 and above).
+/// All areas zero: [`ranks`].
+pub fn area_ranks(values: &[f64], area: &[f64]) -> Vec<f64> {
+    let total: f64 = area.iter().sum();
+    if total.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return ranks(values);
     }
-    Some(
-        ranks(values)
-            .into_iter()
-            .map(|u| h_min.powf((1.0 - u).powf(power)))
-            .collect(),
-    )
+    let mut out = vec![0.5; values.len()];
+    let mut below = 0.0;
+    tie_groups(values, |g| {
+        let same: f64 = g.iter().map(|&k| area[k as usize]).sum();
+        let r = (below + 0.5 * same) / total;
+        for &k in g {
+            out[k as usize] = r;
+        }
+        below += same;
+    });
+    out
 }
 
 #[cfg(test)]
@@ -138,6 +180,23 @@ mod tests {
         assert_eq!(ranks(&[3.0, 1.0, 2.0]), vec![1.0, 0.0, 0.5]);
         assert_eq!(ranks(&[1.0, 1.0, 5.0]), vec![0.25, 0.25, 1.0]);
         assert_eq!(ranks(&[7.0; 4]), vec![0.5; 4]);
+    }
+
+    #[test]
+    fn area_ranks_count_area_and_share_ties() {
+        // Areas 1, 3, 1, 3 of total 8: below the first 0, ties at 2 share (1 + 0.5·4) / 8.
+        let r = area_ranks(&[0.0, 2.0, 2.0, 5.0], &[1.0, 3.0, 1.0, 3.0]);
+        assert_eq!(r, vec![0.5 / 8.0, 3.0 / 8.0, 3.0 / 8.0, 6.5 / 8.0]);
+        // The top fifth of the area ranks 0.8 and above, whatever the vertex count.
+        let r = area_ranks(&[1.0, 2.0, 3.0], &[8.0, 0.0, 2.0]);
+        assert_eq!(r, vec![0.4, 0.8, 0.9]);
+        // No area: the plain ranks.
+        assert_eq!(area_ranks(&[3.0, 1.0], &[0.0, 0.0]), ranks(&[3.0, 1.0]));
+        // The plateau: the top share all at 1, h_min at the bottom.
+        let w = weights_of_ranks(&[0.0, 0.5, 0.8, 1.0], 0.01, 1.0, 0.2);
+        assert_eq!(w[0], 0.01);
+        assert!((w[1] - 0.01f64.powf(1.0 - 0.5 / 0.8)).abs() < 1e-12);
+        assert_eq!(&w[2..], &[1.0, 1.0]);
     }
 
     #[test]

@@ -111,6 +111,11 @@ pub struct Weighting {
     pub spread: bool,
     /// The shape of H over the ranks ([`hybrid::weights`]; 1: geometric).
     pub power: f64,
+    /// Whether the ranks count surface area (each vertex a third of its triangles' area)
+    /// rather than vertices ([`hybrid::area_ranks`]).
+    pub area_rank: bool,
+    /// The top share of the ranks that all get H = 1 (0: none; [`hybrid::weights_of_ranks`]).
+    pub plateau: f64,
 }
 
 impl Default for Weighting {
@@ -120,6 +125,8 @@ impl Default for Weighting {
             smooth: hybrid::SMOOTH,
             spread: true,
             power: POWER,
+            area_rank: true,
+            plateau: 0.0,
         }
     }
 }
@@ -128,10 +135,38 @@ impl Default for Weighting {
 pub const POWER: f64 = 1.0;
 
 impl Weighting {
-    /// The weights H of `values` on `mesh` ([`weight_values`], then [`hybrid::weights`]).
+    /// The weights H of `values` on `mesh` ([`weight_values`], ranked, then
+    /// [`hybrid::weights_of_ranks`]); `None` (plain QEM) when every value is the same.
     pub fn weights(&self, mesh: &TriMesh, values: &[f64]) -> Option<Vec<f64>> {
-        hybrid::weights(&weight_values(mesh, values, self), self.h_min, self.power)
+        let v = weight_values(mesh, values, self);
+        if !hybrid::varies(&v) {
+            return None;
+        }
+        let ranks = if self.area_rank {
+            hybrid::area_ranks(&v, &vertex_areas(mesh))
+        } else {
+            hybrid::ranks(&v)
+        };
+        Some(hybrid::weights_of_ranks(
+            &ranks,
+            self.h_min,
+            self.power,
+            self.plateau,
+        ))
     }
+}
+
+/// A third of the area of every triangle at each vertex (welded copies each count their own
+/// triangles; they share their value, so the ranks add them up).
+fn vertex_areas(mesh: &TriMesh) -> Vec<f64> {
+    let mut a = vec![0.0f64; mesh.vertex_count()];
+    for (f, t) in mesh.indices.iter().enumerate() {
+        let third = mesh.face_area(f) / 3.0;
+        for &v in t {
+            a[v as usize] += third;
+        }
+    }
+    a
 }
 
 /// The per-vertex values the weights are ranked by: `values` smoothed over σ =
