@@ -4,13 +4,18 @@
 //! layout) against the reference measured in the same run, encoding the same grid's
 //! uncompressed EXR tiles.
 //!
+//! Also the Cesium quantized-mesh tileset of the same grid ([`quantized_mesh`]).
+//!
 //! `cargo bench --bench geotiff`; without the shared data it says it skips.
 
 mod common;
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use rayon::prelude::*;
 use std::hint::black_box;
+use terratile::geo::tms::tileset;
 use terratile::output::georef::dem_geotiff;
+use terratile::output::qmesh::encode_tile;
 use terratile::terrain::quadtree::{build, QuadtreeParams};
 
 fn geotiff(c: &mut Criterion) {
@@ -64,5 +69,48 @@ fn cpu_seconds() -> Option<f64> {
     Some(ticks / 100.0)
 }
 
-criterion_group!(benches, geotiff);
+/// The Cesium tileset of the same grid (issue 17's figure: autzen_full's quantized-mesh
+/// tileset in at most 2 s on 2 cores): `geo::tms::tileset` (every level's lattice, heights,
+/// error tree, meshes, normals) and `output::qmesh::encode_tile` of every tile (quantisation
+/// and gzip), in memory: the files' creation is the file system's (measured apart in the
+/// README).
+fn quantized_mesh(c: &mut Criterion) {
+    let Some(set) = common::real_set("autzen_full.laz", 257, true) else {
+        return;
+    };
+    let qt = build(&set, &QuadtreeParams::default()).expect("d2");
+    let tileset_and_tiles = || {
+        let ts = tileset(&set, 0.5).expect("tileset");
+        let bytes: usize = ts.tiles.par_iter().map(|t| encode_tile(t).len()).sum();
+        (ts.tiles.len(), bytes)
+    };
+    let (tiles, bytes) = tileset_and_tiles();
+    eprintln!(
+        "quantized_mesh: {tiles} tiles, {:.2} MB, {} rayon threads",
+        bytes as f64 / 1e6,
+        rayon::current_num_threads()
+    );
+    if let Some(t0) = cpu_seconds() {
+        let wall = std::time::Instant::now();
+        for _ in 0..3 {
+            black_box(tileset_and_tiles());
+        }
+        if let Some(t1) = cpu_seconds() {
+            eprintln!(
+                "quantized_mesh: {:.3} CPU-s and {:.3} s of wall time per tileset",
+                (t1 - t0) / 3.0,
+                wall.elapsed().as_secs_f64() / 3.0
+            );
+        }
+    }
+    let mut g = c.benchmark_group("quantized_mesh_autzen_full");
+    g.sample_size(10);
+    common::exr_tiles_reference(&mut g, &set, &qt);
+    g.bench_function("tileset_and_tiles", |b| {
+        b.iter(|| black_box(tileset_and_tiles()))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, geotiff, quantized_mesh);
 criterion_main!(benches);

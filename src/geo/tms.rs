@@ -24,8 +24,8 @@
 
 use crate::error::{Error, Result};
 use crate::geo::ToWgs84;
-use crate::terrain::extract::{self, ExtractParams, TileTriangulation};
-use crate::terrain::quadtree::{self, QuadtreeParams};
+use crate::terrain::extract::{self, Criterion, ExtractParams, Refiner, TileTriangulation};
+use crate::terrain::quadtree::{self, Quadtree};
 use crate::terrain::{Tile, TileSet};
 use ndarray::Array2;
 use rayon::prelude::*;
@@ -270,30 +270,60 @@ fn tile_heights(src: &Source<'_>, z: u32, x: u32, y: u32) -> Vec<f64> {
     out
 }
 
-/// Unit normal in ECEF at lattice (i, j) of a tile whose apron heights are `h`.
-fn ecef_normal(h: &[f64], z: u32, bounds: [f64; 4], i: usize, j: usize) -> [f32; 3] {
-    let n = TILE_INTERVALS;
-    let w = n + 3;
-    let step = tile_degrees(z).to_radians() / n as f64;
-    let lon = (bounds[0] + (bounds[2] - bounds[0]) * i as f64 / n as f64).to_radians();
-    let lat = (bounds[1] + (bounds[3] - bounds[1]) * j as f64 / n as f64).to_radians();
-    let e2 = WGS84_F * (2.0 - WGS84_F);
-    let s2 = 1.0 - e2 * lat.sin().powi(2);
-    let prime_vertical = WGS84_A / s2.sqrt();
-    let meridian = WGS84_A * (1.0 - e2) / (s2 * s2.sqrt());
-    let at = |di: isize, dj: isize| {
-        h[(j as isize + 1 + dj) as usize * w + (i as isize + 1 + di) as usize]
-    };
-    let dx = (at(1, 0) - at(-1, 0)) / (2.0 * step * prime_vertical * lat.cos().max(1e-9));
-    let dy = (at(0, 1) - at(0, -1)) / (2.0 * step * meridian);
-    let len = (dx * dx + dy * dy + 1.0).sqrt();
-    let (ne, nn, nu) = (-dx / len, -dy / len, 1.0 / len);
-    let (sl, cl, sp, cp) = (lon.sin(), lon.cos(), lat.sin(), lat.cos());
-    [
-        (-sl * ne - sp * cl * nn + cp * cl * nu) as f32,
-        (cl * ne - sp * sl * nn + cp * sl * nu) as f32,
-        (cp * nn + sp * nu) as f32,
-    ]
+/// A tile's lattice lines on the ellipsoid, for its vertex normals: per column the sine and
+/// cosine of the longitude, per row those of the latitude and the metres per radian east
+/// (prime vertical radius × cos φ) and north (meridian radius). Computed once per tile, not
+/// per vertex (the trigonometry was most of the normals' time).
+struct Frame {
+    lon: Vec<[f64; 2]>,
+    lat: Vec<[f64; 4]>,
+    /// Lattice step, radians.
+    step: f64,
+}
+
+impl Frame {
+    fn new(z: u32, bounds: [f64; 4]) -> Frame {
+        let n = TILE_INTERVALS;
+        let e2 = WGS84_F * (2.0 - WGS84_F);
+        let at = |lo: f64, hi: f64, k: usize| (lo + (hi - lo) * k as f64 / n as f64).to_radians();
+        Frame {
+            lon: (0..=n)
+                .map(|i| {
+                    let (s, c) = at(bounds[0], bounds[2], i).sin_cos();
+                    [s, c]
+                })
+                .collect(),
+            lat: (0..=n)
+                .map(|j| {
+                    let (sp, cp) = at(bounds[1], bounds[3], j).sin_cos();
+                    let s2 = 1.0 - e2 * sp * sp;
+                    let prime_vertical = WGS84_A / s2.sqrt();
+                    let meridian = WGS84_A * (1.0 - e2) / (s2 * s2.sqrt());
+                    [sp, cp, prime_vertical * cp.max(1e-9), meridian]
+                })
+                .collect(),
+            step: tile_degrees(z).to_radians() / n as f64,
+        }
+    }
+
+    /// Unit normal in ECEF at lattice (i, j) of the tile whose apron heights are `h`.
+    fn normal(&self, h: &[f64], i: usize, j: usize) -> [f32; 3] {
+        let w = TILE_INTERVALS + 3;
+        let at = |di: isize, dj: isize| {
+            h[(j as isize + 1 + dj) as usize * w + (i as isize + 1 + di) as usize]
+        };
+        let [sl, cl] = self.lon[i];
+        let [sp, cp, east, north] = self.lat[j];
+        let dx = (at(1, 0) - at(-1, 0)) / (2.0 * self.step * east);
+        let dy = (at(0, 1) - at(0, -1)) / (2.0 * self.step * north);
+        let len = (dx * dx + dy * dy + 1.0).sqrt();
+        let (ne, nn, nu) = (-dx / len, -dy / len, 1.0 / len);
+        [
+            (-sl * ne - sp * cl * nn + cp * cl * nu) as f32,
+            (cl * ne - sp * sl * nn + cp * sl * nu) as f32,
+            (cp * nn + sp * nu) as f32,
+        ]
+    }
 }
 
 /// The level's lattice as a tile set (degrees, metres) and each tile's apron heights.
@@ -362,6 +392,7 @@ fn terrain_tile(
     let tile = &set.tiles[tri.tile];
     let (x, y) = (r.x[0] + tile.col as u32, r.y[0] + tile.row as u32);
     let bounds = tile_bounds(r.z, x, y);
+    let frame = Frame::new(r.z, bounds);
     let mut remap = vec![u32::MAX; tri.uv.len()];
     let mut out = TerrainTile {
         zxy: [r.z, x, y],
@@ -380,7 +411,7 @@ fn terrain_tile(
                 let [i, j] = tri.uv[v as usize].map(|c| c as usize);
                 out.ij.push([i as u16, j as u16]);
                 out.heights.push(f64::from(tri.z[v as usize]));
-                out.normals.push(ecef_normal(apron, r.z, bounds, i, j));
+                out.normals.push(frame.normal(apron, i, j));
             }
             *slot
         }));
@@ -403,20 +434,31 @@ pub fn tileset(set: &TileSet, tolerance_m: f64) -> Result<Tileset> {
         bounds,
     };
     let cell_m = set.cell_size[0].min(set.cell_size[1]) * unit;
-    let params = ExtractParams {
+    ExtractParams {
         tolerance: tolerance_m,
         ..ExtractParams::default()
+    }
+    .validate()?;
+    // The tolerance criterion reads the vertical error tree only: Röttger's d2 (which only
+    // the view-dependent criterion reads) is not computed for these sets.
+    let no_d2 = Quadtree {
+        c: 0.0,
+        k: 0.0,
+        d2: Vec::new(),
     };
     let mut levels = Vec::new();
     let mut tiles = Vec::new();
     for z in 0..=finest_level(cell_m) {
         let r = tile_range(z, bounds);
         let (lset, aprons) = level_set(&src, &r);
-        let qt = quadtree::build(&lset, &QuadtreeParams::default())?;
-        let meshes = extract::extract_meshes(&lset, &qt, &params)?;
+        let err = quadtree::vertical_error(&lset);
+        let criterion = Criterion::Tolerance {
+            max_error: tolerance_m,
+        };
+        let refiner = Refiner::new(&lset, &no_d2, Some(&err), criterion)?;
+        let meshes = extract::extract(&lset, &refiner)?;
         tiles.par_extend(
             meshes
-                .tiles
                 .par_iter()
                 .map(|tri| terrain_tile(&r, &lset, tri, &aprons[tri.tile])),
         );
@@ -451,7 +493,7 @@ mod tests {
     #[test]
     fn normal_of_flat_ground_is_the_ellipsoid_normal() {
         let h = vec![5.0; (TILE_INTERVALS + 3).pow(2)];
-        let n = ecef_normal(&h, 10, tile_bounds(10, 0, 512), 0, 0);
+        let n = Frame::new(10, tile_bounds(10, 0, 512)).normal(&h, 0, 0);
         // (−180°, 0°): the normal is −x.
         assert!(
             (n[0] + 1.0).abs() < 1e-6 && n[1].abs() < 1e-6 && n[2].abs() < 1e-6,
