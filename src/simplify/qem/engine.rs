@@ -1112,19 +1112,24 @@ impl<'m> Collapse<'m> {
         moved.clear();
         let (gs, gl) = (self.vx[ug].start as usize, self.vx[ug].len as usize);
         for i in gs..gs + gl {
+            // Live faces only (see `each_face`).
             let cnr = self.pool[i];
             let f = cnr as usize / 3;
-            if self.face_alive[f] {
-                if self.faces[f].contains(&s) {
-                    self.face_alive[f] = false;
-                    self.tris -= 1;
-                    self.dead.push(f as u32);
-                } else {
-                    self.faces[f][cnr as usize % 3] = s;
-                    moved.push(cnr);
-                }
+            if self.faces[f].contains(&s) {
+                self.face_alive[f] = false;
+                self.tris -= 1;
+                self.dead.push(f as u32);
+            } else {
+                self.faces[f][cnr as usize % 3] = s;
+                moved.push(cnr);
             }
         }
+        // The faces that died here: the only dead ones in any corner list now. The lists
+        // below drop them by name (an edge's one or two faces) rather than by reading every
+        // face's flag (a cache miss per corner); by the flag when more died (the topology
+        // check switched off).
+        let died = &self.dead[dead_before..];
+        let gone = (died.len() <= 2).then(|| [0, 1].map(|k| died.get(k).map_or(NONE, |&f| f)));
         self.vx[ug].len = 0;
         // s's new list: its own corners without the dead faces, reversed, then the moved
         // corners, reversed (the order the linked lists this replaced gave: the two-local-
@@ -1137,7 +1142,7 @@ impl<'m> Collapse<'m> {
         let mut w = ss;
         for i in ss..ss + sl {
             let cnr = self.pool[i];
-            if self.face_alive[cnr as usize / 3] {
+            if !self.died(gone, cnr) {
                 self.pool[w] = cnr;
                 w += 1;
             }
@@ -1167,11 +1172,11 @@ impl<'m> Collapse<'m> {
         }
         // The dead faces' third corners leave their vertices' lists (else every list
         // grows by the faces that died around it, and the walks over them dominate).
-        for i in 0..self.dead.len() {
+        for i in dead_before..self.dead.len() {
             let f = self.dead[i] as usize;
             for x in self.faces[f] {
                 if x != s && x != g {
-                    self.prune(x);
+                    self.prune(x, gone);
                 }
             }
         }
@@ -1197,13 +1202,24 @@ impl<'m> Collapse<'m> {
         self.refit(s);
     }
 
-    /// Drops the corners of dead faces from `v`'s list (in order).
-    fn prune(&mut self, v: u32) {
+    /// Whether corner `cnr`'s face died in the collapse under way (`gone`: the faces it
+    /// killed, when at most two).
+    #[inline]
+    fn died(&self, gone: Option<[u32; 2]>, cnr: u32) -> bool {
+        match gone {
+            Some(g) => g.contains(&(cnr / 3)),
+            None => !self.face_alive[cnr as usize / 3],
+        }
+    }
+
+    /// Drops the corners of the faces the collapse under way killed (see
+    /// [`Collapse::died`]) from `v`'s list (in order).
+    fn prune(&mut self, v: u32, gone: Option<[u32; 2]>) {
         let (start, len) = (self.vx[v as usize].start, self.vx[v as usize].len);
         let mut w = start as usize;
         for i in start as usize..(start + len) as usize {
             let cnr = self.pool[i];
-            if self.face_alive[cnr as usize / 3] {
+            if !self.died(gone, cnr) {
                 self.pool[w] = cnr;
                 w += 1;
             }
