@@ -7,7 +7,7 @@
 //! collapse alone: `cargo bench --bench simplify -- 'pct.*/(meshopt_simplify|terratile_qem)'`.
 
 use criterion::measurement::Measurement;
-use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use criterion::{criterion_group, criterion_main, BenchmarkGroup, Criterion, Throughput};
 
 mod common;
 
@@ -19,6 +19,26 @@ use terratile::simplify::{simplify, Method, Placement, SimplifyParams};
 
 fn bunny() -> Option<TriMesh> {
     load("bunny.obj")
+}
+
+/// meshoptimizer's `simplify` (its edge collapse) of `mesh` to `target` triangles, as
+/// `meshopt_simplify` in `g`.
+fn bench_meshopt<M: Measurement>(g: &mut BenchmarkGroup<'_, M>, mesh: &TriMesh, target: usize) {
+    let flat: Vec<u32> = mesh.indices.iter().flatten().copied().collect();
+    let bytes = meshopt::typed_to_bytes(&mesh.positions);
+    g.bench_function("meshopt_simplify", |b| {
+        b.iter(|| {
+            let adapter = meshopt::VertexDataAdapter::new(bytes, 12, 0).expect("adapter");
+            black_box(meshopt::simplify(
+                &flat,
+                &adapter,
+                target * 3,
+                1.0,
+                meshopt::SimplifyOptions::None,
+                None,
+            ))
+        })
+    });
 }
 
 /// Quadric edge collapse (optimal placement) against meshoptimizer's `simplify` (its edge
@@ -35,27 +55,13 @@ fn edge_collapse_in<M: Measurement>(c: &mut Criterion<M>, suffix: &str) {
     for (name, ratio) in [("bunny.obj", 0.10), ("armadillo.obj", 0.02)] {
         let Some(mesh) = load(name) else { return };
         let target = (mesh.triangle_count() as f64 * ratio).round() as usize;
-        let flat: Vec<u32> = mesh.indices.iter().flatten().copied().collect();
-        let bytes = meshopt::typed_to_bytes(&mesh.positions);
         let mut g = c.benchmark_group(format!(
             "{}_{}pct{suffix}",
             name.trim_end_matches(".obj"),
             ratio * 100.0
         ));
         g.sample_size(10);
-        g.bench_function("meshopt_simplify", |b| {
-            b.iter(|| {
-                let adapter = meshopt::VertexDataAdapter::new(bytes, 12, 0).expect("adapter");
-                black_box(meshopt::simplify(
-                    &flat,
-                    &adapter,
-                    target * 3,
-                    1.0,
-                    meshopt::SimplifyOptions::None,
-                    None,
-                ))
-            })
-        });
+        bench_meshopt(&mut g, &mesh, target);
         let params = SimplifyParams::triangles(Method::Qem, target as u64);
         let run = |p: &SimplifyParams| one.install(|| simplify(&mesh, p).expect("simplify"));
         g.bench_function("terratile_qem_optimal", |b| {
@@ -81,23 +87,9 @@ fn edge_collapse_in<M: Measurement>(c: &mut Criterion<M>, suffix: &str) {
 fn edge_collapse_igea<M: Measurement>(c: &mut Criterion<M>, suffix: &str) {
     let Some(mesh) = load("igea.ply") else { return };
     let target = (mesh.triangle_count() as f64 * 0.01).round() as usize;
-    let flat: Vec<u32> = mesh.indices.iter().flatten().copied().collect();
-    let bytes = meshopt::typed_to_bytes(&mesh.positions);
     let mut g = c.benchmark_group(format!("igea_1pct{suffix}"));
     g.sample_size(10);
-    g.bench_function("meshopt_simplify", |b| {
-        b.iter(|| {
-            let adapter = meshopt::VertexDataAdapter::new(bytes, 12, 0).expect("adapter");
-            black_box(meshopt::simplify(
-                &flat,
-                &adapter,
-                target * 3,
-                1.0,
-                meshopt::SimplifyOptions::None,
-                None,
-            ))
-        })
-    });
+    bench_meshopt(&mut g, &mesh, target);
     let params = SimplifyParams::triangles(Method::Qem, target as u64);
     g.bench_function("terratile_qem_optimal", |b| {
         b.iter(|| black_box(simplify(&mesh, &params).expect("simplify")))
