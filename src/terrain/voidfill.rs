@@ -17,7 +17,7 @@
 //! coarse levels see the void's true shape (a coarse cell half inside the void keeps the part
 //! that is). The earlier geometric coarsening (the same five-point stencil on an eroded mask)
 //! divided the change by only about 1.6 a cycle on these masks; the Galerkin cycles divide it
-//! by 4 to 10. A full-multigrid start (the right-hand side restricted to every level, the
+//! by about 4 to 7. A full-multigrid start (the right-hand side restricted to every level, the
 //! coarsest solved, each finer level started from the prolongation of the one below and
 //! improved by one V-cycle) is followed by V(1, 1) cycles (forward Gauss-Seidel before the
 //! coarse correction, backward after) until the estimated error is within the tolerance.
