@@ -6,44 +6,74 @@
 //! (zero slope across the border), so a void that reaches the border continues flat there
 //! instead of being extrapolated to heights the data never had.
 //!
-//! The solver is a cascadic multigrid (Bornemann & Deuflhard, "The cascadic multigrid method
-//! for elliptic problems", 1996) whose levels are each solved by multigrid V-cycles
-//! (Briggs, Henson & McCormick, "A Multigrid Tutorial", 2000): the grid is coarsened by
-//! injection (coarse cell (I, J) is fine cell (2I, 2J)) down to a few thousand cells, the
-//! coarsest level is solved by red-black over-relaxed Gauss-Seidel to convergence, and each
-//! finer level starts from the bilinear prolongation of the level below and runs V-cycles
-//! (2 red-black Gauss-Seidel sweeps, the residual restricted by the transpose of bilinear
-//! prolongation, the coarse correction solved recursively where the whole stencil is unknown, prolonged
-//! bilinearly, 2 sweeps) until a cycle moves no cell more than the tolerance. Should the
-//! cycles stop gaining, the level finishes with plain over-relaxed sweeps. Red-black order
-//! makes a sweep independent of the
-//! thread count: a red cell reads only black cells and the reverse, so the result is the same
-//! bits for any number of threads. Hand-written because no crate of the field solves a
-//! Laplace problem on a masked grid in place (the sparse solvers need an assembled matrix,
-//! 20 bytes a cell and more).
+//! The unknown cells split into 4-connected components (found from the runs of unknown cells
+//! of each row, joined row to row by union-find), and the equations of one component involve
+//! no other: each is solved on its own bounding box, in parallel over the components, each on
+//! one thread, so the bytes are the same for any thread count. A single cell is the mean of
+//! its neighbours; a component of at most [`SMALL`] cells is solved by symmetric Gauss-Seidel
+//! sweeps; a larger one by multigrid (Briggs, Henson & McCormick, "A Multigrid Tutorial",
+//! 2000): bilinear prolongation P, restriction R = Pᵀ, and the Galerkin coarse operator
+//! R A P (a 9-point stencil per coarse cell) computed from the masked fine operator, so the
+//! coarse levels see the void's true shape (a coarse cell half inside the void keeps the part
+//! that is). The earlier geometric coarsening (the same five-point stencil on an eroded mask)
+//! divided the change by only about 1.6 a cycle on these masks; the Galerkin cycles divide it
+//! by about 4 to 7. A full-multigrid start (the right-hand side restricted to every level, the
+//! coarsest solved, each finer level started from the prolongation of the one below and
+//! improved by one V-cycle) is followed by V(1, 1) cycles (forward Gauss-Seidel before the
+//! coarse correction, backward after) until the estimated error is within the tolerance.
+//! Hand-written because no crate of the field solves a Laplace problem on a masked grid
+//! in place (the sparse solvers need an assembled matrix, 20 bytes a cell and more).
 
 use rayon::prelude::*;
 
-/// Below this many cells a level is solved directly by iteration, not coarsened further.
-const COARSEST: usize = 4096;
-/// Sweep cap of the coarsest level (it is at most a few thousand cells).
-const COARSE_SWEEPS: usize = 20_000;
-/// Over-relaxation factor of the sweeps (successive over-relaxation, Young 1950): the smooth
-/// error the coarse level leaves decays in O(width) sweeps instead of O(width²).
-const OMEGA: f32 = 1.85;
-
 /// Fills every NaN cell of the row-major `rows` × `cols` grid `z` with the membrane surface
-/// of its finite cells; finite cells are never changed. `tol` is the largest change of a
-/// cell in the last sweep at which a level counts as converged (same unit as `z`). A grid
+/// of its finite cells; finite cells are never changed. `tol` bounds the error left in a
+/// cell, estimated from the last two iterations' largest changes (same unit as `z`). A grid
 /// without any finite cell is left as it is. Returns the number of cells filled.
 pub fn membrane_fill(z: &mut [f32], cols: usize, rows: usize, tol: f32) -> usize {
     assert_eq!(z.len(), cols * rows, "grid size");
-    let known: Vec<bool> = z.par_iter().map(|v| v.is_finite()).collect();
-    let unknown = known.iter().filter(|k| !**k).count();
+    let runs = Runs::new(z, cols);
+    let unknown: usize = runs.len.iter().map(|&n| n as usize).sum();
     if unknown == 0 || unknown == z.len() {
         return 0;
     }
-    solve(z, &known, cols, rows, tol.max(0.0));
+    let tol = tol.max(0.0);
+    let (order, starts) = runs.components(rows);
+    // Each component's cells, run after run, in one buffer.
+    let mut out = vec![0.0f32; unknown];
+    let mut at = vec![0usize; runs.i0.len()];
+    let mut parts: Vec<(&[u32], &mut [f32])> = Vec::with_capacity(starts.len() - 1);
+    let mut rest = out.as_mut_slice();
+    let mut o = 0;
+    for w in starts.windows(2) {
+        let rs = &order[w[0]..w[1]];
+        let n: usize = rs.iter().map(|&r| runs.len[r as usize] as usize).sum();
+        for &r in rs {
+            at[r as usize] = o;
+            o += runs.len[r as usize] as usize;
+        }
+        let (a, b) = std::mem::take(&mut rest).split_at_mut(n);
+        parts.push((rs, a));
+        rest = b;
+    }
+    {
+        let zr: &[f32] = z;
+        parts
+            .par_iter_mut()
+            .with_max_len(1)
+            .for_each(|(rs, o)| solve_component(zr, cols, rows, &runs, rs, o, tol));
+    }
+    z.par_chunks_mut(cols).enumerate().for_each(|(j, row)| {
+        let rs = runs.row[j]..runs.row[j + 1];
+        for ((i0, n), a) in runs.i0[rs.clone()]
+            .iter()
+            .zip(&runs.len[rs.clone()])
+            .zip(&at[rs])
+        {
+            let (i0, n) = (*i0 as usize, *n as usize);
+            row[i0..i0 + n].copy_from_slice(&out[*a..*a + n]);
+        }
+    });
     unknown
 }
 
@@ -67,406 +97,723 @@ pub fn default_tolerance(z: &[f32]) -> f32 {
     ((hi - lo) * 1e-5).max(1e-6)
 }
 
-/// Solves one level: coarsen, solve the coarse level, prolong, smooth.
-fn solve(z: &mut [f32], known: &[bool], cols: usize, rows: usize, tol: f32) {
-    let (cc, cr) = (cols.div_ceil(2), rows.div_ceil(2));
-    let coarse_ok = cols * rows > COARSEST && cc >= 2 && cr >= 2;
-    if coarse_ok {
-        let mut zc = vec![f32::NAN; cc * cr];
-        let mut kc = vec![false; cc * cr];
-        zc.par_chunks_mut(cc)
-            .zip(kc.par_chunks_mut(cc))
-            .enumerate()
-            .for_each(|(jc, (zr, kr))| {
-                for ic in 0..cc {
-                    let k = 2 * jc * cols + 2 * ic;
-                    if known[k] {
-                        zr[ic] = z[k];
-                        kr[ic] = true;
-                    }
-                }
-            });
-        let nk = kc.iter().filter(|k| **k).count();
-        if nk > 0 {
-            if nk < kc.len() {
-                solve(&mut zc, &kc, cc, cr, tol);
-            }
-            prolong(z, known, cols, &zc, cc, cr);
-        } else {
-            seed_with_mean(z, known);
-        }
-    } else {
-        seed_with_mean(z, known);
-    }
-    v_cycles(z, known, cols, rows, tol);
+/// The runs of unknown (not finite) cells of each row.
+struct Runs {
+    /// First run of each row (one more entry than rows).
+    row: Vec<usize>,
+    /// Row, first column and length of each run.
+    j: Vec<u32>,
+    i0: Vec<u32>,
+    len: Vec<u32>,
 }
 
-/// Starts every unknown cell at the mean of the known ones.
-fn seed_with_mean(z: &mut [f32], known: &[bool]) {
-    let (s, n) = z
-        .iter()
-        .zip(known)
-        .filter(|(_, k)| **k)
-        .fold((0.0f64, 0usize), |(s, n), (v, _)| (s + *v as f64, n + 1));
-    let mean = (s / n.max(1) as f64) as f32;
-    for (v, k) in z.iter_mut().zip(known) {
-        if !k {
-            *v = mean;
-        }
-    }
-}
-
-/// Unknown fine cells take the bilinear interpolation of the solved coarse level (a fine cell
-/// at an odd index lies half-way between two coarse cells; beyond the last coarse cell the
-/// last one is used).
-fn prolong(z: &mut [f32], known: &[bool], cols: usize, zc: &[f32], cc: usize, cr: usize) {
-    z.par_chunks_mut(cols).enumerate().for_each(|(j, row)| {
-        let (j0, j1) = (j / 2, j.div_ceil(2).min(cr - 1));
-        for (i, v) in row.iter_mut().enumerate() {
-            if known[j * cols + i] {
-                continue;
-            }
-            let (i0, i1) = (i / 2, i.div_ceil(2).min(cc - 1));
-            let a = zc[j0 * cc + i0] + zc[j0 * cc + i1];
-            let b = zc[j1 * cc + i0] + zc[j1 * cc + i1];
-            *v = (a + b) * 0.25;
-        }
-    });
-}
-
-/// Sweep cap of the plain over-relaxed sweeps a level falls back to when its V-cycles stop
-/// gaining.
-const FINE_SWEEPS: usize = 400;
-/// Sweeps of red-black Gauss-Seidel before and after each coarse-grid correction.
-const SMOOTH_SWEEPS: usize = 2;
-/// V-cycle cap of a level of the cascade. With the same five-point stencil on every level
-/// (no Galerkin coarse operator) a cycle cuts the change only by about 1.6 on the fine levels
-/// of scattered voids (about 20 cycles at 4097²); the cap bounds the cases where the
-/// tolerance lies below the rounding of `f32` heights.
-const MAX_CYCLES: usize = 40;
-
-/// One level of the V-cycle hierarchy. Cells are split by colour: cell (i, j) of colour
-/// c = (i + j) mod 2 is `z[c][j * hw + i / 2]`, so a half-sweep writes one array while it
-/// reads only the other (the same values for any thread count, and no aliasing).
-struct Level {
-    cols: usize,
-    rows: usize,
-    hw: usize,
-    /// Heights (finest level) or corrections (coarser levels).
-    z: [Vec<f32>; 2],
-    /// Right-hand side (restricted residual); all zero on the finest level.
-    f: [Vec<f32>; 2],
-    /// Cells that are solved for; the others are held fixed (zero correction when coarse).
-    free: [Vec<bool>; 2],
-}
-
-impl Level {
-    fn new(cols: usize, rows: usize, free_full: &[bool]) -> Self {
-        let hw = cols.div_ceil(2);
-        Level {
-            cols,
-            rows,
-            hw,
-            z: [vec![0.0; hw * rows], vec![0.0; hw * rows]],
-            f: [vec![0.0; hw * rows], vec![0.0; hw * rows]],
-            free: split(free_full, cols, rows, false),
-        }
-    }
-
-    /// One red-black half-sweep over the free cells of colour `c`, over-relaxed by `omega`;
-    /// returns the largest change.
-    fn relax(&mut self, c: usize, omega: f32) -> f32 {
-        let (cols, rows, hw) = (self.cols, self.rows, self.hw);
-        let [z0, z1] = &mut self.z;
-        let (zc, zo): (&mut Vec<f32>, &Vec<f32>) = if c == 0 { (z0, z1) } else { (z1, z0) };
-        let (free, f) = (&self.free[c], &self.f[c]);
-        zc.par_chunks_mut(hw)
-            .enumerate()
-            .map(|(j, row)| {
-                let (s, e) = (j * hw, (j + 1) * hw);
-                let (fr, ff, mid) = (&free[s..e], &f[s..e], &zo[s..e]);
-                let up = (j > 0).then(|| &zo[s - hw..s]);
-                let dn = (j + 1 < rows).then(|| &zo[e..e + hw]);
-                let mut change = 0.0f32;
-                for i in ((j + c) & 1..cols).step_by(2) {
-                    let m = i / 2;
-                    if !fr[m] {
+impl Runs {
+    fn new(z: &[f32], cols: usize) -> Self {
+        let per_row: Vec<Vec<(u32, u32)>> = z
+            .par_chunks(cols)
+            .map(|row| {
+                let mut v = Vec::new();
+                let mut i = 0;
+                while i < cols {
+                    if row[i].is_finite() {
+                        i += 1;
                         continue;
                     }
-                    let (mut sum, mut n) = (ff[m], 0.0f32);
-                    if i > 0 {
-                        sum += mid[(i - 1) / 2];
-                        n += 1.0;
+                    let s = i;
+                    while i < cols && !row[i].is_finite() {
+                        i += 1;
                     }
-                    if i + 1 < cols {
-                        sum += mid[i.div_ceil(2)];
-                        n += 1.0;
-                    }
-                    if let Some(u) = up {
-                        sum += u[m];
-                        n += 1.0;
-                    }
-                    if let Some(d) = dn {
-                        sum += d[m];
-                        n += 1.0;
-                    }
-                    if n > 0.0 {
-                        let v = row[m] + omega * (sum / n - row[m]);
-                        change = change.max((v - row[m]).abs());
-                        row[m] = v;
-                    }
+                    v.push((s as u32, (i - s) as u32));
                 }
-                change
-            })
-            .reduce(|| 0.0, f32::max)
-    }
-
-    /// The residual f − L z of every cell as a full row-major grid (zero at fixed cells).
-    fn residual(&self) -> Vec<f32> {
-        let (cols, rows, hw) = (self.cols, self.rows, self.hw);
-        let mut r = vec![0.0f32; cols * rows];
-        r.par_chunks_mut(cols).enumerate().for_each(|(j, row)| {
-            for (i, out) in row.iter_mut().enumerate() {
-                let c = (i + j) & 1;
-                let k = j * hw + i / 2;
-                if !self.free[c][k] {
-                    continue;
-                }
-                let zo = &self.z[1 - c];
-                let (mut sum, mut n) = (self.f[c][k], 0.0f32);
-                if i > 0 {
-                    sum += zo[j * hw + (i - 1) / 2];
-                    n += 1.0;
-                }
-                if i + 1 < cols {
-                    sum += zo[j * hw + i.div_ceil(2)];
-                    n += 1.0;
-                }
-                if j > 0 {
-                    sum += zo[k - hw];
-                    n += 1.0;
-                }
-                if j + 1 < rows {
-                    sum += zo[k + hw];
-                    n += 1.0;
-                }
-                *out = sum - n * self.z[c][k];
-            }
-        });
-        r
-    }
-
-    /// Adds the bilinear prolongation of the coarse correction `ec` (full row-major,
-    /// `cc` × `cr`) to the free cells; returns the largest correction.
-    fn add_prolonged(&mut self, ec: &[f32], cc: usize, cr: usize) -> f32 {
-        let (cols, hw) = (self.cols, self.hw);
-        let mut change = 0.0f32;
-        for c in 0..2 {
-            let free = &self.free[c];
-            let m = self.z[c]
-                .par_chunks_mut(hw)
-                .enumerate()
-                .map(|(j, row)| {
-                    let (j0, j1) = (j / 2, j.div_ceil(2).min(cr - 1));
-                    let mut change = 0.0f32;
-                    for i in ((j + c) & 1..cols).step_by(2) {
-                        let m = i / 2;
-                        if !free[j * hw + m] {
-                            continue;
-                        }
-                        let (i0, i1) = (i / 2, i.div_ceil(2).min(cc - 1));
-                        let a = ec[j0 * cc + i0] + ec[j0 * cc + i1];
-                        let b = ec[j1 * cc + i0] + ec[j1 * cc + i1];
-                        let e = (a + b) * 0.25;
-                        change = change.max(e.abs());
-                        row[m] += e;
-                    }
-                    change
-                })
-                .reduce(|| 0.0, f32::max);
-            change = change.max(m);
-        }
-        change
-    }
-}
-
-/// Cells of colour c of a full row-major grid, as [`Level`] stores them (`pad` beyond the
-/// last column).
-fn split<T: Copy + Send + Sync>(full: &[T], cols: usize, rows: usize, pad: T) -> [Vec<T>; 2] {
-    let hw = cols.div_ceil(2);
-    std::array::from_fn(|c| {
-        let mut out = vec![pad; hw * rows];
-        out.par_chunks_mut(hw).enumerate().for_each(|(j, row)| {
-            for i in ((j + c) & 1..cols).step_by(2) {
-                row[i / 2] = full[j * cols + i];
-            }
-        });
-        out
-    })
-}
-
-/// The inverse of [`split`].
-fn join(parts: &[Vec<f32>; 2], cols: usize, rows: usize) -> Vec<f32> {
-    let hw = cols.div_ceil(2);
-    let mut full = vec![0.0f32; cols * rows];
-    full.par_chunks_mut(cols).enumerate().for_each(|(j, row)| {
-        for (i, v) in row.iter_mut().enumerate() {
-            *v = parts[(i + j) & 1][j * hw + i / 2];
-        }
-    });
-    full
-}
-
-/// Weight of fine index `i` in coarse index `ic` under bilinear prolongation (coarse `ic`
-/// is fine `2 ic`; an odd fine index lies half-way; past the last coarse index, the last).
-fn weight(i: usize, ic: usize, nc: usize) -> f32 {
-    0.5 * ((i / 2 == ic) as u8 + (i.div_ceil(2).min(nc - 1) == ic) as u8) as f32
-}
-
-/// The transpose of the bilinear prolongation applied to the full grid `r` (`cols` × `rows`):
-/// the coarse right-hand side (full weighting times four, the unscaled operator's h²).
-fn restrict(r: &[f32], cols: usize, rows: usize, cc: usize, cr: usize) -> Vec<f32> {
-    let mut t = vec![0.0f32; cc * rows];
-    t.par_chunks_mut(cc).enumerate().for_each(|(j, row)| {
-        let src = &r[j * cols..(j + 1) * cols];
-        for (ic, out) in row.iter_mut().enumerate() {
-            let (lo, hi) = ((2 * ic).saturating_sub(1), (2 * ic + 2).min(cols));
-            *out = (lo..hi).map(|i| weight(i, ic, cc) * src[i]).sum();
-        }
-    });
-    let mut fc = vec![0.0f32; cc * cr];
-    fc.par_chunks_mut(cc).enumerate().for_each(|(jc, row)| {
-        let (lo, hi) = ((2 * jc).saturating_sub(1), (2 * jc + 2).min(rows));
-        for j in lo..hi {
-            let w = weight(j, jc, cr);
-            if w != 0.0 {
-                for (out, v) in row.iter_mut().zip(&t[j * cc..(j + 1) * cc]) {
-                    *out += w * v;
-                }
-            }
-        }
-    });
-    fc
-}
-
-/// The levels below a level of `cols` × `rows` with the free cells `free` (full layout):
-/// a coarse cell is free when every fine cell its prolongation reaches (the 3 × 3 around
-/// the fine cell it sits on) is free, so the coarse operator (the same five-point stencil,
-/// not the Galerkin product) is used only where it matches the fine one; the injected mask
-/// alone (free when the fine cell under it is) diverged on scattered one-cell voids. The
-/// last coarse column (row) of a fine grid of even width (height) is held fixed too: it
-/// sits one fine cell, not two, from its neighbour beyond. Stops
-/// above [`COARSEST`] cells, or where a level would have no free or no fixed cell (a level
-/// without fixed cells is singular).
-fn hierarchy(free: &[bool], cols: usize, rows: usize) -> Vec<Level> {
-    let mut levels = vec![Level::new(cols, rows, free)];
-    let (mut cols, mut rows, mut free) = (cols, rows, free.to_vec());
-    while cols * rows > COARSEST && cols >= 3 && rows >= 3 {
-        let (cc, cr) = (cols.div_ceil(2), rows.div_ceil(2));
-        let fc: Vec<bool> = (0..cc * cr)
-            .into_par_iter()
-            .map(|k| {
-                let (ic, jc) = (k % cc, k / cc);
-                let edge = (cols % 2 == 0 && ic + 1 == cc) || (rows % 2 == 0 && jc + 1 == cr);
-                let (i, j) = (2 * ic, 2 * jc);
-                let all = (j.saturating_sub(1)..(j + 2).min(rows))
-                    .all(|j| (i.saturating_sub(1)..(i + 2).min(cols)).all(|i| free[j * cols + i]));
-                !edge && all
+                v
             })
             .collect();
-        let nf = fc.iter().filter(|f| **f).count();
-        if nf == 0 || nf == fc.len() {
-            break;
+        let n: usize = per_row.iter().map(Vec::len).sum();
+        let mut runs = Runs {
+            row: Vec::with_capacity(per_row.len() + 1),
+            j: Vec::with_capacity(n),
+            i0: Vec::with_capacity(n),
+            len: Vec::with_capacity(n),
+        };
+        runs.row.push(0);
+        for (j, v) in per_row.iter().enumerate() {
+            for &(i0, l) in v {
+                runs.j.push(j as u32);
+                runs.i0.push(i0);
+                runs.len.push(l);
+            }
+            runs.row.push(runs.i0.len());
         }
-        levels.push(Level::new(cc, cr, &fc));
-        (cols, rows, free) = (cc, cr, fc);
+        runs
     }
-    levels
+
+    /// Groups the runs by 4-connected component: the run indices of each component in row
+    /// order, and where each component starts (one more entry than components). Components
+    /// are numbered by their first run (the same for any thread count).
+    fn components(&self, rows: usize) -> (Vec<u32>, Vec<usize>) {
+        let n = self.i0.len();
+        let mut parent: Vec<u32> = (0..n as u32).collect();
+        fn find(p: &mut [u32], mut x: u32) -> u32 {
+            while p[x as usize] != x {
+                p[x as usize] = p[p[x as usize] as usize];
+                x = p[x as usize];
+            }
+            x
+        }
+        for j in 1..rows {
+            let (mut a, ae) = (self.row[j - 1], self.row[j]);
+            let (mut b, be) = (self.row[j], self.row[j + 1]);
+            while a < ae && b < be {
+                let (a0, a1) = (self.i0[a], self.i0[a] + self.len[a]);
+                let (b0, b1) = (self.i0[b], self.i0[b] + self.len[b]);
+                if a0 < b1 && b0 < a1 {
+                    let (ra, rb) = (find(&mut parent, a as u32), find(&mut parent, b as u32));
+                    if ra != rb {
+                        let (lo, hi) = (ra.min(rb), ra.max(rb));
+                        parent[hi as usize] = lo;
+                    }
+                }
+                if a1 <= b1 {
+                    a += 1;
+                } else {
+                    b += 1;
+                }
+            }
+        }
+        let mut id = vec![u32::MAX; n];
+        let mut count = Vec::new();
+        let comp: Vec<u32> = (0..n as u32)
+            .map(|r| {
+                let root = find(&mut parent, r) as usize;
+                if id[root] == u32::MAX {
+                    id[root] = count.len() as u32;
+                    count.push(0usize);
+                }
+                count[id[root] as usize] += 1;
+                id[root]
+            })
+            .collect();
+        let mut starts = Vec::with_capacity(count.len() + 1);
+        starts.push(0);
+        for c in &count {
+            starts.push(starts.last().unwrap() + c);
+        }
+        let mut fill = starts.clone();
+        let mut order = vec![0u32; n];
+        for (r, c) in comp.iter().enumerate() {
+            let c = *c as usize;
+            order[fill[c]] = r as u32;
+            fill[c] += 1;
+        }
+        (order, starts)
+    }
 }
 
-/// Over-relaxed red-black sweeps on `level` until a sweep moves no cell more than `tol`
-/// or than `rel` times the first sweep's largest change (a correction needs only relative
-/// accuracy), at most `cap` sweeps; returns the sum of the sweeps' largest changes.
-fn solve_coarsest(level: &mut Level, tol: f32, rel: f32, cap: usize) -> f32 {
-    let (mut total, mut first) = (0.0f32, None);
-    for _ in 0..cap {
-        let change = level.relax(0, OMEGA).max(level.relax(1, OMEGA));
-        total += change;
-        let first = *first.get_or_insert(change);
-        if change <= tol || change <= rel * first {
-            break;
-        }
-    }
-    total
+/// The finest level of a component: the five-point operator on a local box (the component's
+/// bounding box and a ring of one cell). `nb[k]` is the number of in-grid neighbours of a free
+/// cell, 0 at every other cell; `x` holds the heights: the known ones at fixed cells, 0
+/// outside the grid and at other components' cells (never a neighbour of a free cell).
+struct Fine {
+    cols: usize,
+    rows: usize,
+    nb: Vec<u8>,
+    x: Vec<f32>,
 }
 
-/// One V-cycle from level 0 of `levels`; returns the sum of the largest changes of its
-/// steps on that level (a bound on the largest change of a cell in the cycle).
-fn v_cycle(levels: &mut [Level], tol: f32) -> f32 {
-    let (this, below) = levels.split_first_mut().expect("a level");
-    let Some(coarse) = below.first_mut() else {
-        // The coarsest level: over-relaxed sweeps until it has converged.
-        return solve_coarsest(this, tol * 0.1, 1e-4, COARSE_SWEEPS);
+/// A coarse level: the Galerkin operator R A P as a 9-point stencil per cell (offsets in row
+/// order, dy then dx in −1..=1), active where its centre weight is positive; `std` marks the
+/// cells whose stencil is the level's interior stencil.
+struct Coarse {
+    cols: usize,
+    rows: usize,
+    st: Vec<[f32; 9]>,
+    std: Vec<bool>,
+    x: Vec<f32>,
+    b: Vec<f32>,
+}
+
+/// 1 / n for the n in-grid neighbours of a cell.
+const INV: [f32; 5] = [0.0, 1.0, 0.5, 1.0 / 3.0, 0.25];
+/// Components up to this many cells are solved by Gauss-Seidel sweeps alone (a few cells
+/// across: the sweeps converge in a few dozen).
+const SMALL: usize = 24;
+/// V-cycle cap of a component: reached only when the tolerance lies below the rounding of
+/// `f32` heights (the cycles then stop gaining).
+const MAX_CYCLES: usize = 40;
+/// Gauss-Seidel sweeps before and after each coarse-grid correction.
+const SMOOTH: usize = 1;
+/// Sweep cap of the coarsest level (at most a few cells across). Its operator can be
+/// singular (coarse cells whose prolongation reaches the same single fine cell); sweeps
+/// then converge on the part that matters (P e) while the rest drifts by rounding, so the
+/// cap, not the relative criterion, ends them.
+const COARSEST_SWEEPS: usize = 20;
+/// Sweep cap of the Gauss-Seidel solve of a small component.
+const SMALL_SWEEPS: usize = 100_000;
+
+/// Solves the component whose runs are `rs` (indices into `runs`) and writes its heights to
+/// `out`, run after run.
+fn solve_component(
+    z: &[f32],
+    cols: usize,
+    rows: usize,
+    runs: &Runs,
+    rs: &[u32],
+    out: &mut [f32],
+    tol: f32,
+) {
+    let (mut i0, mut i1, mut j0, mut j1) = (usize::MAX, 0, usize::MAX, 0);
+    for &r in rs {
+        let r = r as usize;
+        let (j, a, n) = (
+            runs.j[r] as usize,
+            runs.i0[r] as usize,
+            runs.len[r] as usize,
+        );
+        (i0, i1, j0, j1) = (i0.min(a), i1.max(a + n - 1), j0.min(j), j1.max(j));
+    }
+    let count = out.len();
+    let nbcount = |i: usize, j: usize| {
+        (i > 0) as u8 + (i + 1 < cols) as u8 + (j > 0) as u8 + (j + 1 < rows) as u8
     };
-    let mut total = 0.0f32;
-    for _ in 0..SMOOTH_SWEEPS {
-        total += this.relax(0, 1.0).max(this.relax(1, 1.0));
+    if count == 1 {
+        let (i, j) = (i0, j0);
+        let k = j * cols + i;
+        let mut s = 0.0f32;
+        if i > 0 {
+            s += z[k - 1];
+        }
+        if i + 1 < cols {
+            s += z[k + 1];
+        }
+        if j > 0 {
+            s += z[k - cols];
+        }
+        if j + 1 < rows {
+            s += z[k + cols];
+        }
+        out[0] = s / nbcount(i, j) as f32;
+        return;
     }
-    let r = this.residual();
-    let fc = restrict(&r, this.cols, this.rows, coarse.cols, coarse.rows);
-    drop(r);
-    coarse.f = split(&fc, coarse.cols, coarse.rows, 0.0);
-    for z in &mut coarse.z {
-        z.par_iter_mut().for_each(|v| *v = 0.0);
+    // Local box with a ring: local (li, lj) is global (i0 + li − 1, j0 + lj − 1).
+    let (lc, lr) = (i1 - i0 + 3, j1 - j0 + 3);
+    let mut f = Fine {
+        cols: lc,
+        rows: lr,
+        nb: vec![0; lc * lr],
+        x: vec![0.0; lc * lr],
+    };
+    for lj in 0..lr {
+        let Some(j) = (j0 + lj).checked_sub(1).filter(|j| *j < rows) else {
+            continue;
+        };
+        for li in 0..lc {
+            let Some(i) = (i0 + li).checked_sub(1).filter(|i| *i < cols) else {
+                continue;
+            };
+            let v = z[j * cols + i];
+            if v.is_finite() {
+                f.x[lj * lc + li] = v;
+            }
+        }
     }
-    v_cycle(below, tol);
-    let (cc, cr) = (below[0].cols, below[0].rows);
-    let ec = join(&below[0].z, cc, cr);
-    total += this.add_prolonged(&ec, cc, cr);
-    for _ in 0..SMOOTH_SWEEPS {
-        total += this.relax(0, 1.0).max(this.relax(1, 1.0));
+    for &r in rs {
+        let r = r as usize;
+        let (j, a, n) = (
+            runs.j[r] as usize,
+            runs.i0[r] as usize,
+            runs.len[r] as usize,
+        );
+        for i in a..a + n {
+            f.nb[(j + 1 - j0) * lc + (i + 1 - i0)] = nbcount(i, j);
+        }
     }
-    total
-}
-
-/// Multigrid V-cycles on the grid `z` (unknown cells hold the initial guess) until a cycle
-/// moves no cell more than `tol`.
-fn v_cycles(z: &mut [f32], known: &[bool], cols: usize, rows: usize, tol: f32) {
-    let free: Vec<bool> = known.par_iter().map(|k| !k).collect();
-    let mut levels = hierarchy(&free, cols, rows);
-    drop(free);
-    levels[0].z = split(z, cols, rows, 0.0);
-    if levels.len() == 1 {
-        solve_coarsest(&mut levels[0], tol, 0.0, COARSE_SWEEPS);
+    if count <= SMALL {
+        gs_fine_converge(&mut f, tol);
     } else {
-        let mut last = f32::INFINITY;
-        for _ in 0..MAX_CYCLES {
-            let before = levels[0].z.clone();
-            let change = v_cycle(&mut levels, tol);
-            if change <= tol {
+        let mut levels: Vec<Coarse> = vec![galerkin_fine(&f)];
+        loop {
+            let l = levels.last().unwrap();
+            let (cc, cr) = coarse_dims(l.cols, l.rows);
+            if (cc >= l.cols && cr >= l.rows) || l.st.iter().filter(|s| s[4] > 0.0).count() <= 9 {
                 break;
             }
-            if change > 0.8 * last {
-                // The cycles no longer gain: the changes are down to the rounding of f32
-                // heights, or the coarse levels do not match the fine one (a mask the
-                // injection coarsens badly, which can diverge). Undo the cycle and finish
-                // with plain over-relaxed sweeps, which always converge.
-                levels[0].z = before;
-                solve_coarsest(&mut levels[0], tol, 0.0, FINE_SWEEPS);
+            let c = galerkin_coarse(l, levels.len());
+            levels.push(c);
+        }
+        let mut r = Vec::with_capacity(f.x.len());
+        fmg(&mut f, &mut levels, &mut r);
+        let mut last = f32::INFINITY;
+        for _ in 0..MAX_CYCLES {
+            let change = v_cycle(&mut f, &mut levels, &mut r);
+            if converged(change, last, tol) {
                 break;
             }
             last = change;
         }
     }
-    let out = join(&levels[0].z, cols, rows);
-    z.par_iter_mut()
-        .zip(out.par_iter())
-        .zip(known.par_iter())
-        .for_each(|((v, o), k)| {
-            if !k {
-                *v = *o;
+    let mut o = 0;
+    for &r in rs {
+        let r = r as usize;
+        let (j, a, n) = (
+            runs.j[r] as usize,
+            runs.i0[r] as usize,
+            runs.len[r] as usize,
+        );
+        let s = (j + 1 - j0) * lc + (a + 1 - i0);
+        out[o..o + n].copy_from_slice(&f.x[s..s + n]);
+        o += n;
+    }
+}
+
+/// Whether an iteration whose last step moved no cell more than `change` (the one before:
+/// `last`) is within `tol` of the solution: the error left is about change · ρ / (1 − ρ)
+/// with ρ = change / last the rate of the iteration.
+fn converged(change: f32, last: f32, tol: f32) -> bool {
+    // Aim at half the tolerance: the estimate from the largest changes is rough (on random
+    // masks of 60 % unknown cells the error left was up to 3 times the estimate's aim).
+    let tol = 0.5 * tol;
+    if change <= tol * 1e-3 {
+        return true;
+    }
+    let rho = (change / last).min(0.999);
+    change <= tol && change * rho <= tol * (1.0 - rho)
+}
+
+/// One Gauss-Seidel sweep of the fine level (forward, or `backward`); returns the largest
+/// change.
+fn gs_fine(f: &mut Fine, backward: bool) -> f32 {
+    let c = f.cols;
+    let len = f.x.len();
+    let mut change = 0.0f32;
+    let mut step = |k: usize| {
+        let n = f.nb[k];
+        if n != 0 {
+            let x = &mut f.x;
+            let v = (x[k - 1] + x[k + 1] + x[k - c] + x[k + c]) * INV[n as usize];
+            change = change.max((v - x[k]).abs());
+            x[k] = v;
+        }
+    };
+    if backward {
+        for k in (c..len - c).rev() {
+            step(k);
+        }
+    } else {
+        for k in c..len - c {
+            step(k);
+        }
+    }
+    change
+}
+
+/// Symmetric Gauss-Seidel sweeps until [`converged`].
+fn gs_fine_converge(f: &mut Fine, tol: f32) {
+    let mut last = f32::INFINITY;
+    for s in 0..SMALL_SWEEPS {
+        let change = gs_fine(f, s % 2 == 1);
+        if converged(change, last, tol) {
+            break;
+        }
+        last = change;
+    }
+}
+
+/// The size of the level below a level of `cols` × `rows` cells. Every level keeps a ring of
+/// inactive cells around its active ones (a stencil never reads outside the array): fine
+/// cell i (even) sits on coarse cell i / 2 + 1, an odd one half-way between two.
+fn coarse_dims(cols: usize, rows: usize) -> (usize, usize) {
+    ((cols - 1) / 2 + 3, (rows - 1) / 2 + 3)
+}
+
+/// R A P at one coarse cell as a dense map (the slow, obvious twin of [`rap`]): weight of entry `o` of the stencil of fine cell
+/// `c` (of the 3 × 3 around the coarse cell's fine centre, row order) in coarse offset `out`:
+/// `RAP[c * 9 + o][out]`, from the bilinear weights (1, ½, ¼) of R and P.
+#[cfg(test)]
+const RAP_DENSE: [[f32; 9]; 81] = {
+    // Bilinear weight of fine offset u (−2..=2 from the centre) on coarse offset v (−1..=1).
+    const fn q(u: i32, v: i32) -> f32 {
+        match (u, v) {
+            (-2, -1) | (0, 0) | (2, 1) => 1.0,
+            (-1, -1) | (-1, 0) | (1, 0) | (1, 1) => 0.5,
+            _ => 0.0,
+        }
+    }
+    let mut m = [[0.0f32; 9]; 81];
+    let mut c = 0;
+    while c < 9 {
+        let (ax, ay) = (c as i32 % 3 - 1, c as i32 / 3 - 1);
+        let wa = q(2 * ax, 0).max(q(ax, 0)) * q(2 * ay, 0).max(q(ay, 0));
+        let mut o = 0;
+        while o < 9 {
+            let (bx, by) = (ax + o as i32 % 3 - 1, ay + o as i32 / 3 - 1);
+            let mut out = 0;
+            while out < 9 {
+                let (vx, vy) = (out as i32 % 3 - 1, out as i32 / 3 - 1);
+                m[c * 9 + o][out] += wa * q(bx, vx) * q(by, vy);
+                out += 1;
             }
-        });
+            o += 1;
+        }
+        c += 1;
+    }
+    m
+};
+
+/// R A P at one coarse cell from the 9-point stencils of the 3 × 3 fine cells around its
+/// centre (zero stencils at inactive cells), in two separable passes: along x, then along y.
+#[inline]
+fn rap(a: &[[f32; 9]; 9]) -> [f32; 9] {
+    // Q[u + 2][v + 1]: bilinear weight of fine offset u (from the centre) on coarse offset v.
+    const Q: [[f32; 3]; 5] = [
+        [1.0, 0.0, 0.0],
+        [0.5, 0.5, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, 0.5, 0.5],
+        [0.0, 0.0, 1.0],
+    ];
+    // Weight of a fine cell of the 3 × 3 in R, per axis.
+    const W: [f32; 3] = [0.5, 1.0, 0.5];
+    // t[ay][oy][vx]: the x pass (fine column ax, stencil column ox onto coarse column vx).
+    let mut t = [[[0.0f32; 3]; 3]; 3];
+    for ay in 0..3 {
+        for oy in 0..3 {
+            for ax in 0..3 {
+                for ox in 0..3 {
+                    let v = W[ax] * a[ay * 3 + ax][oy * 3 + ox];
+                    for vx in 0..3 {
+                        t[ay][oy][vx] += v * Q[ax + ox][vx];
+                    }
+                }
+            }
+        }
+    }
+    let mut s = [0.0f32; 9];
+    for ay in 0..3 {
+        for oy in 0..3 {
+            for vy in 0..3 {
+                let w = W[ay] * Q[ay + oy][vy];
+                for vx in 0..3 {
+                    s[vy * 3 + vx] += w * t[ay][oy][vx];
+                }
+            }
+        }
+    }
+    s
+}
+
+/// The interior stencil of level `l` (0: the five-point one).
+fn standard(l: usize) -> [f32; 9] {
+    let mut s = [0.0, -1.0, 0.0, -1.0, 4.0, -1.0, 0.0, -1.0, 0.0];
+    for _ in 0..l {
+        s = rap(&[s; 9]);
+    }
+    s
+}
+
+/// The level below a level of `cols` × `rows` cells (its index `level`, 0 the finest) whose
+/// stencils are `stencil(k)` (zero at inactive cells): R A P at every coarse cell, the
+/// interior stencil of the level below where all nine fine cells under it are interior
+/// (`is_std`), which most are.
+fn galerkin_with(
+    cols: usize,
+    rows: usize,
+    level: usize,
+    is_std: impl Fn(usize) -> bool,
+    stencil: impl Fn(usize) -> [f32; 9],
+) -> Coarse {
+    let (cc, cr) = coarse_dims(cols, rows);
+    let s_std = standard(level + 1);
+    let mut st = vec![[0.0f32; 9]; cc * cr];
+    let mut std = vec![false; cc * cr];
+    for cj in 1..cr - 1 {
+        let fj = 2 * (cj - 1);
+        for ci in 1..cc - 1 {
+            let fi = 2 * (ci - 1);
+            let at = |dx: usize, dy: usize| -> Option<usize> {
+                let (i, j) = ((fi + dx).checked_sub(1)?, (fj + dy).checked_sub(1)?);
+                (i < cols && j < rows).then_some(j * cols + i)
+            };
+            let mut all = true;
+            for dy in 0..3 {
+                for dx in 0..3 {
+                    all &= at(dx, dy).is_some_and(&is_std);
+                }
+            }
+            let k = cj * cc + ci;
+            if all {
+                st[k] = s_std;
+                std[k] = true;
+                continue;
+            }
+            let mut a = [[0.0f32; 9]; 9];
+            for dy in 0..3 {
+                for dx in 0..3 {
+                    if let Some(m) = at(dx, dy) {
+                        a[dy * 3 + dx] = stencil(m);
+                    }
+                }
+            }
+            st[k] = rap(&a);
+        }
+    }
+    Coarse {
+        cols: cc,
+        rows: cr,
+        st,
+        std,
+        x: vec![0.0; cc * cr],
+        b: vec![0.0; cc * cr],
+    }
+}
+
+/// The first coarse level, from the fine level's five-point operator (the entries to the
+/// fixed cells dropped: their values are in the right-hand side).
+fn galerkin_fine(f: &Fine) -> Coarse {
+    let c = f.cols;
+    let nb = &f.nb;
+    galerkin_with(
+        f.cols,
+        f.rows,
+        0,
+        |a| nb[a] != 0 && nb[a - 1] != 0 && nb[a + 1] != 0 && nb[a - c] != 0 && nb[a + c] != 0,
+        |a| {
+            if nb[a] == 0 {
+                return [0.0; 9];
+            }
+            let e = |b: usize| -((nb[b] != 0) as u8 as f32);
+            [
+                0.0,
+                e(a - c),
+                0.0,
+                e(a - 1),
+                nb[a] as f32,
+                e(a + 1),
+                0.0,
+                e(a + c),
+                0.0,
+            ]
+        },
+    )
+}
+
+/// The level below coarse level `l` (its index `level`).
+fn galerkin_coarse(l: &Coarse, level: usize) -> Coarse {
+    galerkin_with(l.cols, l.rows, level, |a| l.std[a], |a| l.st[a])
+}
+
+/// One Gauss-Seidel sweep of a coarse level (forward, or `backward`); returns the largest
+/// change.
+fn gs_coarse(l: &mut Coarse, backward: bool) -> f32 {
+    let c = l.cols;
+    let len = l.x.len();
+    let mut change = 0.0f32;
+    let mut step = |k: usize| {
+        let s = &l.st[k];
+        if s[4] > 0.0 {
+            let x = &l.x;
+            let r = l.b[k]
+                - s[0] * x[k - c - 1]
+                - s[1] * x[k - c]
+                - s[2] * x[k - c + 1]
+                - s[3] * x[k - 1]
+                - s[5] * x[k + 1]
+                - s[6] * x[k + c - 1]
+                - s[7] * x[k + c]
+                - s[8] * x[k + c + 1];
+            let v = r / s[4];
+            change = change.max((v - l.x[k]).abs());
+            l.x[k] = v;
+        }
+    };
+    if backward {
+        for k in (c + 1..len - c - 1).rev() {
+            step(k);
+        }
+    } else {
+        for k in c + 1..len - c - 1 {
+            step(k);
+        }
+    }
+    change
+}
+
+/// `x` (a level `cols` wide) gets P e, e the coarse level's `x`, added (or set, `add` false)
+/// at the active cells;
+/// returns the largest correction.
+fn prolong(
+    x: &mut [f32],
+    cols: usize,
+    active: impl Fn(usize) -> bool,
+    c: &Coarse,
+    add: bool,
+) -> f32 {
+    let mut m = 0.0f32;
+    let rows = x.len() / cols;
+    let cc = c.cols;
+    for j in 1..rows - 1 {
+        let (ja, jb) = (j / 2 + 1, j.div_ceil(2) + 1);
+        for i in 1..cols - 1 {
+            let a = j * cols + i;
+            if !active(a) {
+                continue;
+            }
+            let (ia, ib) = (i / 2 + 1, i.div_ceil(2) + 1);
+            let e = 0.25
+                * (c.x[ja * cc + ia] + c.x[ja * cc + ib] + c.x[jb * cc + ia] + c.x[jb * cc + ib]);
+            m = m.max(e.abs());
+            if add {
+                x[a] += e;
+            } else {
+                x[a] = e;
+            }
+        }
+    }
+    m
+}
+
+/// R r: the coarse right-hand side from the fine residual `r` (full fine layout).
+fn restrict(r: &[f32], cols: usize, rows: usize, c: &mut Coarse) {
+    let cc = c.cols;
+    for cj in 1..c.rows - 1 {
+        for ci in 1..cc - 1 {
+            let k = cj * cc + ci;
+            c.x[k] = 0.0;
+            if c.st[k][4] <= 0.0 {
+                c.b[k] = 0.0;
+                continue;
+            }
+            let (fi, fj) = (2 * (ci - 1), 2 * (cj - 1));
+            let mut s = 0.0f32;
+            for dy in 0..3 {
+                let Some(aj) = (fj + dy).checked_sub(1).filter(|j| *j < rows) else {
+                    continue;
+                };
+                for dx in 0..3 {
+                    let Some(ai) = (fi + dx).checked_sub(1).filter(|i| *i < cols) else {
+                        continue;
+                    };
+                    let w = [0.5, 1.0, 0.5][dx] * [0.5, 1.0, 0.5][dy];
+                    s += w * r[aj * cols + ai];
+                }
+            }
+            c.b[k] = s;
+        }
+    }
+}
+
+/// The residual of the fine level into `out` (zero at every cell but the free ones); with
+/// `rhs_only`, the right-hand side alone: the sum of each free cell's fixed neighbours.
+fn residual_fine(f: &Fine, rhs_only: bool, out: &mut Vec<f32>) {
+    let w = f.cols;
+    let x = &f.x;
+    out.clear();
+    out.extend((0..x.len()).map(|k| {
+        let n = f.nb[k];
+        if n == 0 {
+            return 0.0;
+        }
+        let g = |m: usize| if f.nb[m] != 0 && rhs_only { 0.0 } else { x[m] };
+        let centre = if rhs_only { 0.0 } else { n as f32 * x[k] };
+        g(k - 1) + g(k + 1) + g(k - w) + g(k + w) - centre
+    }));
+}
+
+/// The residual b − A x of a coarse level into `out` (zero at inactive cells).
+fn residual_coarse(l: &Coarse, out: &mut Vec<f32>) {
+    let w = l.cols;
+    let x = &l.x;
+    out.clear();
+    out.extend((0..x.len()).map(|k| {
+        let s = &l.st[k];
+        if s[4] <= 0.0 {
+            return 0.0;
+        }
+        l.b[k]
+            - s[0] * x[k - w - 1]
+            - s[1] * x[k - w]
+            - s[2] * x[k - w + 1]
+            - s[3] * x[k - 1]
+            - s[4] * x[k]
+            - s[5] * x[k + 1]
+            - s[6] * x[k + w - 1]
+            - s[7] * x[k + w]
+            - s[8] * x[k + w + 1]
+    }));
+}
+
+/// One V-cycle from the fine level; returns the sum of the largest changes of its steps on
+/// the fine level (a bound on the largest change of a cell in the cycle).
+fn v_cycle(f: &mut Fine, levels: &mut [Coarse], r: &mut Vec<f32>) -> f32 {
+    let mut total = 0.0;
+    for _ in 0..SMOOTH {
+        total += gs_fine(f, false);
+    }
+    residual_fine(f, false, r);
+    restrict(r, f.cols, f.rows, &mut levels[0]);
+    v_coarse(levels, r);
+    let nb = &f.nb;
+    total += prolong(&mut f.x, f.cols, |a| nb[a] != 0, &levels[0], true);
+    for _ in 0..SMOOTH {
+        total += gs_fine(f, true);
+    }
+    total
+}
+
+/// Gauss-Seidel sweeps on the coarsest level until its change falls to 10⁻⁴ of the first,
+/// at most [`COARSEST_SWEEPS`].
+fn solve_coarsest(l: &mut Coarse) {
+    let mut first = None;
+    for s in 0..COARSEST_SWEEPS {
+        let ch = gs_coarse(l, s % 2 == 1);
+        let f0 = *first.get_or_insert(ch);
+        if ch <= 1e-4 * f0 || ch == 0.0 {
+            break;
+        }
+    }
+}
+
+/// One V-cycle from the first of `levels` (the coarsest is solved by sweeps).
+fn v_coarse(levels: &mut [Coarse], r: &mut Vec<f32>) {
+    let (this, below) = levels.split_first_mut().unwrap();
+    if below.is_empty() {
+        solve_coarsest(this);
+        return;
+    }
+    for _ in 0..SMOOTH {
+        gs_coarse(this, false);
+    }
+    residual_coarse(this, r);
+    restrict(r, this.cols, this.rows, &mut below[0]);
+    v_coarse(below, r);
+    let st = &this.st;
+    prolong(&mut this.x, this.cols, |a| st[a][4] > 0.0, &below[0], true);
+    for _ in 0..SMOOTH {
+        gs_coarse(this, true);
+    }
+}
+
+/// Full multigrid start: the right-hand side restricted to every level, the coarsest solved,
+/// and each finer level started from the prolongation of the one below and improved by one
+/// V-cycle.
+fn fmg(f: &mut Fine, levels: &mut [Coarse], r: &mut Vec<f32>) {
+    residual_fine(f, true, r);
+    restrict(r, f.cols, f.rows, &mut levels[0]);
+    for l in 1..levels.len() {
+        let (a, b) = levels.split_at_mut(l);
+        let fine = &a[l - 1];
+        restrict(&fine.b, fine.cols, fine.rows, &mut b[0]);
+    }
+    let n = levels.len();
+    solve_coarsest(&mut levels[n - 1]);
+    for l in (0..n - 1).rev() {
+        let (a, b) = levels.split_at_mut(l + 1);
+        let this = &mut a[l];
+        let st = &this.st;
+        prolong(&mut this.x, this.cols, |k| st[k][4] > 0.0, &b[0], false);
+        v_coarse(&mut levels[l..], r);
+    }
+    let nb = &f.nb;
+    prolong(&mut f.x, f.cols, |a| nb[a] != 0, &levels[0], false);
 }
 
 #[cfg(test)]
@@ -607,6 +954,34 @@ mod tests {
             .map(|k| (got[k] as f64 - want[k]).abs())
             .fold(0.0, f64::max);
         assert!(worst < 2e-3, "largest difference {worst}");
+    }
+
+    #[test]
+    fn rap_equals_the_dense_product() {
+        let mut rng = SplitMix64::new(5);
+        for _ in 0..50 {
+            let mut a = [[0.0f32; 9]; 9];
+            for v in a.as_flattened_mut() {
+                *v = rng.range(-4.0, 4.0) as f32;
+            }
+            let mut want = [0.0f64; 9];
+            for (i, row) in RAP_DENSE.iter().enumerate() {
+                for (out, w) in row.iter().enumerate() {
+                    want[out] += *w as f64 * a[i / 9][i % 9] as f64;
+                }
+            }
+            let got = rap(&a);
+            for o in 0..9 {
+                assert!(
+                    (got[o] as f64 - want[o]).abs() < 1e-4,
+                    "{got:?} vs {want:?}"
+                );
+            }
+        }
+        // The interior stencil of the first coarse level: the Galerkin product of the
+        // five-point Laplacian with bilinear transfers (rows sum to zero).
+        let s = standard(1);
+        assert_eq!(s, [-0.25, -0.5, -0.25, -0.5, 3.0, -0.5, -0.25, -0.5, -0.25]);
     }
 
     #[test]
