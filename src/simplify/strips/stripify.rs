@@ -61,14 +61,15 @@ impl Default for StripParams {
 }
 
 /// Corners by vertex (compressed rows, ascending triangle): for each corner of vertex v,
-/// the next vertex of its triangle and the triangle, so that the triangles of a directed
-/// edge (v, w) are found by scanning v's row alone. Built by a counting sort (two passes
-/// over the corners, no hashing); the row lengths are the valences.
+/// the next and previous vertex of its triangle and the corner (3t + k), so that the
+/// triangles of a directed edge (v, w) or (w, v) are found in v's row alone. Built by a
+/// counting sort (two passes over the corners, no hashing); the row lengths are the
+/// valences.
 struct EdgeMap {
     /// Row of v: `fan[start[v]..start[v + 1]]`.
     start: Vec<u32>,
-    /// (next vertex, triangle).
-    fan: Vec<[u32; 2]>,
+    /// (next vertex, previous vertex, corner).
+    fan: Vec<[u32; 3]>,
 }
 
 impl EdgeMap {
@@ -86,12 +87,12 @@ impl EdgeMap {
             sum += *s;
             *s = sum;
         }
-        let mut fan = vec![[0u32; 2]; tris.len() * 3];
+        let mut fan = vec![[0u32; 3]; tris.len() * 3];
         for (t, &[a, b, c]) in tris.iter().enumerate().rev() {
-            for (v, next) in [(c, a), (b, c), (a, b)] {
+            for (k, v, next, prev) in [(2, c, a, b), (1, b, c, a), (0, a, b, c)] {
                 let s = &mut start[v as usize];
                 *s -= 1;
-                fan[*s as usize] = [next, t as u32];
+                fan[*s as usize] = [next, prev, 3 * t as u32 + k];
             }
         }
         EdgeMap { start, fan }
@@ -99,7 +100,7 @@ impl EdgeMap {
 
     /// The corners of vertex `v`.
     #[inline]
-    fn row(&self, v: u32) -> &[[u32; 2]] {
+    fn row(&self, v: u32) -> &[[u32; 3]] {
         &self.fan[self.start[v as usize] as usize..self.start[v as usize + 1] as usize]
     }
 
@@ -108,27 +109,29 @@ impl EdgeMap {
     fn find(&self, used: &[bool], e0: u32, e1: u32) -> Option<u32> {
         self.row(e0)
             .iter()
-            .find(|&&[next, t]| next == e1 && !used[t as usize])
-            .map(|&[_, t]| t)
+            .find(|&&[next, _, c]| next == e1 && !used[c as usize / 3])
+            .map(|&[_, _, c]| c / 3)
     }
 
     /// Per corner 3t + k: the triangle across edge (t[k], t[k + 1]), that is the one with
     /// the directed edge (t[k + 1], t[k]); [`NONE`] if there is none, [`MANY`] if there are
     /// several (a non-manifold or doubly covered edge: those are looked up in the rows).
-    /// Built in the input's order, where consecutive triangles read nearby rows.
-    fn twins(&self, tris: &[[u32; 3]]) -> Vec<u32> {
-        let mut twin = Vec::with_capacity(tris.len() * 3);
-        for &[a, b, c] in tris {
-            for (x, y) in [(a, b), (b, c), (c, a)] {
+    /// The triangles across (v, w) are those whose corner at v comes after w, in v's own
+    /// row: one pass over the rows in order, each read once from memory.
+    fn twins(&self) -> Vec<u32> {
+        let mut twin = vec![NONE; self.fan.len()];
+        for w in self.start.windows(2) {
+            let row = &self.fan[w[0] as usize..w[1] as usize];
+            for &[next, _, c] in row {
                 // Without branches in the loop (a match is unpredictable): the last match
                 // and the number of them.
                 let (mut found, mut count) = (NONE, 0u32);
-                for &[next, u] in self.row(y) {
-                    let m = next == x;
+                for &[_, prev, d] in row {
+                    let m = prev == next;
                     count += m as u32;
-                    found = if m { u } else { found };
+                    found = if m { d / 3 } else { found };
                 }
-                twin.push(if count > 1 { MANY } else { found });
+                twin[c as usize] = if count > 1 { MANY } else { found };
             }
         }
         twin
@@ -208,7 +211,7 @@ impl<'t> Stripper<'t> {
             .map_or(0, |v| v as usize + 1);
         let edges = EdgeMap::new(tris, vertices);
         let valence = edges.start.windows(2).map(|w| w[1] - w[0]).collect();
-        let twin = edges.twins(tris);
+        let twin = edges.twins();
         let mut s = Stripper {
             tris,
             join: params.join,
@@ -268,7 +271,8 @@ impl<'t> Stripper<'t> {
                     NONE => {}
                     MANY => {
                         for i in 0..self.edges.row(x).len() {
-                            let [next, u] = self.edges.row(x)[i];
+                            let [next, _, c] = self.edges.row(x)[i];
+                            let u = c / 3;
                             if next == y && !self.used[u as usize] {
                                 self.drop_neighbour(u);
                             }
