@@ -17,11 +17,45 @@ use terratile::simplify::strips::{
     progressive, stripify, Decoder, Encoding, ProgressiveParams, StripParams, RESTART,
 };
 
+/// This thread's time on a CPU so far, in nanoseconds (`/proc/thread-self/schedstat`,
+/// Linux), or None.
+fn thread_cpu_ns() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    s.split_whitespace().next()?.parse().ok()
+}
+
+/// CPU time per call of meshoptimizer's stripify and ours on one thread (both are
+/// single-threaded), the two taking turns over `rounds` rounds so that the machine's load
+/// falls on both alike.
+fn stripify_cpu(mesh: &terratile::mesh::TriMesh, flat: &[u32], rounds: u32) {
+    let (mut theirs, mut ours) = (0u64, 0u64);
+    for _ in 0..rounds {
+        let Some(t0) = thread_cpu_ns() else {
+            return;
+        };
+        black_box(meshopt::stripify(flat, mesh.vertex_count(), RESTART).unwrap());
+        let t1 = thread_cpu_ns().unwrap_or(t0);
+        black_box(stripify(&mesh.indices, &StripParams::default()));
+        let t2 = thread_cpu_ns().unwrap_or(t1);
+        theirs += t1 - t0;
+        ours += t2 - t1;
+    }
+    let ms = |ns: u64| ns as f64 / 1e6 / rounds as f64;
+    println!(
+        "bunny stripify CPU time, one thread, {rounds} calls each: meshopt {:.3} ms, \
+         terratile {:.3} ms per call ({:.2}x)",
+        ms(theirs),
+        ms(ours),
+        ours as f64 / theirs.max(1) as f64
+    );
+}
+
 fn strips(c: &mut Criterion) {
     let Some(mesh) = load("bunny.obj") else {
         return;
     };
     let flat: Vec<u32> = mesh.indices.iter().flatten().copied().collect();
+    stripify_cpu(&mesh, &flat, 100);
     let mut g = c.benchmark_group("bunny_stripify");
     g.sample_size(10);
     g.bench_function("meshopt_stripify", |b| {

@@ -224,6 +224,16 @@ struct StripsArgs {
     /// The form of the split records.
     #[arg(long, value_enum, default_value = "encoded")]
     encoding: EncodingArg,
+    /// The full strip's order: `hierarchical` (from the base mesh up) or `paper` (the full
+    /// mesh stripified on its own, as the progressive-strips paper).
+    #[arg(long, value_enum, default_value = "hierarchical")]
+    order: OrderArg,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+enum OrderArg {
+    Hierarchical,
+    Paper,
 }
 
 #[derive(clap::Subcommand, Debug)]
@@ -1124,7 +1134,7 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
 }
 
 fn strips(a: StripsArgs) -> Result<()> {
-    use terratile::simplify::strips::{format, Encoding, ProgressiveParams};
+    use terratile::simplify::strips::{format, Encoding, ProgressiveParams, StripOrder};
     if let Some(StripsCommand::Decode {
         input,
         level,
@@ -1148,6 +1158,10 @@ fn strips(a: StripsArgs) -> Result<()> {
     }
     let params = ProgressiveParams {
         base_ratio: a.base_ratio,
+        order: match a.order {
+            OrderArg::Hierarchical => StripOrder::Hierarchical,
+            OrderArg::Paper => StripOrder::Full,
+        },
         ..ProgressiveParams::default()
     };
     let encoding = match a.encoding {

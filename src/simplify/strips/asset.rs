@@ -6,7 +6,7 @@
 //! ```
 
 use super::format::{encode, glb_at, BuildReport};
-use super::{progressive, Encoding, ProgressiveParams};
+use super::{progressive, Encoding, ProgressiveParams, StripOrder};
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
 use serde::{Deserialize, Serialize};
@@ -24,6 +24,9 @@ pub struct AssetStrips {
     /// The split records' form, `encoded` (E-PS, default) or `naive`.
     #[serde(default)]
     pub encoding: Encoding,
+    /// The full strip's order, `hierarchical` (default) or `paper`.
+    #[serde(default)]
+    pub order: StripOrder,
     /// A `.glb` with one `TRIANGLE_STRIP` primitive of the level `level`, relative to the
     /// output directory (none by default).
     #[serde(default)]
@@ -79,6 +82,7 @@ impl AssetStrips {
     pub fn write(&self, mesh: &TriMesh, input: &Path, out_dir: &Path) -> Result<BuildReport> {
         let params = ProgressiveParams {
             base_ratio: self.base_ratio,
+            order: self.order,
             ..ProgressiveParams::default()
         };
         let p = progressive(mesh, &params)?;

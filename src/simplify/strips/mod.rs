@@ -24,4 +24,6 @@ pub use progressive::{
 pub use stripify::{stripify, unstripify, Join, StripParams, RESTART};
 
 #[cfg(test)]
+mod stripify_twin;
+#[cfg(test)]
 mod tests;

@@ -64,6 +64,8 @@ pub enum Encoding {
 #[serde(rename_all = "lowercase")]
 pub enum StripOrder {
     /// The paper's: the full mesh stripified on its own ([`ProgressiveParams::strip`]).
+    /// Written `paper` in a configuration (`full` is read too).
+    #[serde(rename = "paper", alias = "full")]
     Full,
     /// Ours (default): the base mesh stripified, each split's triangles inserted next to
     /// their neighbours from the base up ([`super::order`]), so that every level's

@@ -60,11 +60,16 @@ impl Default for StripParams {
     }
 }
 
-/// Triangles by vertex (compressed rows: the corners 3t + k with t[k] = v, ascending), to
-/// find the triangles of a directed edge by scanning the fan of its first vertex.
+/// Corners by vertex (compressed rows, ascending triangle): for each corner of vertex v,
+/// the next and previous vertex of its triangle and the corner (3t + k), so that the
+/// triangles of a directed edge (v, w) or (w, v) are found in v's row alone. Built by a
+/// counting sort (two passes over the corners, no hashing); the row lengths are the
+/// valences.
 struct EdgeMap {
+    /// Row of v: `fan[start[v]..start[v + 1]]`.
     start: Vec<u32>,
-    corners: Vec<u32>,
+    /// (next vertex, previous vertex, corner).
+    fan: Vec<[u32; 3]>,
 }
 
 impl EdgeMap {
@@ -72,77 +77,110 @@ impl EdgeMap {
         let mut start = vec![0u32; vertices + 1];
         for t in tris {
             for &v in t {
-                start[v as usize + 1] += 1;
+                start[v as usize] += 1;
             }
         }
-        for v in 0..vertices {
-            start[v + 1] += start[v];
+        // Inclusive sums, then filled from the back: each row ends ascending and `start[v]`
+        // ends at the row's first entry.
+        let mut sum = 0u32;
+        for s in start.iter_mut() {
+            sum += *s;
+            *s = sum;
         }
-        let mut fill = start.clone();
-        let mut corners = vec![0u32; tris.len() * 3];
-        for (t, tri) in tris.iter().enumerate() {
-            for (k, &v) in tri.iter().enumerate() {
-                corners[fill[v as usize] as usize] = (3 * t + k) as u32;
-                fill[v as usize] += 1;
+        let mut fan = vec![[0u32; 3]; tris.len() * 3];
+        for (t, &[a, b, c]) in tris.iter().enumerate().rev() {
+            for (k, v, next, prev) in [(2, c, a, b), (1, b, c, a), (0, a, b, c)] {
+                let s = &mut start[v as usize];
+                *s -= 1;
+                fan[*s as usize] = [next, prev, 3 * t as u32 + k];
             }
         }
-        EdgeMap { start, corners }
+        EdgeMap { start, fan }
     }
 
     /// The corners of vertex `v`.
     #[inline]
-    fn fan(&self, v: u32) -> &[u32] {
-        &self.corners[self.start[v as usize] as usize..self.start[v as usize + 1] as usize]
+    fn row(&self, v: u32) -> &[[u32; 3]] {
+        &self.fan[self.start[v as usize] as usize..self.start[v as usize + 1] as usize]
     }
 
-    /// The first unused triangle with directed edge (e0, e1), and its third vertex.
+    /// The first unused triangle with directed edge (e0, e1).
     #[inline]
-    fn find(&self, tris: &[[u32; 3]], used: &[bool], e0: u32, e1: u32) -> Option<(u32, u32)> {
-        self.fan(e0).iter().find_map(|&c| {
-            let (t, k) = (c as usize / 3, c as usize % 3);
-            (!used[t] && tris[t][(k + 1) % 3] == e1).then(|| (t as u32, tris[t][(k + 2) % 3]))
-        })
+    fn find(&self, used: &[bool], e0: u32, e1: u32) -> Option<u32> {
+        self.row(e0)
+            .iter()
+            .find(|&&[next, _, c]| next == e1 && !used[c as usize / 3])
+            .map(|&[_, _, c]| c / 3)
+    }
+
+    /// Per corner 3t + k: the triangle across edge (t[k], t[k + 1]), that is the one with
+    /// the directed edge (t[k + 1], t[k]); [`NONE`] if there is none, [`MANY`] if there are
+    /// several (a non-manifold or doubly covered edge: those are looked up in the rows).
+    /// The triangles across (v, w) are those whose corner at v comes after w, in v's own
+    /// row: one pass over the rows in order, each read once from memory.
+    fn twins(&self) -> Vec<u32> {
+        let mut twin = vec![NONE; self.fan.len()];
+        for w in self.start.windows(2) {
+            let row = &self.fan[w[0] as usize..w[1] as usize];
+            for &[next, _, c] in row {
+                // Without branches in the loop (a match is unpredictable): the last match
+                // and the number of them.
+                let (mut found, mut count) = (NONE, 0u32);
+                for &[_, prev, d] in row {
+                    let m = prev == next;
+                    count += m as u32;
+                    found = if m { d / 3 } else { found };
+                }
+                twin[c as usize] = if count > 1 { MANY } else { found };
+            }
+        }
+        twin
     }
 }
 
-/// In `buffer` (triangle ids), the first triangle with directed edge (e0, e1): its
-/// position in the buffer and its third vertex (meshoptimizer's `findStripNext`).
-fn find_in(buffer: &[u32], tris: &[[u32; 3]], e0: u32, e1: u32) -> Option<(usize, u32)> {
-    buffer.iter().enumerate().find_map(|(i, &t)| {
-        let [a, b, c] = tris[t as usize];
-        if e0 == a && e1 == b {
-            Some((i, c))
-        } else if e0 == b && e1 == c {
-            Some((i, a))
-        } else if e0 == c && e1 == a {
-            Some((i, b))
-        } else {
-            None
-        }
-    })
-}
+/// No triangle across the edge.
+const NONE: u32 = u32::MAX;
+/// Several triangles across the edge.
+const MANY: u32 = u32::MAX - 1;
 
 /// The strips of `triangles` (triangles with a repeated vertex are left out: they draw
 /// nothing). Every other triangle is drawn exactly once, with its orientation.
 pub fn stripify(triangles: &[[u32; 3]], params: &StripParams) -> Vec<u32> {
-    let tris: Vec<[u32; 3]> = triangles
-        .iter()
-        .copied()
-        .filter(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2])
-        .collect();
-    let mut s = Stripper::new(&tris, params);
+    let distinct = |t: &[u32; 3]| t[0] != t[1] && t[1] != t[2] && t[0] != t[2];
+    let kept: Vec<[u32; 3]>;
+    // Triangle ids must stay below the markers of [`EdgeMap::twins`]; so many
+    // triangles (48 GiB of indices) are out of reach of this greedy anyway.
+    assert!(
+        triangles.len() < MANY as usize,
+        "too many triangles to stripify"
+    );
+    let tris = if triangles.iter().all(distinct) {
+        triangles
+    } else {
+        kept = triangles.iter().copied().filter(distinct).collect();
+        &kept
+    };
+    let mut s = Stripper::new(tris, params);
     s.run();
     s.out
 }
 
+/// The greedy's state, in flat arrays sized once: the window is a small array of the
+/// triangles themselves, the edge map rows hold what a lookup compares, and nothing is
+/// allocated per triangle.
 struct Stripper<'t> {
     tris: &'t [[u32; 3]],
     join: Join,
     window: usize,
     edges: EdgeMap,
+    /// [`EdgeMap::twins`].
+    twin: Vec<u32>,
     used: Vec<bool>,
+    /// Unused triangles per vertex.
     valence: Vec<u32>,
-    buffer: Vec<u32>,
+    /// The next `window` unused triangles of the input order, ascending: `[a, b, c, t]`.
+    /// It holds exactly the unused triangles below `cursor`.
+    buffer: Vec<[u32; 4]>,
     cursor: usize,
     /// Global order: triangles by their number of unused neighbours (0..=3), lazily.
     buckets: [Vec<u32>; 4],
@@ -161,21 +199,25 @@ struct Stripper<'t> {
 /// against meshoptimizer's 1.7262; 12 gives 1.7260).
 const CACHE: usize = 12;
 
+/// The rank of a triangle found outside the window: after every window position.
+const OUTSIDE: u32 = u32::MAX;
+
 impl<'t> Stripper<'t> {
     fn new(tris: &'t [[u32; 3]], params: &StripParams) -> Stripper<'t> {
-        let vertices = tris.iter().flatten().max().map_or(0, |&v| v as usize + 1);
+        let vertices = tris
+            .iter()
+            .map(|t| t[0].max(t[1]).max(t[2]))
+            .max()
+            .map_or(0, |v| v as usize + 1);
         let edges = EdgeMap::new(tris, vertices);
-        let mut valence = vec![0u32; vertices];
-        for t in tris {
-            for &v in t {
-                valence[v as usize] += 1;
-            }
-        }
+        let valence = edges.start.windows(2).map(|w| w[1] - w[0]).collect();
+        let twin = edges.twins();
         let mut s = Stripper {
             tris,
             join: params.join,
             window: params.window,
             edges,
+            twin,
             used: vec![false; tris.len()],
             valence,
             buffer: Vec::with_capacity(params.window),
@@ -187,7 +229,7 @@ impl<'t> Stripper<'t> {
             out: Vec::with_capacity(tris.len() * 2),
         };
         if s.window == 0 {
-            s.free_nb = (0..tris.len()).map(|t| s.neighbours(t as u32)).collect();
+            s.free_nb = (0..tris.len()).map(|t| s.neighbours(t)).collect();
             for t in (0..tris.len()).rev() {
                 s.buckets[s.free_nb[t] as usize].push(t as u32);
             }
@@ -196,20 +238,27 @@ impl<'t> Stripper<'t> {
     }
 
     /// Unused triangles across the edges of `t` (capped at 3).
-    fn neighbours(&self, t: u32) -> u8 {
-        let [a, b, c] = self.tris[t as usize];
-        let n = [(b, a), (c, b), (a, c)]
+    fn neighbours(&self, t: usize) -> u8 {
+        let [a, b, c] = self.tris[t];
+        [(b, a), (c, b), (a, c)]
             .iter()
-            .filter(|&&(x, y)| self.edges.find(self.tris, &self.used, x, y).is_some())
-            .count();
-        n as u8
+            .enumerate()
+            .filter(|&(k, &(x, y))| match self.twin[3 * t + k] {
+                NONE => false,
+                MANY => self.edges.find(&self.used, x, y).is_some(),
+                u => !self.used[u as usize],
+            })
+            .count() as u8
     }
 
     /// Marks `t` used: out of the window, valences and neighbour counts down.
+    #[inline]
     fn take(&mut self, t: u32) {
         self.used[t as usize] = true;
-        if let Some(i) = self.buffer.iter().position(|&x| x == t) {
-            self.buffer.remove(i);
+        if (t as usize) < self.cursor {
+            if let Some(i) = self.buffer.iter().position(|x| x[3] == t) {
+                self.buffer.remove(i);
+            }
         }
         let tri = self.tris[t as usize];
         for v in tri {
@@ -217,30 +266,76 @@ impl<'t> Stripper<'t> {
         }
         if self.window == 0 {
             let [a, b, c] = tri;
-            for (x, y) in [(b, a), (c, b), (a, c)] {
-                for &cnr in self.edges.fan(x) {
-                    let (u, k) = (cnr as usize / 3, cnr as usize % 3);
-                    if !self.used[u] && self.tris[u][(k + 1) % 3] == y {
-                        let n = &mut self.free_nb[u];
-                        *n = n.saturating_sub(1);
-                        self.buckets[*n as usize].push(u as u32);
+            for (k, (x, y)) in [(b, a), (c, b), (a, c)].into_iter().enumerate() {
+                match self.twin[3 * t as usize + k] {
+                    NONE => {}
+                    MANY => {
+                        for i in 0..self.edges.row(x).len() {
+                            let [next, _, c] = self.edges.row(x)[i];
+                            let u = c / 3;
+                            if next == y && !self.used[u as usize] {
+                                self.drop_neighbour(u);
+                            }
+                        }
+                    }
+                    u => {
+                        if !self.used[u as usize] {
+                            self.drop_neighbour(u);
+                        }
                     }
                 }
             }
         }
     }
 
-    /// The triangle with directed edge (e0, e1): in the window first, then anywhere (in
-    /// the windowed order, only one whose new vertex is cached).
-    /// Returns (rank, triangle, third vertex); the rank orders window hits before others.
-    fn find(&self, e0: u32, e1: u32) -> Option<(usize, u32, u32)> {
-        if let Some((i, v)) = find_in(&self.buffer, self.tris, e0, e1) {
-            return Some((i, self.buffer[i], v));
+    /// One neighbour of `u` fewer unused (global order).
+    #[inline]
+    fn drop_neighbour(&mut self, u: u32) {
+        let n = &mut self.free_nb[u as usize];
+        *n = n.saturating_sub(1);
+        self.buckets[*n as usize].push(u);
+    }
+
+    /// The first unused triangle with directed edge (e0, e1), where `t` has the edge
+    /// (e1, e0): in the window first, then anywhere (in the windowed order, only one whose
+    /// new vertex is cached). Returns (rank, triangle, third vertex); the rank orders
+    /// window hits (by their triangle, as the window is ascending) before others
+    /// ([`OUTSIDE`]).
+    ///
+    /// The window holds exactly the unused triangles below the cursor, so the first one in
+    /// the window is the first unused one overall when it is below the cursor, and the
+    /// edge's twin (or, for an edge with several, its row) gives that without scanning the
+    /// window.
+    #[inline]
+    fn find(&self, t: u32, e0: u32, e1: u32) -> Option<(u32, u32, u32)> {
+        let [a, b, c] = self.tris[t as usize];
+        let k = if a == e1 && b == e0 {
+            0
+        } else if b == e1 && c == e0 {
+            1
+        } else if c == e1 && a == e0 {
+            2
+        } else {
+            // Not an edge of t turned around (an inconsistently oriented neighbour).
+            3
+        };
+        let u = match if k < 3 {
+            self.twin[3 * t as usize + k]
+        } else {
+            MANY
+        } {
+            NONE => return None,
+            MANY => self.edges.find(&self.used, e0, e1)?,
+            u if self.used[u as usize] => return None,
+            u => u,
+        };
+        let [x, y, z] = self.tris[u as usize];
+        let v = x ^ y ^ z ^ e0 ^ e1;
+        if (u as usize) < self.cursor {
+            Some((u, u, v))
+        } else {
+            (self.window == 0 || self.cache.contains(&v)).then_some((OUTSIDE, u, v))
         }
-        self.edges
-            .find(self.tris, &self.used, e0, e1)
-            .filter(|&(_, v)| self.window == 0 || self.cache.contains(&v))
-            .map(|(t, v)| (self.window, t, v))
     }
 
     /// Emits `v`, through the simulated vertex cache.
@@ -249,16 +344,21 @@ impl<'t> Stripper<'t> {
         self.out.push(v);
         if v != RESTART && !self.cache.contains(&v) {
             self.cache[self.cache_at] = v;
-            self.cache_at = (self.cache_at + 1) % CACHE;
+            self.cache_at += 1;
+            if self.cache_at == CACHE {
+                self.cache_at = 0;
+            }
         }
     }
 
+    #[inline]
     fn fill(&mut self) {
         while self.buffer.len() < self.window && self.cursor < self.tris.len() {
-            let t = self.cursor as u32;
+            let t = self.cursor;
             self.cursor += 1;
-            if !self.used[t as usize] {
-                self.buffer.push(t);
+            if !self.used[t] {
+                let [a, b, c] = self.tris[t];
+                self.buffer.push([a, b, c, t as u32]);
             }
         }
     }
@@ -268,12 +368,10 @@ impl<'t> Stripper<'t> {
         if self.window > 0 {
             // meshoptimizer's findStripFirst: least valence of a corner in the window.
             let mut best: Option<(u32, u32)> = None;
-            for &t in &self.buffer {
-                let v = self.tris[t as usize]
-                    .iter()
-                    .map(|&v| self.valence[v as usize])
-                    .min()
-                    .unwrap_or(0);
+            for &[a, b, c, t] in &self.buffer {
+                let v = self.valence[a as usize]
+                    .min(self.valence[b as usize])
+                    .min(self.valence[c as usize]);
                 if best.is_none_or(|b| v < b.0) {
                     best = Some((v, t));
                 }
@@ -300,15 +398,15 @@ impl<'t> Stripper<'t> {
                 self.take(t);
                 // The default outgoing edge of [a b c] is [b c]; a swap uses [a c].
                 let cont = if parity == 1 {
-                    self.find(strip[1], v)
+                    self.find(t, strip[1], v)
                 } else {
-                    self.find(v, strip[1])
+                    self.find(t, v, strip[1])
                 };
                 let swap = if cont.is_none() {
                     if parity == 1 {
-                        self.find(v, strip[0])
+                        self.find(t, v, strip[0])
                     } else {
-                        self.find(strip[0], v)
+                        self.find(t, strip[0], v)
                     }
                 } else {
                     None
@@ -334,9 +432,9 @@ impl<'t> Stripper<'t> {
             self.take(t);
             let [mut a, mut b, mut c] = self.tris[t as usize];
             // Rotate so that the outgoing edge leads to a triangle (the nearest in rank).
-            let ea = self.find(c, b);
-            let eb = self.find(a, c);
-            let ec = self.find(b, a);
+            let ea = self.find(t, c, b);
+            let eb = self.find(t, a, c);
+            let ec = self.find(t, b, a);
             let mine = [ea, eb, ec].iter().flatten().map(|x| x.0).min();
             if ea.is_some_and(|x| Some(x.0) == mine) {
                 next = ea.map(|x| (x.1, x.2));

@@ -66,6 +66,13 @@ proptest! {
     }
 
     #[test]
+    fn stripify_equals_its_slow_twin(tris in random_tris()) {
+        for p in all_params() {
+            prop_assert_eq!(stripify(&tris, &p), super::stripify_twin::stripify_twin(&tris, &p));
+        }
+    }
+
+    #[test]
     fn dtfs_and_stss_keep_the_triangles((s, join) in collapsed_strip()) {
         // The twin: the unstripified list, degenerate triangles dropped (unstripify does).
         let want = triangle_set(unstripify(&s));
@@ -397,4 +404,36 @@ fn bad_parameters_are_refused() {
         ..TriMesh::default()
     };
     assert!(progressive(&flat, &ProgressiveParams::default()).is_err());
+}
+
+/// The flat stripifier writes the same indices as its slow twin on every shared mesh, in
+/// the file's order and after meshoptimizer's vertex-cache order, for every join and window
+/// (skipped without the shared data).
+#[test]
+fn stripify_equals_its_slow_twin_on_the_shared_meshes() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/meshes");
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        eprintln!("skipping: {} not found", dir.display());
+        return;
+    };
+    let mut names: Vec<_> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "obj" || x == "ply"))
+        .collect();
+    names.sort();
+    for path in names {
+        let m = crate::mesh::io::read(&path).unwrap();
+        let flat: Vec<u32> = m.indices.iter().flatten().copied().collect();
+        let opt = meshopt::optimize_vertex_cache(&flat, m.vertex_count());
+        let opt: Vec<[u32; 3]> = opt.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+        for tris in [&m.indices, &opt] {
+            for p in all_params() {
+                assert!(
+                    stripify(tris, &p) == super::stripify_twin::stripify_twin(tris, &p),
+                    "{} {p:?}",
+                    path.display()
+                );
+            }
+        }
+    }
 }
