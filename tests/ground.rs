@@ -29,9 +29,15 @@ fn isprs(s: &str) -> Option<PathBuf> {
 /// file's labels (class 2: ground).
 fn ours(c: &PointCloud) -> (Vec<bool>, f64, Vec<bool>) {
     let mpu = c.crs().map_or(1.0, |c| c.metres_per_unit());
-    let t = Instant::now();
-    let g = classify(&c.x, &c.y, &c.z, None, &GroundParams::default(), mpu).unwrap();
-    let secs = t.elapsed().as_secs_f64();
+    // The best of five runs: a classification takes milliseconds, so one run on the shared
+    // machine measures the scheduler as much as the work (CSF's seconds-long run less so).
+    let (mut g, mut secs) = (None, f64::INFINITY);
+    for _ in 0..5 {
+        let t = Instant::now();
+        g = Some(classify(&c.x, &c.y, &c.z, None, &GroundParams::default(), mpu).unwrap());
+        secs = secs.min(t.elapsed().as_secs_f64());
+    }
+    let g = g.unwrap();
     let truth: Vec<bool> = c.classification.iter().map(|&k| k == 2).collect();
     (g.ground, secs, truth)
 }
@@ -206,8 +212,8 @@ fn isprs_table(csf_on: &[&str]) -> Vec<Scores> {
 
 /// Mean kappa and total error over the eight samples, one default parameter set, beside
 /// CSF on the samples where it is quick (the table and the speed ratio are printed; run
-/// with `--nocapture`). The bars are what the defaults reach today (mean kappa 84.8 %,
-/// total error 4.10 %), so that a change that makes them worse fails; the target
+/// with `--nocapture`). The bars are what the defaults reach today (mean kappa 86.3 %,
+/// total error 3.60 %), so that a change that makes them worse fails; the target
 /// (kappa ≥ 88 %) is not reached yet.
 #[test]
 fn isprs_scores() {
@@ -218,8 +224,8 @@ fn isprs_scores() {
     let n = rows.len() as f64;
     let kappa = rows.iter().map(|s| s.kappa).sum::<f64>() / n;
     let total = rows.iter().map(|s| s.total).sum::<f64>() / n;
-    assert!(kappa >= 0.845, "mean kappa {kappa}");
-    assert!(total <= 0.045, "mean total error {total}");
+    assert!(kappa >= 0.86, "mean kappa {kappa}");
+    assert!(total <= 0.04, "mean total error {total}");
 }
 
 /// [`isprs_scores`] with CSF on all eight samples (minutes: CSF takes tens of seconds on the

@@ -7,11 +7,13 @@
 //! cost, which is what the speed target needs (10 M points in about a second), and because
 //! it scored best of the three with a single parameter set on the ISPRS filter test. Steps:
 //!
-//! 1. the minimum surface: the lowest point of every cell of a grid of `cell_size`;
-//!    empty cells inpainted (membrane fill, [`super::voidfill`]);
-//! 2. low outliers: cells more than 5 × `cell_size` below the closing of their 3 × 3
-//!    neighbourhood are dropped (multipath returns under the ground) and re-inpainted;
-//! 3. the progressive opening: openings by square windows of radius 1, 2, … cells up to
+//! 1. the minimum surface: the lowest point of every cell of a grid of `cell_size`; empty
+//!    cells stay unknown (not inpainted: see step 3);
+//! 2. low outliers: cells more than 5 × `cell_size` below the closing of their measured
+//!    3 × 3 neighbourhood are dropped (multipath returns under the ground);
+//! 3. the progressive opening of the measured cells (an unknown cell is each pass's identity,
+//!    so in a sparse survey a window judges a point only once it reaches the point's
+//!    neighbours): openings by square windows of radius 1, 2, … cells up to
 //!    `window`, each applied to the previous one; a cell that one opening lowers by more
 //!    than `slope` × the window radius is an object cell; then hysteresis (the two-threshold
 //!    linking of Canny, "A computational approach to edge detection", 1986): a connected
@@ -26,7 +28,9 @@
 //! Where this differs from the paper: the windows are squares (separable, so an erosion
 //! costs three comparisons a cell whatever its size; van Herk 1992, Gil & Werman 1993)
 //! instead of discs; the inpainting is the membrane surface instead of the spring
-//! metaphor of D'Errico's inpaint_nans; the final test is one-sided above the DEM and twice as
+//! metaphor of D'Errico's inpaint_nans, and the openings work on the measured cells, not on
+//! the inpainted minimum surface (on the ISPRS samples: mean kappa 84.8 % → 86.3 %, the
+//! sparse quarry samp53 52.8 % → 63.3 %); the final test is one-sided above the DEM and twice as
 //! wide below it (a point below the provisional ground is ground unless far below: the
 //! minimum surface is already the lowest return of its cell); the hysteresis of step 3 is
 //! ours (a single slope is either too low for steep terrain, cutting its rims, or too high
@@ -296,10 +300,12 @@ pub fn classify(
     // 1. Minimum surface, heights in metres above zref.
     let zmin = min_surface(x, y, z, keep, &grid, zref, mpu);
     let empty: Vec<bool> = zmin.par_iter().map(|v| v.is_nan()).collect();
-    let mut filled = zmin.clone();
-    inpaint(&mut filled, cols, rows);
-    // 2. Low outliers: a cell far below the closing of its 3 × 3 neighbourhood.
-    let neg: Vec<f32> = filled.par_iter().map(|v| -v).collect();
+    // 2. Low outliers: a cell far below the closing of its measured 3 × 3 neighbourhood (an
+    // empty cell is the identity of each pass, see `progressive_object_mask`).
+    let neg: Vec<f32> = zmin
+        .par_iter()
+        .map(|v| if v.is_nan() { f32::INFINITY } else { -v })
+        .collect();
     let closed = open(&neg, cols, rows, 1);
     let low_limit = (5.0 * cell_m) as f32;
     let low: Vec<bool> = neg
@@ -308,18 +314,13 @@ pub fn classify(
         .map(|(n, o)| n - o > low_limit)
         .collect();
     drop((neg, closed));
-    // Without low cells the base is the same membrane solve as `filled`.
-    let base = if low.par_iter().any(|l| *l) {
-        let mut base: Vec<f32> = zmin
-            .par_iter()
-            .zip(&low)
-            .map(|(v, l)| if *l { f32::NAN } else { *v })
-            .collect();
-        inpaint(&mut base, cols, rows);
-        base
-    } else {
-        filled
-    };
+    // The measured cells that are not low; every other cell unknown (+∞, the erosion's
+    // identity): not inpainted, see `progressive_object_mask`.
+    let base: Vec<f32> = zmin
+        .par_iter()
+        .zip(&low)
+        .map(|(v, l)| if *l || v.is_nan() { f32::INFINITY } else { *v })
+        .collect();
     let window_m = params.window.unwrap_or(DEFAULT_WINDOW);
     let radius = ((window_m / cell_m).ceil() as usize).max(1);
     let slope = params.slope.unwrap_or(DEFAULT_SLOPE);
@@ -459,6 +460,16 @@ fn inpaint(z: &mut [f32], cols: usize, rows: usize) {
 /// each step erodes the previous erosion by 3 × 3 (two short passes) and dilates it once by
 /// radius r: two passes of the running extremum instead of four. Min and max are exact, so
 /// the result is the same bits as opening the previous opening (tested against that).
+///
+/// The base holds the measured cells only; an unknown cell is +∞, the erosion's identity, so
+/// a window's erosion is the lowest measured cell in it (+∞ where it holds none, which the
+/// dilation's maximum then carries; the opening of a measured cell is always finite, at most
+/// its own height). In a survey sparser than the grid a window judges a cell only once it
+/// reaches the cell's measured neighbours: the first window that matters spans the point
+/// spacing, whatever the cell. Inpainting before the opening (the paper's order) made every
+/// isolated point a spike of the membrane between points, and on a convex break (a quarry's
+/// rim, the crest of an embankment) the 3 × 3 opening cut those spikes like vegetation. The
+/// flags of unknown cells mean nothing (they are left out of the DEM and of the hysteresis).
 fn progressive_object_mask(
     base: &[f32],
     cols: usize,
@@ -835,8 +846,15 @@ mod tests {
     fn opening_equals_the_window_scan() {
         let mut rng = SplitMix64::new(7);
         for (cols, rows) in [(1, 1), (3, 1), (1, 5), (17, 9), (70, 33), (130, 71)] {
+            // Some cells unknown (+∞, the erosion's identity), as `classify` passes them.
             let z: Vec<f32> = (0..cols * rows)
-                .map(|_| rng.range(0.0, 10.0) as f32)
+                .map(|_| {
+                    if rng.unit() < 0.5 {
+                        f32::INFINITY
+                    } else {
+                        rng.range(0.0, 10.0) as f32
+                    }
+                })
                 .collect();
             for r in [1, 2, 3, 5, 9, 40] {
                 assert_eq!(
@@ -853,9 +871,19 @@ mod tests {
     #[test]
     fn progressive_mask_equals_opening_the_previous_opening() {
         let mut rng = SplitMix64::new(11);
-        for (cols, rows) in [(1, 1), (5, 1), (1, 7), (23, 17), (70, 41)] {
+        // Dense grids, and sparse ones whose unknown cells are +∞ (as `classify` passes them).
+        for ((cols, rows), unknown) in [(1, 1), (5, 1), (1, 7), (23, 17), (70, 41)]
+            .into_iter()
+            .flat_map(|s| [(s, 0.0), (s, 0.8)])
+        {
             let z: Vec<f32> = (0..cols * rows)
-                .map(|_| rng.range(0.0, 10.0) as f32)
+                .map(|_| {
+                    if rng.unit() < unknown {
+                        f32::INFINITY
+                    } else {
+                        rng.range(0.0, 10.0) as f32
+                    }
+                })
                 .collect();
             let (radius, slopes, cell) = (9, [0.15, 0.3], 1.0);
             let (mut object, mut sure) = (vec![false; z.len()], vec![false; z.len()]);
