@@ -353,3 +353,63 @@ fn slurm_recipe_with_a_stand_in_sbatch() {
     assert!(r.stdout.contains("4 jobs per phase"), "{}", r.context());
     same_tree(&d.join("out-run"), &d.join("out-jobs"));
 }
+
+/// `run` and the jobs on generated 3 × 3 LAS tiles (a glob) with `input` lines added to
+/// `[input]`, in 3 × 3 shards: byte-identical, though each job reads only the tiles its
+/// range meets (the `prepare` jobs pass over the keep flags of the tiles they skip).
+fn check_identical_on_tiles(d: &Path, input: &str) {
+    std::fs::create_dir_all(d.join("tiles")).unwrap();
+    let gen = [
+        "generate",
+        "-o",
+        "tiles/s.las",
+        "--points",
+        "270000",
+        "--tiles",
+        "3x3",
+    ];
+    terratile(d, &gen).ok();
+    for (name, out) in [("run.toml", "out-run"), ("jobs.toml", "out-jobs")] {
+        let toml = format!(
+            "[input]\npaths = [\"tiles/*.las\"]\n{input}[output]\ndir = {out:?}\n\
+             meshes = []\n[tiles]\nsize = 129\n"
+        );
+        std::fs::write(d.join(name), toml).unwrap();
+    }
+    terratile(d, &["run", "run.toml", "--quiet"]).ok();
+    let args = ["plan", "jobs.toml", "--out", "work", "--shards", "9"];
+    terratile(d, &args).ok();
+    run_jobs(d, "work", 9);
+    same_tree(&d.join("out-run"), &d.join("out-jobs"));
+}
+
+#[test]
+fn jobs_read_only_the_tiles_they_need() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    check_identical_on_tiles(d, "");
+    // The north-east tile is made unreadable (its header announces one more record than it
+    // holds) with its size and modification time kept, so the plan still accepts it: the
+    // south-west window's `count` job never reads it and succeeds, the north-east one fails
+    // on it.
+    let ne = d.join("tiles/s-2-2.las");
+    let mtime = std::fs::metadata(&ne).unwrap().modified().unwrap();
+    let mut bytes = std::fs::read(&ne).unwrap();
+    let n = u32::from_le_bytes(bytes[107..111].try_into().unwrap());
+    bytes[107..111].copy_from_slice(&(n + 1).to_le_bytes());
+    std::fs::write(&ne, &bytes).unwrap();
+    let f = std::fs::OpenOptions::new().write(true).open(&ne).unwrap();
+    f.set_modified(mtime).unwrap();
+    drop(f);
+    terratile(d, &["shard", "work", "--phase", "count", "--index", "0"]).ok();
+    let r = terratile(d, &["shard", "work", "--phase", "count", "--index", "8"]);
+    r.input_error(&["s-2-2.las"]);
+}
+
+#[test]
+fn jobs_read_by_bounds_with_a_class_filter_and_a_cap() {
+    // The cap ends inside the sixth tile: the sequence of points each job sees, and the keep
+    // flags `prepare` passes over, must follow the in-memory reader's.
+    let dir = tempfile::tempdir().unwrap();
+    check_identical_on_tiles(dir.path(), "drop_classes = [5]\nmax_points = 160000\n");
+}

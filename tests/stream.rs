@@ -401,3 +401,108 @@ fn sigint_keeps_a_foreign_file_in_the_temporary_directory() {
     );
     assert!(!tmp.join("job.txt").exists(), "the run's marker is removed");
 }
+
+/// `equivalent` with `[input]` extended by `input` (TOML lines) in both pipelines.
+fn equivalent_with_input(dir: &Path, inputs: &[&str], input: &str, extra: &str) {
+    let m = pipeline(dir, "memory", inputs, "memory", extra);
+    let s = pipeline(dir, "stream", inputs, "stream", extra);
+    for p in [&m, &s] {
+        let text = std::fs::read_to_string(p).unwrap();
+        std::fs::write(
+            p,
+            text.replacen("[input]\n", &format!("[input]\n{input}"), 1),
+        )
+        .unwrap();
+    }
+    run_json(dir, &m, &[]).ok();
+    let r = run_json(dir, &s, &[]);
+    r.ok();
+    let sum = summary(&r);
+    assert_eq!(
+        figure(&sum, "bucket", "read").as_deref(),
+        Some("by bounds"),
+        "{}",
+        r.context()
+    );
+    same_tree(&dir.join("out_memory"), &dir.join("out_stream"));
+    no_stream_dir(dir, &r);
+}
+
+#[test]
+fn reading_by_bounds_equals_memory() {
+    // Tiles read directly (no bricks): every window and shard decodes the files whose points'
+    // box meets its range. With the class filter and a point cap that ends inside the third
+    // tile, the sequence numbers (input order, the resampling's summing order) must still be
+    // those of the in-memory reader.
+    let read = "read = \"direct\"\n";
+    for (input, extra) in [
+        ("", read.to_string()),
+        (
+            "drop_classes = [5]\nmax_points = 180000\n",
+            format!("{read}[fill]\nradius = 2.0\n"),
+        ),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        tiles(dir.path(), "300000");
+        equivalent_with_input(dir.path(), &["tiles/*.las"], input, &extra);
+    }
+    // One LAZ file, forced: every window reads the whole file.
+    if let Some(f) = real("lidar/CSite4_orig-utm.laz") {
+        let dir = tempfile::tempdir().unwrap();
+        equivalent_with_input(dir.path(), &[&f], "", read);
+    }
+}
+
+#[test]
+fn auto_reads_las_tiles_by_bounds_and_writes_no_bricks() {
+    // 4 × 4 LAS tiles of 25,000 points under a budget whose windows hold about a tile: each
+    // point is read about four times, so the run reads by bounds and its temporary
+    // directory holds no brick. A single file of the same points is bucketed.
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir(dir.path().join("tiles")).unwrap();
+    let gen = [
+        "generate",
+        "-o",
+        "tiles/s.las",
+        "--points",
+        "400000",
+        "--tiles",
+        "4x4",
+    ];
+    terratile(dir.path(), &gen).ok();
+    let s = pipeline(dir.path(), "stream", &["tiles/*.las"], "stream", "");
+    let text = std::fs::read_to_string(&s).unwrap();
+    std::fs::write(&s, text.replace("\"16MiB\"", "\"10MiB\"")).unwrap();
+    let r = run_json(dir.path(), &s, &[]);
+    r.ok();
+    let sum = summary(&r);
+    assert_eq!(
+        figure(&sum, "bucket", "read").as_deref(),
+        Some("by bounds"),
+        "{}",
+        r.context()
+    );
+    assert_eq!(
+        figure(&sum, "bucket", "temporary").as_deref(),
+        Some("0 bytes")
+    );
+    assert_eq!(figure(&sum, "bucket", "bricks").as_deref(), Some("0"));
+    let m = pipeline(dir.path(), "memory", &["tiles/*.las"], "memory", "");
+    run_json(dir.path(), &m, &[]).ok();
+    same_tree(
+        &dir.path().join("out_memory"),
+        &dir.path().join("out_stream"),
+    );
+    terratile(
+        dir.path(),
+        &["generate", "-o", "one.las", "--points", "400000"],
+    )
+    .ok();
+    let one = pipeline(dir.path(), "one", &["one.las"], "stream", "");
+    let text = std::fs::read_to_string(&one).unwrap();
+    std::fs::write(&one, text.replace("\"16MiB\"", "\"10MiB\"")).unwrap();
+    let r = run_json(dir.path(), &one, &[]);
+    r.ok();
+    let read = figure(&summary(&r), "bucket", "read");
+    assert_eq!(read.as_deref(), Some("bricks"), "{}", r.context());
+}

@@ -145,6 +145,14 @@ pub struct JobPlan {
     pub bounds_bits: [u64; 6],
     /// Metres per horizontal unit of the inputs (their CRS), as f64 bits.
     pub metres_per_unit_bits: u64,
+    /// Each input's points read (after the class filter and the cap), in reading order.
+    #[serde(default)]
+    pub input_points: Vec<u64>,
+    /// Each input's points' x/y box (min x, min y, max x, max y, as f64 bit patterns): a
+    /// job skips the files whose box misses its read range. Without these (a plan of an
+    /// older build) every job reads every input.
+    #[serde(default)]
+    pub input_boxes: Vec<[u64; 4]>,
 }
 
 impl JobPlan {
@@ -256,10 +264,13 @@ pub fn plan(pipeline: &Path, dir: &Path, shards: usize) -> Result<JobPlan> {
     let mut bounds = Bounds::EMPTY;
     let mut n = 0usize;
     let mut sources = Vec::new();
+    let (mut input_points, mut input_boxes) = (Vec::new(), Vec::new());
     for_each_input(&checked.inputs, &opts, |c| {
         let (b, k) = crate::terrain::bounds_of(&c.x, &c.y, &c.z, None);
         bounds = bounds.union(b);
         n += k;
+        input_points.push(k as u64);
+        input_boxes.push([b.min[0], b.min[1], b.max[0], b.max[1]].map(f64::to_bits));
         sources.extend(c.sources);
         Ok(())
     })?;
@@ -306,6 +317,8 @@ pub fn plan(pipeline: &Path, dir: &Path, shards: usize) -> Result<JobPlan> {
         bounds: flat,
         bounds_bits: flat.map(f64::to_bits),
         metres_per_unit_bits: mpu.to_bits(),
+        input_points,
+        input_boxes,
     };
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let text = serde_json::to_string_pretty(&plan).map_err(|e| Error::Internal(e.to_string()))?;
@@ -403,8 +416,68 @@ impl Run {
         })
     }
 
-    fn each_input(&self, f: impl FnMut(PointCloud) -> Result<()>) -> Result<()> {
-        for_each_input(&self.inputs, &self.pipeline.config.input.read_options(), f)
+    /// Reads, in input order, the inputs whose points' box (from the plan) meets `x` × `y`
+    /// (closed ranges; ends may be infinite), handing `f` each one's index and points;
+    /// `skipped` gets the index of every other. A file that gives another number of points
+    /// than the plan counted is refused, naming it.
+    fn each_input_in(
+        &self,
+        x: [f64; 2],
+        y: [f64; 2],
+        mut skipped: impl FnMut(usize),
+        mut f: impl FnMut(usize, PointCloud) -> Result<()>,
+    ) -> Result<()> {
+        let opts = self.pipeline.config.input.read_options();
+        let n = self.inputs.len();
+        let known = self.plan.input_points.len() == n && self.plan.input_boxes.len() == n;
+        let mut read = 0u64;
+        for (i, p) in self.inputs.iter().enumerate() {
+            if known {
+                let b = self.plan.input_boxes[i].map(f64::from_bits);
+                let fb = super::direct::FileBox {
+                    min: [b[0], b[1]],
+                    max: [b[2], b[3]],
+                };
+                if self.plan.input_points[i] == 0 || !fb.meets(x, y) {
+                    read += self.plan.input_points[i];
+                    skipped(i);
+                    continue;
+                }
+            }
+            let mut o = opts.clone();
+            if let Some(cap) = opts.max_points {
+                o.max_points = Some(cap.saturating_sub(read));
+            }
+            let c = points::read(p, &o, &NoProgress)?;
+            if known && c.len() as u64 != self.plan.input_points[i] {
+                return Err(Error::Usage(format!(
+                    "{}: gives {} points where the plan counted {}: plan again",
+                    p.display(),
+                    c.len(),
+                    self.plan.input_points[i]
+                )));
+            }
+            read += c.len() as u64;
+            f(i, c)?;
+        }
+        Ok(())
+    }
+
+    /// The CRS as the in-memory run takes it: the first input that states one (headers
+    /// only: no point is read).
+    fn input_crs(&self) -> Result<Option<crate::points::Crs>> {
+        let opts = ReadOptions {
+            max_points: Some(0),
+            ..self.pipeline.config.input.read_options()
+        };
+        let mut crs = None;
+        for_each_input(&self.inputs, &opts, |c| {
+            if crs.is_none() {
+                crs = c.crs().cloned();
+            }
+            Ok(())
+        })?;
+        Ok(crs)
     }
 
     fn result(&self, phase: Phase, index: usize) -> PathBuf {
@@ -501,25 +574,54 @@ impl Windows {
         [(a / self.side[0]) as usize, (b / self.side[1]) as usize]
     }
 
-    /// The points of one window: (own columns and halo) in input order, and which it owns.
-    fn gather(&self, run: &Run, own: &ColumnWindow) -> Result<([Vec<f64>; 3], Vec<bool>)> {
+    /// The points of one window: (own columns and halo) in input order, which it owns, and
+    /// how many it owns of each input (reading only the inputs its range meets).
+    #[allow(clippy::type_complexity)]
+    fn gather(
+        &self,
+        run: &Run,
+        own: &ColumnWindow,
+    ) -> Result<([Vec<f64>; 3], Vec<bool>, Vec<u64>)> {
         let h = self.halo;
         let reads = |c: u64, r: &std::ops::Range<u64>| c + h >= r.start && c < r.end + h;
+        // The world range of the columns read, one column wider on each side for rounding
+        // (the last column reaches to infinity: columns are clamped).
+        let world = |r: &std::ops::Range<u64>, a: usize| {
+            let (lo, hi) = (r.start.saturating_sub(h), r.end + h);
+            let vs = self.settings.voxel_size;
+            let min = self.frame.bounds.min[a];
+            [
+                min + (lo as f64 - 1.0) * vs,
+                if hi >= self.columns[a] {
+                    f64::INFINITY
+                } else {
+                    min + (hi as f64 + 1.0) * vs
+                },
+            ]
+        };
         let mut xyz = [Vec::new(), Vec::new(), Vec::new()];
         let mut owned = Vec::new();
-        run.each_input(|c| {
-            for i in 0..c.len() {
-                let (a, b) = self.frame.column(&self.settings, c.x[i], c.y[i]);
-                if reads(a, &own.x) && reads(b, &own.y) {
-                    xyz[0].push(c.x[i]);
-                    xyz[1].push(c.y[i]);
-                    xyz[2].push(c.z[i]);
-                    owned.push(own.x.contains(&a) && own.y.contains(&b));
+        let mut per_input = vec![0u64; run.inputs.len()];
+        run.each_input_in(
+            world(&own.x, 0),
+            world(&own.y, 1),
+            |_| {},
+            |f, c| {
+                for i in 0..c.len() {
+                    let (a, b) = self.frame.column(&self.settings, c.x[i], c.y[i]);
+                    if reads(a, &own.x) && reads(b, &own.y) {
+                        xyz[0].push(c.x[i]);
+                        xyz[1].push(c.y[i]);
+                        xyz[2].push(c.z[i]);
+                        let o = own.x.contains(&a) && own.y.contains(&b);
+                        owned.push(o);
+                        per_input[f] += u64::from(o);
+                    }
                 }
-            }
-            Ok(())
-        })?;
-        Ok((xyz, owned))
+                Ok(())
+            },
+        )?;
+        Ok((xyz, owned, per_input))
     }
 
     fn input<'a>(
@@ -550,7 +652,7 @@ fn job_count(run: &Run, k: usize) -> Result<Writer> {
         w.u64s(std::iter::empty());
         return Ok(w);
     };
-    let (xyz, _) = win.gather(run, &own)?;
+    let (xyz, _, _) = win.gather(run, &own)?;
     let counts = match win.input(run, &xyz, &own) {
         Some(input) if !xyz[0].is_empty() => denoise::shard_counts(&input)?,
         _ => Vec::new(),
@@ -597,9 +699,11 @@ fn job_keep(run: &Run, k: usize) -> Result<Writer> {
     w.u64(q as u64);
     let win = Windows::of(run)?;
     let own = win.as_ref().and_then(|w| w.own(run.place(k)));
+    let mut per_input = vec![0u64; run.inputs.len()];
     let (flags, kept, bounds) = match (win, own) {
         (Some(win), Some(own)) => {
-            let (xyz, owned) = win.gather(run, &own)?;
+            let (xyz, owned, per) = win.gather(run, &own)?;
+            per_input = per;
             let keep = match win.input(run, &xyz, &own) {
                 Some(input) if !xyz[0].is_empty() => denoise::shard_denoise(&input, q)?.keep,
                 _ => Vec::new(),
@@ -625,6 +729,9 @@ fn job_keep(run: &Run, k: usize) -> Result<Writer> {
     for v in bounds.min.iter().chain(&bounds.max) {
         w.f64(*v);
     }
+    // How many of its flags belong to each input: `prepare` skips the flags of the inputs
+    // it does not read.
+    w.u64s(per_input.into_iter());
     Ok(w)
 }
 
@@ -632,6 +739,8 @@ fn job_keep(run: &Run, k: usize) -> Result<Writer> {
 /// number: the reduction that fixes the grid.
 struct Kept {
     flags: Option<Vec<(Vec<u8>, usize)>>,
+    /// Per window, how many of its flags belong to each input.
+    per_input: Vec<Vec<u64>>,
     bounds: Bounds,
     points: usize,
 }
@@ -640,11 +749,13 @@ fn kept(run: &Run, with_flags: bool) -> Result<Kept> {
     if run.stages.denoise.is_none() {
         return Ok(Kept {
             flags: None,
+            per_input: Vec::new(),
             bounds: run.plan.bounds(),
             points: run.plan.points,
         });
     }
     let mut flags = Vec::new();
+    let mut per_input = Vec::new();
     let (mut bounds, mut points) = (Bounds::EMPTY, 0usize);
     for k in 0..run.plan.jobs {
         let mut r = run.open_result(Phase::Keep, k)?;
@@ -659,7 +770,12 @@ fn kept(run: &Run, with_flags: bool) -> Result<Kept> {
         for v in &mut b {
             *v = r.f64()?;
         }
+        let per = r.u64s()?;
+        if per.len() != run.inputs.len() || per.iter().sum::<u64>() != n as u64 {
+            return Err(r.invalid("the flags per input do not match the inputs"));
+        }
         r.end()?;
+        per_input.push(per);
         bounds = bounds.union(Bounds {
             min: [b[0], b[1], b[2]],
             max: [b[3], b[4], b[5]],
@@ -670,6 +786,7 @@ fn kept(run: &Run, with_flags: bool) -> Result<Kept> {
     }
     Ok(Kept {
         flags: with_flags.then_some(flags),
+        per_input,
         bounds,
         points,
     })
@@ -770,38 +887,61 @@ fn job_prepare(run: &Run, k: usize) -> Result<Writer> {
     let (ci, cj) = (shard.input(&layout, 0, fill), shard.input(&layout, 1, fill));
     let win = Windows::of(run)?;
     // Each window's flags are taken in input order, as its `keep` job wrote them.
-    let mut cursor = vec![0usize; run.plan.jobs];
+    let cursor = vec![0usize; run.plan.jobs];
     let mut xyz = [Vec::new(), Vec::new(), Vec::new()];
-    let mut crs = None;
-    run.each_input(|c| {
-        if crs.is_none() {
-            crs = c.crs().cloned();
+    let crs = run.input_crs()?;
+    // The world range of the cells read, one cell wider on each side for rounding (the last
+    // cell reaches to infinity: cells are clamped).
+    let world = |r: &std::ops::Range<usize>, a: usize, n: usize| {
+        [
+            spec.corner[a] + (r.start as f64 - 1.0) * spec.cell_size[a],
+            if r.end >= n {
+                f64::INFINITY
+            } else {
+                spec.corner[a] + (r.end as f64 + 1.0) * spec.cell_size[a]
+            },
+        ]
+    };
+    let (wx, wy) = (world(&ci, 0, spec.cols), world(&cj, 1, spec.rows));
+    // An input not read: each window's cursor passes over its flags of that input.
+    let skip = |f: usize, cursor: &mut Vec<usize>| {
+        for (c, per) in cursor.iter_mut().zip(&kept.per_input) {
+            *c += per[f] as usize;
         }
-        for i in 0..c.len() {
-            if let (Some(win), Some(flags)) = (&win, &kept.flags) {
-                let [wx, wy] = win.owner(c.x[i], c.y[i]);
-                let j = wy * run.plan.shards[0] + wx;
-                let ((packed, n), at) = (&flags[j], cursor[j]);
-                if at >= *n {
-                    return Err(Error::Usage(format!(
-                        "{}: holds fewer keep flags than the inputs' points (inputs changed?)",
-                        run.result(Phase::Keep, j).display()
-                    )));
+    };
+    let cursor = std::cell::RefCell::new(cursor);
+    run.each_input_in(
+        wx,
+        wy,
+        |f| skip(f, &mut cursor.borrow_mut()),
+        |_, c| {
+            let mut cursor = cursor.borrow_mut();
+            for i in 0..c.len() {
+                if let (Some(win), Some(flags)) = (&win, &kept.flags) {
+                    let [wx, wy] = win.owner(c.x[i], c.y[i]);
+                    let j = wy * run.plan.shards[0] + wx;
+                    let ((packed, n), at) = (&flags[j], cursor[j]);
+                    if at >= *n {
+                        return Err(Error::Usage(format!(
+                            "{}: holds fewer keep flags than the inputs' points (inputs changed?)",
+                            run.result(Phase::Keep, j).display()
+                        )));
+                    }
+                    cursor[j] += 1;
+                    if packed[at / 8] & (1 << (at % 8)) == 0 {
+                        continue;
+                    }
                 }
-                cursor[j] += 1;
-                if packed[at / 8] & (1 << (at % 8)) == 0 {
-                    continue;
+                let (a, b) = spec.cell(c.x[i], c.y[i]);
+                if ci.contains(&a) && cj.contains(&b) {
+                    xyz[0].push(c.x[i]);
+                    xyz[1].push(c.y[i]);
+                    xyz[2].push(c.z[i]);
                 }
             }
-            let (a, b) = spec.cell(c.x[i], c.y[i]);
-            if ci.contains(&a) && cj.contains(&b) {
-                xyz[0].push(c.x[i]);
-                xyz[1].push(c.y[i]);
-                xyz[2].push(c.z[i]);
-            }
-        }
-        Ok(())
-    })?;
+            Ok(())
+        },
+    )?;
     let cells = resample::resample_window(
         [&xyz[0], &xyz[1], &xyz[2]],
         None,

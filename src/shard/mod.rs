@@ -30,6 +30,7 @@ use serde::{Deserialize, Serialize};
 use std::ops::Range;
 
 pub mod bricks;
+pub mod direct;
 pub mod jobs;
 pub mod points;
 pub mod scale_bench;

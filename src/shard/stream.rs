@@ -26,6 +26,7 @@
 //! under a temporary name and renamed when complete) are not redone.
 
 use super::bricks::{self, BrickLattice, BrickPoints, BrickWriter, SourceTransform};
+use super::direct::{self, FileBox, Files};
 use super::{complete_coarse, finish_with, merge, prepare, ShardLayout, ShardOutput};
 use crate::config::LoadedPipeline;
 use crate::error::{Error, Result};
@@ -55,6 +56,25 @@ pub enum Mode {
     Stream,
 }
 
+/// How the streamed run's windows and shards get their points.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ReadMode {
+    /// Directly from the files when the inputs are uncompressed LAS tiles small enough that
+    /// each point is decoded at most [`DIRECT_MAX_READS`] times, else through bricks.
+    #[default]
+    Auto,
+    /// Always through temporary bricks.
+    Bricks,
+    /// Always directly from the input files, by their points' bounds.
+    Direct,
+}
+
+/// Reads per point (estimated from the headers) up to which `read = "auto"` reads LAS tiles
+/// directly: decoding a LAS record costs about what reading a brick record back costs, and
+/// the bricks cost one write and at least two reads of every point.
+pub const DIRECT_MAX_READS: f64 = 8.0;
+
 /// `[scale]`
 #[derive(Debug, Clone, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -69,6 +89,9 @@ pub struct ScaleConfig {
     /// Directory for the temporary files (default: beside the output directory).
     #[serde(default)]
     pub temp_dir: Option<PathBuf>,
+    /// `auto` (default), `bricks` or `direct`: how windows and shards read their points.
+    #[serde(default)]
+    pub read: ReadMode,
 }
 
 impl ScaleConfig {
@@ -422,8 +445,8 @@ fn job_text(pipeline: &LoadedPipeline, inputs: &[PathBuf], budget: u64) -> Strin
         s.push_str(&format!("input {} {len} {mtime}\n", p.display()));
     }
     s.push_str(&format!(
-        "input {:?}\ndenoise {:?}\nbudget {budget}\n",
-        c.input, c.denoise
+        "input {:?}\ndenoise {:?}\nbudget {budget}\nread {:?}\n",
+        c.input, c.denoise, c.scale.read
     ));
     s
 }
@@ -441,6 +464,59 @@ struct Bucketed {
     max: [f64; 3],
     points: u64,
     bytes: u64,
+    /// Read by bounds: each file's kept points' box (empty: read through the bricks).
+    #[serde(default)]
+    boxes: Vec<FileBox>,
+}
+
+impl Bucketed {
+    /// The points with x in `x` and y in `y` (closed; ends may be infinite) that `wanted`
+    /// accepts: from the bricks, in `order`, or from the files by bounds, in input order.
+    fn load(
+        &self,
+        dir: &Path,
+        files: &Files<'_>,
+        x: [f64; 2],
+        y: [f64; 2],
+        order: bricks::Order,
+        wanted: impl Fn(u64, f64, f64) -> bool,
+    ) -> Result<BrickPoints> {
+        if self.boxes.is_empty() {
+            let cover = self.lattice.covering(x, y);
+            bricks::load(dir, &cover, &self.counts, &self.sources, order, wanted)
+        } else {
+            direct::load(files, x, y, wanted)
+        }
+    }
+
+    /// The inputs as [`direct::load`] reads them.
+    fn files<'a>(&'a self, paths: &'a [PathBuf], opts: &'a points::ReadOptions) -> Files<'a> {
+        Files {
+            paths,
+            sources: &self.sources,
+            read: &self.read,
+            boxes: &self.boxes,
+            opts,
+        }
+    }
+}
+
+/// True when the run should read its points directly from the files (see [`ReadMode`]).
+fn reads_directly(pipeline: &LoadedPipeline, sc: &Scan, sizing: &Sizing) -> bool {
+    match pipeline.config.scale.read {
+        ReadMode::Bricks => false,
+        ReadMode::Direct => true,
+        ReadMode::Auto => {
+            let las = sc.sources.iter().all(|s| s.format == points::Format::Las);
+            let files: Vec<(Bounds, u64)> = sc
+                .sources
+                .iter()
+                .map(|s| (s.header_bounds.unwrap_or(Bounds::EMPTY), s.points_in_file))
+                .collect();
+            las && direct::amplification(&files, sizing.points)
+                .is_some_and(|a| a <= DIRECT_MAX_READS)
+        }
+    }
 }
 
 /// Pass 2: every input into the bricks.
@@ -449,6 +525,7 @@ fn bucket(
     scan: &Scan,
     dir: &Path,
     sizing: &Sizing,
+    direct: bool,
     progress: &dyn Progress,
 ) -> Result<Bucketed> {
     let opts = pipeline.config.input.read_options();
@@ -463,8 +540,17 @@ fn bucket(
     let mut b = Bounds::EMPTY;
     let mut cloud = PointCloud::default();
     let mut raw: Vec<Option<(u32, [i32; 3])>> = Vec::new();
-    progress.start("bucketing points", scan.points);
+    let mut boxes = Vec::new();
+    progress.start(
+        if direct {
+            "counting points"
+        } else {
+            "bucketing points"
+        },
+        scan.points,
+    );
     for info in &scan.sources {
+        let mut file_box = Bounds::EMPTY;
         let path = &info.path;
         let map = points::map_file(path)?;
         let mut o = opts.clone();
@@ -474,6 +560,15 @@ fn bucket(
         let first = seq;
         let (h, kept) = points::for_each_decoded(path, &map, &o, BUCKET_BATCH, &mut cloud, {
             |c: &PointCloud, h: &points::LasHeader| {
+                let batch = crate::terrain::bounds_of(&c.x, &c.y, &c.z, None).0;
+                b = b.union(batch);
+                if direct {
+                    // Read by bounds later: only the file's box and its points' number.
+                    file_box = file_box.union(batch);
+                    seq += c.len() as u64;
+                    progress.advance(c.len() as u64);
+                    return Ok(());
+                }
                 // Each point's brick and raw integers, in parallel over the batch (`None`:
                 // the point does not round-trip its file's scale); then the appends, in order.
                 raw.clear();
@@ -501,7 +596,6 @@ fn bucket(
                         format!("point {i} of a batch does not round-trip its scale"),
                     ));
                 }
-                b = b.union(crate::terrain::bounds_of(&c.x, &c.y, &c.z, None).0);
                 for &(brick, r) in raw.iter().flatten() {
                     w.push_to(brick as usize, r, seq)?;
                     seq += 1;
@@ -516,11 +610,16 @@ fn bucket(
             offset: h.offset,
         });
         read.push(kept);
+        boxes.push(FileBox::of(&file_box));
     }
     progress.finish();
     let bytes = w.bytes;
     let counts = w.finish()?;
-    let bytes = bytes.max(seq * bricks::RECORD as u64);
+    let bytes = if direct {
+        0
+    } else {
+        bytes.max(seq * bricks::RECORD as u64)
+    };
     Ok(Bucketed {
         lattice,
         counts,
@@ -530,6 +629,7 @@ fn bucket(
         max: b.max,
         points: seq,
         bytes,
+        boxes: if direct { boxes } else { Vec::new() },
     })
 }
 
@@ -617,6 +717,7 @@ fn denoise_pass(
     pipeline: &LoadedPipeline,
     dir: &Path,
     bk: &Bucketed,
+    files: &Files<'_>,
     mpu: f64,
     sizing: &Sizing,
     progress: &dyn Progress,
@@ -670,12 +771,11 @@ fn denoise_pass(
             };
             [lo, hi]
         };
-        let cover = bk.lattice.covering(world(&rx, 0, cx), world(&ry, 1, cy));
-        bricks::load(
+        bk.load(
             dir,
-            &cover,
-            &bk.counts,
-            &bk.sources,
+            files,
+            world(&rx, 0, cx),
+            world(&ry, 1, cy),
             bricks::Order::Bricks,
             |_, x, y| {
                 let (a, b) = frame.column(&s, x, y);
@@ -820,6 +920,7 @@ fn grid_pass(
     pipeline: &LoadedPipeline,
     dir: &Path,
     bk: &Bucketed,
+    files: &Files<'_>,
     keep: Option<&KeepBits>,
     spec: &GridSpec,
     crs: Option<Crs>,
@@ -853,14 +954,11 @@ fn grid_pass(
                 };
                 [lo, hi]
             };
-            let cover = bk
-                .lattice
-                .covering(world(&ci, 0, spec.cols), world(&cj, 1, spec.rows));
-            let p = bricks::load(
+            let p = bk.load(
                 dir,
-                &cover,
-                &bk.counts,
-                &bk.sources,
+                files,
+                world(&ci, 0, spec.cols),
+                world(&cj, 1, spec.rows),
                 bricks::Order::Input,
                 |s, x, y| {
                     keep.is_none_or(|k| k.get(s))
@@ -1088,7 +1186,8 @@ fn stream_passes(
         Some(b) => b,
         None => {
             tmp.clear()?;
-            let b = bucket(pipeline, sc, dir, sizing, progress)?;
+            let direct = reads_directly(pipeline, sc, sizing);
+            let b = bucket(pipeline, sc, dir, sizing, direct, progress)?;
             let json = serde_json::to_vec(&b).map_err(|e| Error::Internal(e.to_string()))?;
             write_bytes_atomic(&done, &json)?;
             b
@@ -1105,12 +1204,30 @@ fn stream_passes(
         t,
         vec![
             fig("points", bk.points),
-            fig("bricks", bk.lattice.count()),
+            fig(
+                "read",
+                if bk.boxes.is_empty() {
+                    "bricks"
+                } else {
+                    "by bounds"
+                },
+            ),
+            fig(
+                "bricks",
+                if bk.boxes.is_empty() {
+                    bk.lattice.count()
+                } else {
+                    0
+                },
+            ),
             fig("temporary", crate::memory::human(bk.bytes)),
             fig("resumed", resumed),
         ],
     ));
     let crs: Option<Crs> = sc.sources.iter().find_map(|s| s.crs.clone());
+    let paths: Vec<PathBuf> = sc.sources.iter().map(|s| s.path.clone()).collect();
+    let opts = cfg.input.read_options();
+    let files = bk.files(&paths, &opts);
     let mpu = crs.as_ref().map_or(1.0, |c| c.metres_per_unit());
     let all_bounds = Bounds {
         min: bk.min,
@@ -1118,7 +1235,7 @@ fn stream_passes(
     };
     let (keep, kept_bounds, kept) = if cfg.denoise.enabled {
         let t = Clock::start();
-        let d = denoise_pass(pipeline, dir, &bk, mpu, sizing, progress)?;
+        let d = denoise_pass(pipeline, dir, &bk, &files, mpu, sizing, progress)?;
         let kept = d.keep.count();
         let b = d.bounds;
         stages.push(report(
@@ -1150,6 +1267,7 @@ fn stream_passes(
         pipeline,
         dir,
         &bk,
+        &files,
         keep.as_ref(),
         &spec,
         crs,

@@ -1,0 +1,198 @@
+//! Reading by bounds: the streaming run's alternative to bricks for tiled surveys.
+//!
+//! A survey delivered as many small tiles is already bucketed: each file holds the points of
+//! one small box. Then a window or shard can read the few files whose points meet its read
+//! range instead of bricks, and the bucketing pass (20 bytes of temporary disk a point,
+//! written once and read back at least twice) becomes a counting pass that writes nothing:
+//! each file's kept points are counted (their sequence numbers) and their exact x/y box is
+//! taken. The box is the points' own, not the header's, so a file whose header box is wrong
+//! is still read wherever its points are.
+//!
+//! A file is read whole (LAS records are not sorted in space), so each point is decoded once
+//! per window or shard whose range meets its file's box: [`amplification`] estimates that
+//! factor from the headers before the run, and the streaming run reads directly only when it
+//! is small and the files are uncompressed LAS (decoding a LAS record costs about what
+//! reading a brick record back costs; a LAZ record costs several times more, so compressed
+//! surveys are bucketed unless `[scale] read = "direct"` says otherwise).
+//!
+//! The points come in input order (file order, then record order), which is both orders
+//! [`super::bricks::load`] gives, with the same sequence numbers and the very f64 values the
+//! in-memory reader gives (the same decoder, the same class filter and point cap).
+
+use super::bricks::{BrickPoints, SourceTransform};
+use crate::error::{Error, Result};
+use crate::points::{self, Bounds, PointCloud, ReadOptions};
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+/// Records decoded per batch while reading a file by bounds.
+const BATCH: usize = 1 << 18;
+
+/// One input file's kept points: their exact x/y box (empty: no point kept).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FileBox {
+    /// Minimum x and y.
+    pub min: [f64; 2],
+    /// Maximum x and y.
+    pub max: [f64; 2],
+}
+
+impl FileBox {
+    /// The x/y part of `b`.
+    pub fn of(b: &Bounds) -> FileBox {
+        FileBox {
+            min: [b.min[0], b.min[1]],
+            max: [b.max[0], b.max[1]],
+        }
+    }
+
+    /// True when a point of the box may have x in `x` and y in `y` (closed ranges; an end
+    /// may be infinite). An empty box (min > max) meets nothing.
+    pub fn meets(&self, x: [f64; 2], y: [f64; 2]) -> bool {
+        self.min[0] <= self.max[0]
+            && self.min[1] <= self.max[1]
+            && self.min[0] <= x[1]
+            && self.max[0] >= x[0]
+            && self.min[1] <= y[1]
+            && self.max[1] >= y[0]
+    }
+}
+
+/// The inputs as the counting pass left them.
+#[derive(Debug, Clone, Copy)]
+pub struct Files<'a> {
+    /// The input files, in input order.
+    pub paths: &'a [PathBuf],
+    /// Each file's first sequence number and transform.
+    pub sources: &'a [SourceTransform],
+    /// Each file's kept points.
+    pub read: &'a [u64],
+    /// Each file's box.
+    pub boxes: &'a [FileBox],
+    /// The read options (class filter, point cap) of the run.
+    pub opts: &'a ReadOptions,
+}
+
+/// The points of the files whose box meets `x` × `y` that `wanted(seq, x, y)` accepts, in
+/// input order. A file that gives another number of points than the counting pass (changed
+/// since) is refused, naming it.
+pub fn load(
+    f: &Files<'_>,
+    x: [f64; 2],
+    y: [f64; 2],
+    wanted: impl Fn(u64, f64, f64) -> bool,
+) -> Result<BrickPoints> {
+    let mut p = BrickPoints::default();
+    let mut cloud = PointCloud::default();
+    for (i, path) in f.paths.iter().enumerate() {
+        if f.read[i] == 0 || !f.boxes[i].meets(x, y) {
+            continue;
+        }
+        let first = f.sources[i].first;
+        let mut o = f.opts.clone();
+        if let Some(cap) = f.opts.max_points {
+            o.max_points = Some(cap.saturating_sub(first));
+        }
+        let map = points::map_file(path)?;
+        let mut seq = first;
+        let (_, kept) = points::for_each_decoded(path, &map, &o, BATCH, &mut cloud, |c, _| {
+            for k in 0..c.len() {
+                let (px, py) = (c.x[k], c.y[k]);
+                if wanted(seq, px, py) {
+                    p.x.push(px);
+                    p.y.push(py);
+                    p.z.push(c.z[k]);
+                    p.seq.push(seq);
+                }
+                seq += 1;
+            }
+            Ok(())
+        })?;
+        if kept != f.read[i] {
+            return Err(Error::format(
+                path,
+                0,
+                format!(
+                    "gives {kept} points where the first pass of this run counted {}: it \
+                     changed during the run",
+                    f.read[i]
+                ),
+            ));
+        }
+    }
+    Ok(p)
+}
+
+/// About how many times each point is decoded when windows holding `window_points` points
+/// read the files of `boxes` (header boxes and point counts) by bounds: a box of w × h meets
+/// about (w / s + 1)(h / s + 1) windows of side s, for a random placement. `None` when the
+/// boxes say nothing (no points, a degenerate survey).
+pub fn amplification(files: &[(Bounds, u64)], window_points: u64) -> Option<f64> {
+    let all = files.iter().fold(Bounds::EMPTY, |b, (f, _)| b.union(*f));
+    let total: u64 = files.iter().map(|f| f.1).sum();
+    let [w, h, _] = all.size();
+    let area = w * h;
+    if total == 0 || area.is_nan() || area <= 0.0 || area.is_infinite() {
+        return None;
+    }
+    let side = (window_points as f64 * w * h / total as f64).sqrt();
+    let reads: f64 = files
+        .iter()
+        .map(|(b, n)| {
+            let [fw, fh, _] = b.size();
+            *n as f64 * (fw.max(0.0) / side + 1.0) * (fh.max(0.0) / side + 1.0)
+        })
+        .sum();
+    Some(reads / total as f64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn b(x0: f64, y0: f64, x1: f64, y1: f64) -> Bounds {
+        Bounds {
+            min: [x0, y0, 0.0],
+            max: [x1, y1, 1.0],
+        }
+    }
+
+    #[test]
+    fn boxes_meet_closed_ranges() {
+        let f = FileBox::of(&b(0.0, 0.0, 10.0, 5.0));
+        assert!(f.meets([10.0, 20.0], [5.0, f64::INFINITY]), "corner touch");
+        assert!(!f.meets([10.5, 20.0], [0.0, 1.0]));
+        assert!(!f.meets([0.0, 1.0], [-3.0, -0.1]));
+        assert!(FileBox::of(&b(3.0, 3.0, 3.0, 3.0)).meets([3.0, 3.0], [0.0, 9.0]));
+        assert!(!FileBox::of(&Bounds::EMPTY).meets(
+            [f64::NEG_INFINITY, f64::INFINITY],
+            [f64::NEG_INFINITY, f64::INFINITY]
+        ));
+    }
+
+    #[test]
+    fn amplification_of_tiles_and_of_one_file() {
+        // 10 × 10 tiles of 1000 × 1000 with 1 M points each; windows of 1 M points have the
+        // tile's side: each tile meets about 4 windows.
+        let tiles: Vec<(Bounds, u64)> = (0..100)
+            .map(|k| {
+                let (i, j) = ((k % 10) as f64, (k / 10) as f64);
+                (
+                    b(
+                        i * 1000.0,
+                        j * 1000.0,
+                        (i + 1.0) * 1000.0,
+                        (j + 1.0) * 1000.0,
+                    ),
+                    1_000_000,
+                )
+            })
+            .collect();
+        let a = amplification(&tiles, 1_000_000).unwrap();
+        assert!((a - 4.0).abs() < 1e-9, "{a}");
+        // One file of the same survey: every window reads it all.
+        let one = [(b(0.0, 0.0, 10_000.0, 10_000.0), 100_000_000)];
+        assert!(amplification(&one, 1_000_000).unwrap() > 100.0);
+        assert_eq!(amplification(&[], 5), None);
+    }
+}
