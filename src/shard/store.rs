@@ -30,10 +30,19 @@ use std::path::{Path, PathBuf};
 const MAGIC: &[u8; 8] = b"TTSHARD1";
 const HEADER: usize = 40;
 
-/// A result being built: the payload of little-endian values.
-#[derive(Debug, Default)]
+/// A result being built: the payload of little-endian values, after room for the header
+/// (filled in by `save`, so the payload, hundreds of MB for a large shard, is never copied).
+#[derive(Debug)]
 pub struct Writer {
     buf: Vec<u8>,
+}
+
+impl Default for Writer {
+    fn default() -> Self {
+        Writer {
+            buf: vec![0; HEADER],
+        }
+    }
 }
 
 impl Writer {
@@ -49,12 +58,14 @@ impl Writer {
 
     /// A length-prefixed array of u8.
     pub fn bytes(&mut self, v: &[u8]) {
+        self.buf.reserve(8 + v.len());
         self.u64(v.len() as u64);
         self.buf.extend_from_slice(v);
     }
 
     /// A length-prefixed array of u32.
     pub fn u32s(&mut self, v: impl ExactSizeIterator<Item = u32>) {
+        self.buf.reserve(8 + 4 * v.len());
         self.u64(v.len() as u64);
         for x in v {
             self.buf.extend_from_slice(&x.to_le_bytes());
@@ -68,6 +79,7 @@ impl Writer {
 
     /// A length-prefixed array of u64.
     pub fn u64s(&mut self, v: impl ExactSizeIterator<Item = u64>) {
+        self.buf.reserve(8 + 8 * v.len());
         self.u64(v.len() as u64);
         for x in v {
             self.u64(x);
@@ -76,15 +88,18 @@ impl Writer {
 
     /// Writes the result atomically to `path` (its directory created).
     pub fn save(self, path: &Path, phase: u32, plan: u32, index: u64) -> Result<()> {
-        let mut out = Vec::with_capacity(HEADER + self.buf.len());
-        out.extend_from_slice(MAGIC);
-        out.extend_from_slice(&phase.to_le_bytes());
-        out.extend_from_slice(&plan.to_le_bytes());
-        out.extend_from_slice(&index.to_le_bytes());
-        out.extend_from_slice(&(self.buf.len() as u64).to_le_bytes());
-        out.extend_from_slice(&crc32(&self.buf).to_le_bytes());
-        out.extend_from_slice(&[0; 4]);
-        out.extend_from_slice(&self.buf);
+        let mut out = self.buf;
+        let payload = &out[HEADER..];
+        let (len, crc) = (payload.len() as u64, crc32(payload));
+        let mut head = Vec::with_capacity(HEADER);
+        head.extend_from_slice(MAGIC);
+        head.extend_from_slice(&phase.to_le_bytes());
+        head.extend_from_slice(&plan.to_le_bytes());
+        head.extend_from_slice(&index.to_le_bytes());
+        head.extend_from_slice(&len.to_le_bytes());
+        head.extend_from_slice(&crc.to_le_bytes());
+        head.extend_from_slice(&[0; 4]);
+        out[..HEADER].copy_from_slice(&head);
         if let Some(dir) = path.parent() {
             std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
         }
