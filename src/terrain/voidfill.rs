@@ -108,6 +108,16 @@ struct Runs {
 }
 
 impl Runs {
+    /// Row, first column and length of run `r`.
+    fn get(&self, r: u32) -> (usize, usize, usize) {
+        let r = r as usize;
+        (
+            self.j[r] as usize,
+            self.i0[r] as usize,
+            self.len[r] as usize,
+        )
+    }
+
     fn new(z: &[f32], cols: usize) -> Self {
         let per_row: Vec<Vec<(u32, u32)>> = z
             .par_chunks(cols)
@@ -263,12 +273,7 @@ fn solve_component(
 ) {
     let (mut i0, mut i1, mut j0, mut j1) = (usize::MAX, 0, usize::MAX, 0);
     for &r in rs {
-        let r = r as usize;
-        let (j, a, n) = (
-            runs.j[r] as usize,
-            runs.i0[r] as usize,
-            runs.len[r] as usize,
-        );
+        let (j, a, n) = runs.get(r);
         (i0, i1, j0, j1) = (i0.min(a), i1.max(a + n - 1), j0.min(j), j1.max(j));
     }
     let count = out.len();
@@ -317,12 +322,7 @@ fn solve_component(
         }
     }
     for &r in rs {
-        let r = r as usize;
-        let (j, a, n) = (
-            runs.j[r] as usize,
-            runs.i0[r] as usize,
-            runs.len[r] as usize,
-        );
+        let (j, a, n) = runs.get(r);
         for i in a..a + n {
             f.nb[(j + 1 - j0) * lc + (i + 1 - i0)] = nbcount(i, j);
         }
@@ -353,12 +353,7 @@ fn solve_component(
     }
     let mut o = 0;
     for &r in rs {
-        let r = r as usize;
-        let (j, a, n) = (
-            runs.j[r] as usize,
-            runs.i0[r] as usize,
-            runs.len[r] as usize,
-        );
+        let (j, a, n) = runs.get(r);
         let s = (j + 1 - j0) * lc + (a + 1 - i0);
         out[o..o + n].copy_from_slice(&f.x[s..s + n]);
         o += n;
