@@ -47,6 +47,16 @@ fn figure(s: &serde_json::Value, stage: &str, key: &str) -> Option<String> {
         .and_then(|f| f[1].as_str().map(String::from))
 }
 
+/// Asserts that the run's bucket stage read its inputs by bounds (no bricks).
+fn assert_read_by_bounds(sum: &serde_json::Value, r: &Run) {
+    assert_eq!(
+        figure(sum, "bucket", "read").as_deref(),
+        Some("by bounds"),
+        "{}",
+        r.context()
+    );
+}
+
 /// Asserts that two output directories hold the same files with the same bytes.
 fn same_tree(a: &Path, b: &Path) {
     let rel = |d: &Path| -> Vec<PathBuf> {
@@ -418,12 +428,7 @@ fn equivalent_with_input(dir: &Path, inputs: &[&str], input: &str, extra: &str) 
     let r = run_json(dir, &s, &[]);
     r.ok();
     let sum = summary(&r);
-    assert_eq!(
-        figure(&sum, "bucket", "read").as_deref(),
-        Some("by bounds"),
-        "{}",
-        r.context()
-    );
+    assert_read_by_bounds(&sum, &r);
     same_tree(&dir.join("out_memory"), &dir.join("out_stream"));
     no_stream_dir(dir, &r);
 }
@@ -476,12 +481,7 @@ fn auto_reads_las_tiles_by_bounds_and_writes_no_bricks() {
     let r = run_json(dir.path(), &s, &[]);
     r.ok();
     let sum = summary(&r);
-    assert_eq!(
-        figure(&sum, "bucket", "read").as_deref(),
-        Some("by bounds"),
-        "{}",
-        r.context()
-    );
+    assert_read_by_bounds(&sum, &r);
     assert_eq!(
         figure(&sum, "bucket", "temporary").as_deref(),
         Some("0 bytes")
