@@ -181,28 +181,20 @@ pub fn write_raw_las(
     };
     if let Some(lf) = raw.large_file.as_mut() {
         lf.number_of_point_records = n;
+        lf.number_of_points_by_return = [0; 15];
     }
+    raw.number_of_points_by_return = [0; 5];
     let extended = h.point_format >= 6;
-    // Points by return number 1..=15, counted chunk by chunk in parallel.
-    let by_return = {
-        use rayon::prelude::*;
-        records
-            .par_chunks(len * RECORD_CHUNK)
-            .map(|c| {
-                let mut n = [0u64; 15];
-                for r in c.chunks_exact(len) {
-                    let ret = if extended { r[14] & 0x0F } else { r[14] & 0x07 };
-                    if (1..=15).contains(&ret) {
-                        n[ret as usize - 1] += 1;
-                    }
-                }
-                n
-            })
-            .reduce(|| [0; 15], |a, b| std::array::from_fn(|k| a[k] + b[k]))
-    };
-    raw.number_of_points_by_return = std::array::from_fn(|k| by_return[k] as u32);
-    if let Some(lf) = raw.large_file.as_mut() {
-        lf.number_of_points_by_return = by_return;
+    for r in records.chunks_exact(len) {
+        let ret = if extended { r[14] & 0x0F } else { r[14] & 0x07 };
+        if (1..=5).contains(&ret) {
+            raw.number_of_points_by_return[ret as usize - 1] += 1;
+        }
+        if let Some(lf) = raw.large_file.as_mut() {
+            if (1..=15).contains(&ret) {
+                lf.number_of_points_by_return[ret as usize - 1] += 1;
+            }
+        }
     }
     raw.min_x = bounds.min[0];
     raw.min_y = bounds.min[1];
@@ -252,99 +244,6 @@ pub fn write_reclassified_records(
     })
 }
 
-/// Where a record's fields are, and how its integers become coordinates.
-struct RecordLayout {
-    len: usize,
-    extended: bool,
-    scale: [f64; 3],
-    offset: [f64; 3],
-}
-
-/// Records per parallel work item of [`select_records`].
-const RECORD_CHUNK: usize = 1 << 16;
-
-/// Appends to `out` the records of the batch `recs` that the run read (their class kept by
-/// `opts`, at most `left` of them; the first is cloud point `first`) and that `class_of`
-/// gives a class, with that class set. Returns the number of cloud points the batch held
-/// and the bounds of the records appended. In parallel: each chunk of records counts the
-/// points it holds, a prefix sum gives each chunk its first cloud index, then each chunk
-/// encodes its records into its own buffer, appended in order (the same bytes as one pass
-/// over the records; `las_write::tests` checks that against the plain loop).
-fn select_records(
-    recs: &[u8],
-    l: &RecordLayout,
-    opts: &super::ReadOptions,
-    left: u64,
-    first: usize,
-    class_of: &(impl Fn(usize) -> Option<u8> + Sync),
-    out: &mut Vec<u8>,
-) -> (usize, super::Bounds) {
-    use rayon::prelude::*;
-    let class_at = |r: &[u8]| if l.extended { r[16] } else { r[15] & 0x1F };
-    let chunks: Vec<&[u8]> = recs.chunks(RECORD_CHUNK * l.len).collect();
-    let counts: Vec<usize> = chunks
-        .par_iter()
-        .map(|c| {
-            c.chunks_exact(l.len)
-                .filter(|r| opts.classes.keeps(class_at(r)))
-                .count()
-        })
-        .collect();
-    // Each chunk's first cloud index and how many of its points the run read.
-    let mut starts = Vec::with_capacity(chunks.len());
-    let (mut at, mut total) = (first, 0usize);
-    for c in &counts {
-        let take = (*c).min((left as usize).saturating_sub(total));
-        starts.push((at, take));
-        at += take;
-        total += take;
-    }
-    let parts: Vec<(Vec<u8>, super::Bounds)> = chunks
-        .par_iter()
-        .zip(&starts)
-        .map(|(c, &(start, take))| {
-            let mut buf = Vec::with_capacity(take * l.len);
-            let mut b = super::Bounds::EMPTY;
-            let mut index = start;
-            for r in c.chunks_exact(l.len) {
-                if index == start + take {
-                    break;
-                }
-                if !opts.classes.keeps(class_at(r)) {
-                    continue;
-                }
-                let keep = class_of(index);
-                index += 1;
-                let Some(class) = keep else {
-                    continue;
-                };
-                let at = buf.len();
-                buf.extend_from_slice(r);
-                let rec = &mut buf[at..];
-                if l.extended {
-                    rec[16] = class;
-                } else {
-                    rec[15] = (rec[15] & 0xE0) | (class & 0x1F);
-                }
-                let xyz = |k: usize| {
-                    let v =
-                        i32::from_le_bytes([r[4 * k], r[4 * k + 1], r[4 * k + 2], r[4 * k + 3]]);
-                    l.scale[k] * f64::from(v) + l.offset[k]
-                };
-                b.add([xyz(0), xyz(1), xyz(2)]);
-            }
-            (buf, b)
-        })
-        .collect();
-    let mut bounds = super::Bounds::EMPTY;
-    out.reserve(parts.iter().map(|p| p.0.len()).sum());
-    for (buf, b) in parts {
-        out.extend_from_slice(&buf);
-        bounds = bounds.union(b);
-    }
-    (total, bounds)
-}
-
 /// The records of the `n` cloud points read from `sources` with `opts` for which `class_of`
 /// (by point index) gives a class, written with that class.
 fn write_records_with(
@@ -352,7 +251,7 @@ fn write_records_with(
     sources: &[super::SourceInfo],
     opts: &super::ReadOptions,
     n: usize,
-    class_of: impl Fn(usize) -> Option<u8> + Sync,
+    mut class_of: impl FnMut(usize) -> Option<u8>,
 ) -> Result<bool> {
     use super::Format;
     let Some(first) = sources.first() else {
@@ -375,18 +274,39 @@ fn write_records_with(
     for s in sources {
         let map = super::map_file(&s.path)?;
         let h = LasHeader::parse(&s.path, &map)?;
-        let layout = RecordLayout {
-            len: h.record_length as usize,
-            extended: h.point_format >= 6,
-            scale: h.scale,
-            offset: h.offset,
-        };
+        let len = h.record_length as usize;
+        let extended = h.point_format >= 6;
         let mut left = s.points_read;
         super::las_read::for_each_batch(&s.path, &map, &h, |recs| {
-            let (kept, b) = select_records(recs, &layout, opts, left, index, &class_of, &mut out);
-            bounds = bounds.union(b);
-            left -= kept as u64;
-            index += kept;
+            for r in recs.chunks_exact(len) {
+                if left == 0 {
+                    return Ok(false);
+                }
+                let c = if extended { r[16] } else { r[15] & 0x1F };
+                if !opts.classes.keeps(c) {
+                    continue;
+                }
+                left -= 1;
+                let keep = class_of(index);
+                index += 1;
+                let Some(class) = keep else {
+                    continue;
+                };
+                let at = out.len();
+                out.extend_from_slice(r);
+                let rec = &mut out[at..];
+                if extended {
+                    rec[16] = class;
+                } else {
+                    rec[15] = (rec[15] & 0xE0) | (class & 0x1F);
+                }
+                let xyz = |k: usize| {
+                    let v =
+                        i32::from_le_bytes([r[4 * k], r[4 * k + 1], r[4 * k + 2], r[4 * k + 3]]);
+                    h.scale[k] * f64::from(v) + h.offset[k]
+                };
+                bounds.add([xyz(0), xyz(1), xyz(2)]);
+            }
             Ok(left > 0)
         })?;
         header.get_or_insert(h);
@@ -402,83 +322,4 @@ fn write_records_with(
     };
     write_raw_las(path, &h, &out, &bounds)?;
     Ok(true)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::points::{Bounds, ClassFilter, ReadOptions};
-    use crate::rng::SplitMix64;
-
-    /// The slow twin of [`select_records`]: one plain pass over the records.
-    fn select_slow(
-        recs: &[u8],
-        l: &RecordLayout,
-        opts: &ReadOptions,
-        mut left: u64,
-        first: usize,
-        class_of: impl Fn(usize) -> Option<u8>,
-    ) -> (usize, Bounds, Vec<u8>) {
-        let (mut out, mut bounds, mut index) = (Vec::new(), Bounds::EMPTY, first);
-        for r in recs.chunks_exact(l.len) {
-            if left == 0 {
-                break;
-            }
-            let c = if l.extended { r[16] } else { r[15] & 0x1F };
-            if !opts.classes.keeps(c) {
-                continue;
-            }
-            left -= 1;
-            let keep = class_of(index);
-            index += 1;
-            let Some(class) = keep else { continue };
-            let at = out.len();
-            out.extend_from_slice(r);
-            if l.extended {
-                out[at + 16] = class;
-            } else {
-                out[at + 15] = (out[at + 15] & 0xE0) | (class & 0x1F);
-            }
-            let xyz = |k: usize| {
-                let v = i32::from_le_bytes([r[4 * k], r[4 * k + 1], r[4 * k + 2], r[4 * k + 3]]);
-                l.scale[k] * f64::from(v) + l.offset[k]
-            };
-            bounds.add([xyz(0), xyz(1), xyz(2)]);
-        }
-        (index - first, bounds, out)
-    }
-
-    /// The chunked, parallel selection writes the same bytes and bounds as the plain pass,
-    /// with and without a class filter, a point limit inside the batch, and records dropped.
-    #[test]
-    fn select_records_equals_the_plain_pass() {
-        let mut rng = SplitMix64::new(3);
-        for (len, extended) in [(20, false), (34, false), (30, true)] {
-            let n = 3 * RECORD_CHUNK + 123;
-            let recs: Vec<u8> = (0..n * len).map(|_| rng.below(256) as u8).collect();
-            let l = RecordLayout {
-                len,
-                extended,
-                scale: [0.01, 0.01, 0.001],
-                offset: [1000.0, -5.0, 0.0],
-            };
-            for (filter, left, first) in [
-                (ClassFilter::default(), u64::MAX, 0),
-                (ClassFilter::new(None, &[2, 7, 9]), u64::MAX, 17),
-                (ClassFilter::new(Some(&[1, 2, 3]), &[]), 5_000, 3),
-                (ClassFilter::default(), (RECORD_CHUNK + 7) as u64, 0),
-            ] {
-                let opts = ReadOptions {
-                    classes: filter,
-                    ..Default::default()
-                };
-                let class_of = |i: usize| (i % 3 != 1).then_some((i % 5) as u8);
-                let mut out = vec![9u8; 3];
-                let (k, b) = select_records(&recs, &l, &opts, left, first, &class_of, &mut out);
-                let (k2, b2, out2) = select_slow(&recs, &l, &opts, left, first, class_of);
-                assert_eq!((k, &out[3..]), (k2, &out2[..]), "len {len} left {left}");
-                assert_eq!((b.min, b.max), (b2.min, b2.max));
-            }
-        }
-    }
 }
