@@ -52,6 +52,10 @@ use std::path::{Path, PathBuf};
 pub const PLAN_FILE: &str = "plan.json";
 const FORMAT: &str = "terratile shard plan 1";
 
+/// Points decoded per batch when a job reads an input (1/4 Mi points: a few MB of buffer,
+/// reused from file to file).
+const READ_BATCH: usize = 1 << 18;
+
 /// The phases of the job graph, in order (each an array of `jobs` jobs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Phase {
@@ -417,20 +421,25 @@ impl Run {
     }
 
     /// Reads, in input order, the inputs whose points' box (from the plan) meets `x` × `y`
-    /// (closed ranges; ends may be infinite), handing `f` each one's index and points;
-    /// `skipped` gets the index of every other. A file that gives another number of points
-    /// than the plan counted is refused, naming it.
+    /// (closed ranges; ends may be infinite), handing `f` each one's index and its points
+    /// batch by batch; `skipped` gets the index of every other. A file that gives another
+    /// number of points than the plan counted is refused, naming it.
+    ///
+    /// LAS and LAZ are decoded a batch at a time into one reused buffer: a job is a fresh
+    /// process, and reading each input whole into a new cloud made the kernel zero every page
+    /// of it again (half of a `prepare` job's time went to page faults).
     fn each_input_in(
         &self,
         x: [f64; 2],
         y: [f64; 2],
         mut skipped: impl FnMut(usize),
-        mut f: impl FnMut(usize, PointCloud) -> Result<()>,
+        mut f: impl FnMut(usize, &PointCloud) -> Result<()>,
     ) -> Result<()> {
         let opts = self.pipeline.config.input.read_options();
         let n = self.inputs.len();
         let known = self.plan.input_points.len() == n && self.plan.input_boxes.len() == n;
         let mut read = 0u64;
+        let mut batch = PointCloud::default();
         for (i, p) in self.inputs.iter().enumerate() {
             if known {
                 let b = self.plan.input_boxes[i].map(f64::from_bits);
@@ -448,17 +457,26 @@ impl Run {
             if let Some(cap) = opts.max_points {
                 o.max_points = Some(cap.saturating_sub(read));
             }
-            let c = points::read(p, &o, &NoProgress)?;
-            if known && c.len() as u64 != self.plan.input_points[i] {
+            let map = points::map_file(p)?;
+            let format = match o.format {
+                Some(format) => format,
+                None => points::detect_format(p, &map)?,
+            };
+            let got = if format == points::Format::Xyz {
+                let c = points::read_bytes(p, &map, &o, &NoProgress)?;
+                f(i, &c)?;
+                c.len() as u64
+            } else {
+                points::for_each_decoded(p, &map, &o, READ_BATCH, &mut batch, |c, _| f(i, c))?.1
+            };
+            if known && got != self.plan.input_points[i] {
                 return Err(Error::Usage(format!(
-                    "{}: gives {} points where the plan counted {}: plan again",
+                    "{}: gives {got} points where the plan counted {}: plan again",
                     p.display(),
-                    c.len(),
                     self.plan.input_points[i]
                 )));
             }
-            read += c.len() as u64;
-            f(i, c)?;
+            read += got;
         }
         Ok(())
     }
@@ -914,7 +932,7 @@ fn job_prepare(run: &Run, k: usize) -> Result<Writer> {
         wx,
         wy,
         |f| skip(f, &mut cursor.borrow_mut()),
-        |_, c| {
+        |_, c: &PointCloud| {
             let mut cursor = cursor.borrow_mut();
             for i in 0..c.len() {
                 if let (Some(win), Some(flags)) = (&win, &kept.flags) {
