@@ -358,3 +358,43 @@ fn pipeline_ground_stage() {
         .input_error(&["ground", "window"])
         .left_nothing("out_bad");
 }
+
+/// `terratile classify IN.laz OUT.las` writes the records it kept from its one decode of the
+/// LAZ: the same bytes as the writer that decodes the input again (the path a LAS input, a
+/// filtered read or several sources still take).
+#[test]
+fn classify_laz_writes_the_records_of_its_one_decode() {
+    for s in ["samp21", "samp41"] {
+        let Some(p) = isprs(s) else { return };
+        let dir = tempfile::tempdir().unwrap();
+        let ours = dir.path().join("ours.las");
+        let r = common::terratile(
+            dir.path(),
+            &["classify", &p.to_string_lossy(), &ours.to_string_lossy()],
+        );
+        r.ok();
+        let opts = ReadOptions::default();
+        let c = points::read(&p, &opts, &NoProgress).unwrap();
+        let (g, _) = terratile::classify::ground_of(&c, None, &GroundParams::default()).unwrap();
+        let twice = dir.path().join("twice.las");
+        terratile::classify::write_classified(&twice, &c, &opts, &g).unwrap();
+        assert!(
+            std::fs::read(&ours).unwrap() == std::fs::read(&twice).unwrap(),
+            "{s}: the one-decode output differs from the re-decoding writer's"
+        );
+        // Kept only when every record becomes a point.
+        let (k, raw) = points::read_keeping_records(&p, &opts, &NoProgress).unwrap();
+        let raw = raw.expect("a plain LAZ read keeps its records");
+        assert_eq!((&k.x, &k.z), (&c.x, &c.z));
+        assert_eq!(
+            raw.records.len(),
+            c.len() * raw.header.record_length as usize
+        );
+        let filtered = ReadOptions {
+            classes: points::ClassFilter::new(Some(&[2]), &[]),
+            ..Default::default()
+        };
+        let (_, raw) = points::read_keeping_records(&p, &filtered, &NoProgress).unwrap();
+        assert!(raw.is_none(), "a filtered read keeps no records");
+    }
+}

@@ -21,6 +21,20 @@ pub(crate) fn read_las(
     opts: &ReadOptions,
     progress: &dyn Progress,
 ) -> Result<PointCloud> {
+    read_las_keeping(path, bytes, opts, progress, None)
+}
+
+/// [`read_las`], also appending every decompressed record of a LAZ file to `keep` when given
+/// (the batches are decompressed straight into it, so nothing is copied): a writer that needs
+/// the records then does not decode the file a second time. Uncompressed records are not
+/// kept (they are in the mapped file already).
+pub(crate) fn read_las_keeping(
+    path: &Path,
+    bytes: &[u8],
+    opts: &ReadOptions,
+    progress: &dyn Progress,
+    mut keep: Option<&mut Vec<u8>>,
+) -> Result<PointCloud> {
     let h = LasHeader::parse(path, bytes)?;
     if opts.format == Some(Format::Las) && h.compressed {
         return Err(Error::format(
@@ -55,6 +69,12 @@ pub(crate) fn read_las(
         // Reserved only once the chunk table vouches for the header's point count.
         let mut dec = LazDecoder::new(path, bytes, &h)?;
         fits()?;
+        if keep.is_some() {
+            let n = wanted.saturating_mul(h.record_length as u64);
+            crate::memory::check_alloc(n, || {
+                format!("{}: {wanted} decompressed records", path.display())
+            })?;
+        }
         progress.start(&format!("reading {}", path.display()), h.point_count);
         cloud.reserve_exact(wanted as usize, true);
         let mut buf = Vec::new();
@@ -67,8 +87,19 @@ pub(crate) fn read_las(
                 break;
             }
             let n = LAZ_BATCH.min(h.point_count - done);
-            dec.next_batch(n, &mut buf)?;
-            las_records::decode(&buf, &layout, &opts.classes, left, &mut cloud);
+            let batch = match keep.as_deref_mut() {
+                Some(out) => {
+                    let at = out.len();
+                    out.resize(at + n as usize * dec.item_size, 0);
+                    dec.decompress(&mut out[at..])?;
+                    &out[at..]
+                }
+                None => {
+                    dec.next_batch(n, &mut buf)?;
+                    &buf[..]
+                }
+            };
+            las_records::decode(batch, &layout, &opts.classes, left, &mut cloud);
             done += n;
             progress.advance(n);
         }
@@ -218,6 +249,11 @@ impl<'a> LazDecoder<'a> {
 
     fn next_batch(&mut self, n: u64, buf: &mut Vec<u8>) -> Result<()> {
         buf.resize(n as usize * self.item_size, 0);
+        self.decompress(buf)
+    }
+
+    /// Decompresses the next `buf.len() / item_size` records into `buf`.
+    fn decompress(&mut self, buf: &mut [u8]) -> Result<()> {
         let (path, at) = (self.path, self.offset);
         let inner = &mut self.inner;
         guard(path, at, || inner.decompress_many(buf))?.map_err(|e| {

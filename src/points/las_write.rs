@@ -244,6 +244,55 @@ pub fn write_reclassified_records(
     })
 }
 
+/// The world coordinates of a LAS record.
+fn record_xyz(h: &LasHeader, r: &[u8]) -> [f64; 3] {
+    std::array::from_fn(|k| {
+        let v = i32::from_le_bytes([r[4 * k], r[4 * k + 1], r[4 * k + 2], r[4 * k + 3]]);
+        h.scale[k] * f64::from(v) + h.offset[k]
+    })
+}
+
+/// [`write_reclassified_records`] from records kept by [`super::read_keeping_records`]
+/// instead of decoding the input again: sets record `i`'s class to `classes[i]` in place and
+/// writes the records as an uncompressed LAS with the file's header (the same bytes).
+pub fn write_reclassified_raw(
+    path: &Path,
+    raw: &mut super::RawRecords,
+    classes: &[u8],
+) -> Result<()> {
+    use rayon::prelude::*;
+    let h = &raw.header;
+    let len = h.record_length as usize;
+    if len == 0 || raw.records.len() != classes.len() * len {
+        return Err(Error::Internal(format!(
+            "{}: {} bytes of records for {} classes",
+            path.display(),
+            raw.records.len(),
+            classes.len()
+        )));
+    }
+    let extended = h.point_format >= 6;
+    const CHUNK: usize = 1 << 16;
+    let bounds = raw
+        .records
+        .par_chunks_mut(CHUNK * len)
+        .zip(classes.par_chunks(CHUNK))
+        .map(|(recs, cls)| {
+            let mut b = super::Bounds::EMPTY;
+            for (r, &class) in recs.chunks_exact_mut(len).zip(cls) {
+                if extended {
+                    r[16] = class;
+                } else {
+                    r[15] = (r[15] & 0xE0) | (class & 0x1F);
+                }
+                b.add(record_xyz(h, r));
+            }
+            b
+        })
+        .reduce(|| super::Bounds::EMPTY, super::Bounds::union);
+    write_raw_las(path, h, &raw.records, &bounds)
+}
+
 /// The records of the `n` cloud points read from `sources` with `opts` for which `class_of`
 /// (by point index) gives a class, written with that class.
 fn write_records_with(
@@ -300,12 +349,7 @@ fn write_records_with(
                 } else {
                     rec[15] = (rec[15] & 0xE0) | (class & 0x1F);
                 }
-                let xyz = |k: usize| {
-                    let v =
-                        i32::from_le_bytes([r[4 * k], r[4 * k + 1], r[4 * k + 2], r[4 * k + 3]]);
-                    h.scale[k] * f64::from(v) + h.offset[k]
-                };
-                bounds.add([xyz(0), xyz(1), xyz(2)]);
+                bounds.add(record_xyz(&h, r));
             }
             Ok(left > 0)
         })?;

@@ -20,7 +20,8 @@ pub use las_header::{LasHeader, Vlr};
 pub(crate) use las_read::for_each_decoded;
 pub use las_read::raw_records;
 pub use las_write::{
-    write_las, write_raw_las, write_reclassified_records, write_selected_records, LasWriteOptions,
+    write_las, write_raw_las, write_reclassified_raw, write_reclassified_records,
+    write_selected_records, LasWriteOptions,
 };
 pub use stats::{class_name, CloudStats, FileInfo, Histogram};
 pub use xyz::parse_xyz;
@@ -423,6 +424,37 @@ pub fn read_bytes(
             Ok(cloud)
         }
     }
+}
+
+/// The decompressed point records of a LAZ file, kept by [`read_keeping_records`].
+#[derive(Debug, Clone)]
+pub struct RawRecords {
+    /// The file's header.
+    pub header: LasHeader,
+    /// Every record of the file in file order, `header.record_length` bytes each.
+    pub records: Vec<u8>,
+}
+
+/// [`read`], also keeping the decompressed records of a LAZ file when every record becomes a
+/// point (no class filter, no cap), so that a writer of those records need not decode the
+/// file again (`terratile classify IN OUT`). `None` for LAS (its records are in the file
+/// already, mapped without decoding), XYZ, or a filtered or capped read.
+pub fn read_keeping_records(
+    path: &Path,
+    opts: &ReadOptions,
+    progress: &dyn Progress,
+) -> Result<(PointCloud, Option<RawRecords>)> {
+    let map = map_file(path)?;
+    let laz = opts.format.is_none_or(|f| f == Format::Laz)
+        && !map.is_empty()
+        && detect_format(path, &map)? == Format::Laz;
+    if !laz || opts.classes.is_active() || opts.max_points.is_some() {
+        return Ok((read_bytes(path, &map, opts, progress)?, None));
+    }
+    let mut records = Vec::new();
+    let cloud = las_read::read_las_keeping(path, &map, opts, progress, Some(&mut records))?;
+    let header = LasHeader::parse(path, &map)?;
+    Ok((cloud, Some(RawRecords { header, records })))
 }
 
 /// Reads several files into one cloud (adjacent tiles of one survey), in the order given.
