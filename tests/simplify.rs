@@ -791,8 +791,9 @@ fn qem_runs_as_an_asset_and_its_keys_are_checked() {
 /// Long (the multi-view saliency of five meshes): `cargo test --release --test tests
 /// simplify::saliency_table -- --ignored --nocapture`. SALIENCY_H_MIN, SALIENCY_SMOOTH (σ
 /// in ε), SALIENCY_SPREAD (0 or 1), SALIENCY_POWER, SALIENCY_AREA (0 or 1), SALIENCY_PLATEAU,
-/// SALIENCY_RULE (quadric or cost: the first three columns) try other weightings; SALIENCY_MESHES=cow,spot picks
-/// meshes. The last column is each simplification's seconds (weights known), for the speed
+/// SALIENCY_RULE (quadric or cost: the first three columns), SALIENCY_TOP and SALIENCY_GAP
+/// (a step in the weight at the top share of the area) try other weightings;
+/// SALIENCY_MESHES=cow,spot picks meshes and SALIENCY_KINDS=hybrid the columns. The last column is each simplification's seconds (weights known), for the speed
 /// ratio of weighted to plain QEM.
 #[test]
 #[ignore]
@@ -808,6 +809,16 @@ fn saliency_table() {
         power: env("SALIENCY_POWER").unwrap_or(d.power),
         area_rank: env("SALIENCY_AREA").map_or(d.area_rank, |x| x != 0.0),
         plateau: env("SALIENCY_PLATEAU").unwrap_or(d.plateau),
+        top: env("SALIENCY_TOP").unwrap_or(d.top),
+        gap: env("SALIENCY_GAP").unwrap_or(d.gap),
+    };
+    // SALIENCY_KINDS=hybrid: only plain and hybrid rows (quicker trials).
+    let kinds = std::env::var("SALIENCY_KINDS").ok();
+    let run_kind = |k: &str| {
+        k == "none"
+            || kinds
+                .as_deref()
+                .is_none_or(|o| o.split(',').any(|x| x == k))
     };
     let rule = match std::env::var("SALIENCY_RULE").as_deref() {
         Ok("cost") => WeightRule::Cost,
@@ -866,6 +877,9 @@ fn saliency_table() {
                 ("image", wi.as_ref(), rule),
                 ("hybrid, thesis rule", wh.as_ref(), WeightRule::Cost),
             ] {
+                if !run_kind(kind) {
+                    continue;
+                }
                 let p = qem::QemParams {
                     triangles: target,
                     weights: ws.map(|x| x.clone().into()),

@@ -149,6 +149,23 @@ pub fn weights_of_ranks(ranks: &[f64], h_min: f64, power: f64, plateau: f64) -> 
         .collect()
 }
 
+/// H of ranks u ∈ [0, 1] with a step at the salient share `top`: 1 for u ≥ 1 − top, and
+/// below it h_min · (gap / h_min)^(u / (1 − top)), from h_min at the bottom to `gap` just
+/// under the step (`gap` = h_min: flat).
+pub fn step_weights(ranks: &[f64], h_min: f64, top: f64, gap: f64) -> Vec<f64> {
+    let edge = 1.0 - top;
+    ranks
+        .iter()
+        .map(|&u| {
+            if u >= edge {
+                1.0
+            } else {
+                h_min * (gap / h_min).powf(u / edge)
+            }
+        })
+        .collect()
+}
+
 /// The percentile rank of every value in [0, 1] by `area`: the share of the total area of
 /// the vertices with smaller values plus half of the area of those with the same value
 /// (so ties share their rank, and the rank of the top fifth of the area is 0.8 and above).
@@ -197,6 +214,16 @@ mod tests {
         assert_eq!(w[0], 0.01);
         assert!((w[1] - 0.01f64.powf(1.0 - 0.5 / 0.8)).abs() < 1e-12);
         assert_eq!(&w[2..], &[1.0, 1.0]);
+        // The step: the top fifth at 1, h_min at the bottom, `gap` just below the step.
+        let w = step_weights(&[0.0, 0.4, 0.8, 1.0], 0.05, 0.2, 0.45);
+        assert_eq!(w[0], 0.05);
+        assert!((w[1] - 0.15).abs() < 1e-12, "{w:?}");
+        assert_eq!(&w[2..], &[1.0, 1.0]);
+        // gap = h_min: flat below the step.
+        assert_eq!(
+            step_weights(&[0.0, 0.5, 0.9], 0.1, 0.2, 0.1),
+            [0.1, 0.1, 1.0]
+        );
     }
 
     #[test]

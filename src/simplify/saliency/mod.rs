@@ -116,6 +116,12 @@ pub struct Weighting {
     pub area_rank: bool,
     /// The top share of the ranks that all get H = 1 (0: none; [`hybrid::weights_of_ranks`]).
     pub plateau: f64,
+    /// The salient share of the area: ranks at or above 1 − `top` get H = 1 and the rest at
+    /// most `gap` ([`hybrid::step_weights`]; 0: the curve of `power` and `plateau`).
+    pub top: f64,
+    /// With `top`: the weight just below the salient share (h_min at the bottom, geometric
+    /// in the rank between; `gap` = h_min: every unsalient vertex at h_min).
+    pub gap: f64,
 }
 
 impl Default for Weighting {
@@ -127,6 +133,8 @@ impl Default for Weighting {
             power: POWER,
             area_rank: true,
             plateau: 0.0,
+            top: 0.0,
+            gap: 1.0,
         }
     }
 }
@@ -147,6 +155,9 @@ impl Weighting {
         } else {
             hybrid::ranks(&v)
         };
+        if self.top > 0.0 {
+            return Some(hybrid::step_weights(&ranks, self.h_min, self.top, self.gap));
+        }
         Some(hybrid::weights_of_ranks(
             &ranks,
             self.h_min,
