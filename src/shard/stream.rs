@@ -1382,10 +1382,18 @@ mod tests {
             "brick-0000012.bin",
             "counts-3-0000001.bin",
             "keep-3-0000001.bin",
+            "tiles-12.bin",
         ] {
             assert!(is_ours(n), "{n}");
         }
-        for n in ["notes.txt", "brick-12.bin", "keep-x.bin", "tile_0_0.exr"] {
+        for n in [
+            "notes.txt",
+            "brick-12.bin",
+            "keep-x.bin",
+            "tile_0_0.exr",
+            "tiles-.bin",
+            "tiles-1-2.bin",
+        ] {
             assert!(!is_ours(n), "{n}");
         }
     }
