@@ -80,57 +80,131 @@ pub fn write_terrain(
     out.validate()?;
     let set = products.set;
     let summary = SetSummary::of(set, products.quadtree, products.meshes);
-    let enc = HeightEncoding::for_set(&summary);
-    let mut encoders = TileEncoder::for_settings(out);
-    let has_crs = set.crs.as_ref().and_then(crate::geo::wkt_of).is_some();
-    encoders.retain(|e| has_crs || !e.needs_crs());
-    let mut subdirs: Vec<&str> = encoders.iter().map(|e| e.dir()).collect();
-    if out.wants_previews() {
-        subdirs.push("preview");
-    }
-    subdirs.dedup();
-    for sub in subdirs {
-        let p = dir.join(sub);
-        std::fs::create_dir_all(&p).map_err(|e| Error::io(&p, e))?;
-    }
+    let mut writer = TileWriter::new(dir, summary, out)?;
     progress.start("writing tiles", set.tiles.len() as u64);
-    let per_tile: Vec<BTreeMap<String, String>> = (0..set.tiles.len())
-        .into_par_iter()
-        .map(|t| -> Result<BTreeMap<String, String>> {
-            let tile = TileProducts::new(products, t, &enc, summary.metres_per_unit());
-            let mut files = BTreeMap::new();
-            for e in &encoders {
-                let rel = format!("{}/{}.{}", e.dir(), tile.name, e.ext());
-                put(dir, &rel, &e.encode(&tile)?)?;
-                files.insert(e.key().to_string(), rel);
-            }
-            progress.advance(1);
-            Ok(files)
-        })
-        .collect::<Result<_>>()?;
+    let all: Vec<usize> = (0..set.tiles.len()).collect();
+    writer.write(dir, products, &all, progress)?;
     progress.finish();
+    writer.finish(dir, products, out)
+}
 
-    let (landscape, previews) = write_set_level(dir, products, &summary, &enc, out)?;
-    let mut files: Vec<String> = per_tile.iter().flat_map(|m| m.values().cloned()).collect();
-    files.extend(landscape.iter().cloned());
-    files.extend(previews.iter().cloned());
-    if out.geotiff {
-        put(dir, georef::DEM_FILE, &georef::dem_geotiff(set)?)?;
-        files.push(georef::DEM_FILE.to_string());
+/// True when every output `out` switches on is a tile encoder or the manifest: then the
+/// tiles can be written a few at a time, each with only its own heights in memory (no mesh
+/// extraction, previews, `dem.tif` or quantized-mesh tileset, which take the whole set).
+pub fn writes_tile_by_tile(out: &OutputConfig) -> bool {
+    !out.wants_meshes() && !out.wants_previews() && !out.geotiff && !out.quantized_mesh
+}
+
+/// The tile encoders and the manifest of one set, fed its tiles in any groups: the set's
+/// summary (and so the 16-bit height encoding, whose range is the whole set's) is fixed
+/// first, each tile is encoded when its heights are at hand, and [`TileWriter::finish`]
+/// writes the set-level files.
+pub struct TileWriter {
+    summary: SetSummary,
+    enc: HeightEncoding,
+    encoders: Vec<TileEncoder>,
+    per_tile: Vec<Option<BTreeMap<String, String>>>,
+}
+
+impl TileWriter {
+    /// The writer of the set `summary` describes; makes the output subdirectories in `dir`.
+    pub fn new(dir: &Path, summary: SetSummary, out: &OutputConfig) -> Result<TileWriter> {
+        let enc = HeightEncoding::for_set(&summary);
+        let mut encoders = TileEncoder::for_settings(out);
+        let has_crs = summary.crs.as_ref().and_then(crate::geo::wkt_of).is_some();
+        encoders.retain(|e| has_crs || !e.needs_crs());
+        let mut subdirs: Vec<&str> = encoders.iter().map(|e| e.dir()).collect();
+        if out.wants_previews() {
+            subdirs.push("preview");
+        }
+        subdirs.dedup();
+        for sub in subdirs {
+            let p = dir.join(sub);
+            std::fs::create_dir_all(&p).map_err(|e| Error::io(&p, e))?;
+        }
+        let per_tile = vec![None; summary.tiles.len()];
+        Ok(TileWriter {
+            summary,
+            enc,
+            encoders,
+            per_tile,
+        })
     }
-    if out.manifest {
-        let written = manifest::Written {
-            tiles: per_tile,
-            landscape,
-            previews,
-        };
-        let m = manifest::build(&summary, out, &enc, written);
-        let text = serde_json::to_string_pretty(&m).map_err(|e| Error::Internal(e.to_string()))?;
-        put(dir, "manifest.json", format!("{text}\n").as_bytes())?;
-        files.push("manifest.json".to_string());
+
+    /// Encodes `tiles` (indices in the set) of `products`, whose heights those tiles must
+    /// hold (other tiles' are not read).
+    pub fn write(
+        &mut self,
+        dir: &Path,
+        products: &TerrainProducts<'_>,
+        tiles: &[usize],
+        progress: &dyn Progress,
+    ) -> Result<()> {
+        let mpu = self.summary.metres_per_unit();
+        let (enc, encoders) = (&self.enc, &self.encoders);
+        let got: Vec<BTreeMap<String, String>> = tiles
+            .par_iter()
+            .map(|&t| -> Result<BTreeMap<String, String>> {
+                let tile = TileProducts::new(products, t, enc, mpu);
+                let mut files = BTreeMap::new();
+                for e in encoders {
+                    let rel = format!("{}/{}.{}", e.dir(), tile.name, e.ext());
+                    put(dir, &rel, &e.encode(&tile)?)?;
+                    files.insert(e.key().to_string(), rel);
+                }
+                progress.advance(1);
+                Ok(files)
+            })
+            .collect::<Result<_>>()?;
+        for (&t, files) in tiles.iter().zip(got) {
+            self.per_tile[t] = Some(files);
+        }
+        Ok(())
     }
-    files.sort();
-    Ok(files)
+
+    /// Writes the set-level files (landscape heightmaps, previews, `dem.tif`: these read
+    /// the heights of the whole `products`; the manifest) once every tile is written;
+    /// returns all files written, sorted.
+    pub fn finish(
+        self,
+        dir: &Path,
+        products: &TerrainProducts<'_>,
+        out: &OutputConfig,
+    ) -> Result<Vec<String>> {
+        let TileWriter {
+            summary,
+            enc,
+            per_tile,
+            ..
+        } = self;
+        let per_tile: Vec<BTreeMap<String, String>> = per_tile
+            .into_iter()
+            .enumerate()
+            .map(|(t, f)| f.ok_or_else(|| Error::Internal(format!("tile {t} was not written"))))
+            .collect::<Result<_>>()?;
+        let (landscape, previews) = write_set_level(dir, products, &summary, &enc, out)?;
+        let mut files: Vec<String> = per_tile.iter().flat_map(|m| m.values().cloned()).collect();
+        files.extend(landscape.iter().cloned());
+        files.extend(previews.iter().cloned());
+        if out.geotiff {
+            put(dir, georef::DEM_FILE, &georef::dem_geotiff(products.set)?)?;
+            files.push(georef::DEM_FILE.to_string());
+        }
+        if out.manifest {
+            let written = manifest::Written {
+                tiles: per_tile,
+                landscape,
+                previews,
+            };
+            let m = manifest::build(&summary, out, &enc, written);
+            let text =
+                serde_json::to_string_pretty(&m).map_err(|e| Error::Internal(e.to_string()))?;
+            put(dir, "manifest.json", format!("{text}\n").as_bytes())?;
+            files.push("manifest.json".to_string());
+        }
+        files.sort();
+        Ok(files)
+    }
 }
 
 /// The writers of the whole set but the manifest: the Unreal landscape heightmaps and the

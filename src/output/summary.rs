@@ -73,6 +73,18 @@ impl SetSummary {
     /// The summary of `set`, with its quadtree's constants and, when meshes were extracted,
     /// each tile's triangle count.
     pub fn of(set: &TileSet, qt: &Quadtree, meshes: Option<&TileMeshes>) -> SetSummary {
+        SetSummary::with_holes(set, qt, meshes, set.holes())
+    }
+
+    /// As [`SetSummary::of`], with the set's hole samples counted already (`holes`, as
+    /// `TileSet::holes` counts them): the heights are not read, so a streamed run's set
+    /// whose tiles have left memory can be summarised.
+    pub fn with_holes(
+        set: &TileSet,
+        qt: &Quadtree,
+        meshes: Option<&TileMeshes>,
+        holes: usize,
+    ) -> SetSummary {
         SetSummary {
             tile_size: set.tile_size,
             grid: set.grid,
@@ -84,7 +96,7 @@ impl SetSummary {
             z_offset: set.z_offset,
             crs: set.crs.clone(),
             z_range: set.z_range(),
-            holes: set.holes(),
+            holes,
             levels: set.levels(),
             quadtree_ck: [qt.c, qt.k],
             tiles: set

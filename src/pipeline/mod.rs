@@ -20,4 +20,4 @@ pub use report::{stage_seconds, BaselineMeasurements, RunSummary, StageReport};
 pub use run::{
     grid_stages, run, run_with_context, tile_stages, GridStages, RunContext, RunOutput, TileStages,
 };
-pub use run::{product_stages, quadtree_report, tiles_report, with_input_crs};
+pub use run::{product_stages, quadtree_report, tiles_report, tiles_report_with, with_input_crs};

@@ -526,6 +526,11 @@ pub fn with_input_crs(cfg: &Pipeline, set: &mut TileSet) {
 
 /// The tiles stage's report.
 pub fn tiles_report(set: &TileSet, seconds: f64) -> StageReport {
+    tiles_report_with(set, set.holes(), seconds)
+}
+
+/// The tiles stage's report, with the set's hole samples counted already.
+pub fn tiles_report_with(set: &TileSet, holes: usize, seconds: f64) -> StageReport {
     StageReport {
         stage: "tiles".into(),
         seconds,
@@ -536,7 +541,7 @@ pub fn tiles_report(set: &TileSet, seconds: f64) -> StageReport {
                 "samples".into(),
                 format!("{}×{}", set.samples[0], set.samples[1]),
             ),
-            ("holes".into(), set.holes().to_string()),
+            ("holes".into(), holes.to_string()),
         ],
     }
 }

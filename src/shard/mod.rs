@@ -34,6 +34,7 @@ pub mod direct;
 pub mod jobs;
 pub mod points;
 pub mod scale_bench;
+pub mod spill;
 pub mod store;
 pub mod stream;
 #[cfg(test)]

@@ -359,6 +359,7 @@ fn is_ours(name: &str) -> bool {
         || bricks::is_brick_name(name)
         || window("counts-")
         || window("keep-")
+        || super::spill::is_spill_name(name)
 }
 
 impl TempDir {
@@ -925,6 +926,7 @@ fn grid_pass(
     spec: &GridSpec,
     crs: Option<Crs>,
     sizing: &Sizing,
+    mut spill: Option<&mut super::spill::Spilled>,
     progress: &dyn Progress,
 ) -> Result<(ShardLayout, super::Merged, bool)> {
     let cfg = &pipeline.config;
@@ -1056,7 +1058,13 @@ fn grid_pass(
                 finish_with(&layout, p, &coarse, &cfg.tiles, &cfg.quadtree, false)
             })
             .collect::<Result<_>>()?;
-        outputs.extend(got);
+        for (mut out, &i) in got.into_iter().zip(chunk) {
+            if let Some(s) = spill.as_deref_mut() {
+                // Final heights: to disk until the writers take them, shard by shard.
+                s.put(dir, i, &mut out, layout.tiles)?;
+            }
+            outputs.push(out);
+        }
         progress.advance(chunk.len() as u64);
     }
     progress.finish();
@@ -1263,6 +1271,9 @@ fn stream_passes(
     let spec = GridSpec::new(&cfg.resample, &kept_bounds, kept as usize)
         .map_err(|e| pipeline.param_error(e))?;
     let t = Clock::start();
+    // With only tile-by-tile outputs, the finished tiles leave memory shard by shard.
+    let mut spilled =
+        crate::output::writes_tile_by_tile(&cfg.output).then(super::spill::Spilled::default);
     let (layout, merged, kept_prepared) = grid_pass(
         pipeline,
         dir,
@@ -1272,6 +1283,7 @@ fn stream_passes(
         &spec,
         crs,
         sizing,
+        spilled.as_mut(),
         progress,
     )?;
     drop(keep);
@@ -1292,12 +1304,48 @@ fn stream_passes(
         mut set, quadtree, ..
     } = merged;
     crate::pipeline::with_input_crs(cfg, &mut set);
-    let reports = vec![
-        crate::pipeline::tiles_report(&set, 0.0),
-        crate::pipeline::quadtree_report(&quadtree, 0.0),
-    ];
-    let ts = crate::pipeline::product_stages(cfg, set, quadtree, reports, staged.path(), progress)?;
-    stages.extend(ts.reports);
+    let files = match &spilled {
+        Some(sp) => {
+            stages.push(crate::pipeline::tiles_report_with(&set, sp.holes, 0.0));
+            stages.push(crate::pipeline::quadtree_report(&quadtree, 0.0));
+            let t = Clock::start();
+            let tiles = set.tiles.len();
+            let written = super::spill::write_spilled(
+                dir,
+                staged.path(),
+                set,
+                &quadtree,
+                sp,
+                &cfg.output,
+                progress,
+            )?;
+            stages.push(report(
+                "write",
+                t,
+                vec![
+                    fig("files", written.len()),
+                    fig("tiles written by shard", tiles),
+                ],
+            ));
+            written
+        }
+        None => {
+            let reports = vec![
+                crate::pipeline::tiles_report(&set, 0.0),
+                crate::pipeline::quadtree_report(&quadtree, 0.0),
+            ];
+            let ts = crate::pipeline::product_stages(
+                cfg,
+                set,
+                quadtree,
+                reports,
+                staged.path(),
+                progress,
+            )?;
+            stages.extend(ts.reports);
+            ts.files
+        }
+    };
     stages.push(StageReport {
         stage: "stream".into(),
         seconds: 0.0,
@@ -1310,7 +1358,7 @@ fn stream_passes(
             ),
         ],
     });
-    Ok((ts.files, bk))
+    Ok((files, bk))
 }
 
 fn fill_figures(f: &FillReport) -> Vec<(String, String)> {
@@ -1334,10 +1382,18 @@ mod tests {
             "brick-0000012.bin",
             "counts-3-0000001.bin",
             "keep-3-0000001.bin",
+            "tiles-12.bin",
         ] {
             assert!(is_ours(n), "{n}");
         }
-        for n in ["notes.txt", "brick-12.bin", "keep-x.bin", "tile_0_0.exr"] {
+        for n in [
+            "notes.txt",
+            "brick-12.bin",
+            "keep-x.bin",
+            "tile_0_0.exr",
+            "tiles-.bin",
+            "tiles-1-2.bin",
+        ] {
             assert!(!is_ours(n), "{n}");
         }
     }

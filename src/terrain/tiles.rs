@@ -102,6 +102,19 @@ pub struct Tile {
 }
 
 impl Tile {
+    /// Hole samples the tile owns in a grid of `grid` tiles: its valid extent minus the
+    /// border it shares east and north (so that `TileSet::holes` counts each sample once).
+    pub fn owned_holes(&self, grid: [usize; 2]) -> usize {
+        if self.holes == 0 {
+            return 0;
+        }
+        let w = self.valid[0] - usize::from(self.col + 1 < grid[0]);
+        let h = self.valid[1] - usize::from(self.row + 1 < grid[1]);
+        (0..h)
+            .map(|j| (0..w).filter(|&i| self.heights[[j, i]].is_nan()).count())
+            .sum()
+    }
+
     /// The heights as one row-major slice (tiles are built contiguous).
     pub fn height_slice(&self) -> &[f32] {
         self.heights
@@ -166,14 +179,7 @@ impl TileSet {
         }
         self.tiles
             .par_iter()
-            .map(|t| {
-                // Each tile owns its valid extent minus the border it shares east and north.
-                let w = t.valid[0] - usize::from(t.col + 1 < self.grid[0]);
-                let h = t.valid[1] - usize::from(t.row + 1 < self.grid[1]);
-                (0..h)
-                    .map(|j| (0..w).filter(|&i| t.heights[[j, i]].is_nan()).count())
-                    .sum::<usize>()
-            })
+            .map(|t| t.owned_holes(self.grid))
             .sum()
     }
 
