@@ -50,6 +50,40 @@ fn stripify_cpu(mesh: &terratile::mesh::TriMesh, flat: &[u32], rounds: u32) {
     );
 }
 
+/// CPU time per call of the quadric run alone and of the whole progressive build (which
+/// includes it), both in a pool of one thread (the quadric engine's setup is parallel), taking
+/// turns as above.
+fn progressive_cpu(mesh: &terratile::mesh::TriMesh, params: &ProgressiveParams, rounds: u32) {
+    let Ok(pool) = rayon::ThreadPoolBuilder::new().num_threads(1).build() else {
+        return;
+    };
+    pool.install(|| progressive_cpu_here(mesh, params, rounds));
+}
+
+fn progressive_cpu_here(mesh: &terratile::mesh::TriMesh, params: &ProgressiveParams, rounds: u32) {
+    let (canon, qparams) = engine_input(mesh, params);
+    let (mut qem_ns, mut ours) = (0u64, 0u64);
+    for _ in 0..rounds {
+        let Some(t0) = thread_cpu_ns() else {
+            return;
+        };
+        black_box(qem::simplify_logged(&canon, &qparams).unwrap());
+        let t1 = thread_cpu_ns().unwrap_or(t0);
+        black_box(progressive(mesh, params).unwrap());
+        let t2 = thread_cpu_ns().unwrap_or(t1);
+        qem_ns += t1 - t0;
+        ours += t2 - t1;
+    }
+    let ms = |ns: u64| ns as f64 / 1e6 / rounds as f64;
+    println!(
+        "bunny progressive CPU time, one thread, {rounds} calls each: quadric run {:.1} ms, \
+         progressive strips {:.1} ms per call ({:.2}x)",
+        ms(qem_ns),
+        ms(ours),
+        ours as f64 / qem_ns.max(1) as f64
+    );
+}
+
 fn strips(c: &mut Criterion) {
     let Some(mesh) = load("bunny.obj") else {
         return;
@@ -67,6 +101,7 @@ fn strips(c: &mut Criterion) {
     g.finish();
 
     let params = ProgressiveParams::default();
+    progressive_cpu(&mesh, &params, 10);
     let mut g = c.benchmark_group("bunny_progressive_5pct");
     g.sample_size(10);
     let (canon, qparams) = engine_input(&mesh, &params);

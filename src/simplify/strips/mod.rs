@@ -12,6 +12,7 @@ pub mod asset;
 pub mod figure;
 pub mod filter;
 pub mod format;
+mod lists;
 pub mod measure;
 pub mod order;
 pub mod progressive;

@@ -15,6 +15,7 @@
 //! splits, their records and the filter are the paper's, unchanged.
 
 use super::filter::rebuild_into;
+use super::lists::SlotLists;
 use super::stripify::{self, canonical, Join, StripParams};
 
 const NONE: u32 = u32::MAX;
@@ -70,6 +71,75 @@ impl Order {
     }
 }
 
+/// The placed triangles around each vertex (those with distinct corners at the current
+/// level), each a list that behaves as a `Vec` (push, and removal by moving the last
+/// entry into the hole) but all in one buffer: a list starts with room for the vertex's
+/// valence in the full mesh and moves to the end of the buffer, with twice the room, in
+/// the rare case that it outgrows it (a vertex that stands for collapsed ones at a coarse
+/// level). No allocation per vertex.
+struct Fans {
+    start: Vec<u32>,
+    len: Vec<u32>,
+    room: Vec<u32>,
+    data: Vec<u32>,
+}
+
+impl Fans {
+    fn new(tris: &[[u32; 3]], vertices: usize) -> Fans {
+        let mut room = vec![0u32; vertices];
+        for &v in tris.iter().flatten() {
+            room[v as usize] += 1;
+        }
+        let mut start = Vec::with_capacity(vertices);
+        let mut sum = 0u32;
+        for &r in &room {
+            start.push(sum);
+            sum += r;
+        }
+        Fans {
+            start,
+            len: vec![0; vertices],
+            room,
+            data: vec![NONE; sum as usize],
+        }
+    }
+
+    #[inline]
+    fn get(&self, v: u32) -> &[u32] {
+        let s = self.start[v as usize] as usize;
+        &self.data[s..s + self.len[v as usize] as usize]
+    }
+
+    #[inline]
+    fn push(&mut self, v: u32, t: u32) {
+        let v = v as usize;
+        let (s, n) = (self.start[v] as usize, self.len[v] as usize);
+        if n as u32 == self.room[v] {
+            let at = self.data.len();
+            let room = (2 * n).max(4);
+            self.data.extend_from_within(s..s + n);
+            self.data.resize(at + room, NONE);
+            self.start[v] = at as u32;
+            self.room[v] = room as u32;
+        }
+        let s = self.start[v] as usize;
+        self.data[s + n] = t;
+        self.len[v] += 1;
+    }
+
+    /// Removes `t` from `v`'s list (the last entry takes its place), if it is there.
+    #[inline]
+    fn remove(&mut self, v: u32, t: u32) {
+        let v = v as usize;
+        let (s, n) = (self.start[v] as usize, self.len[v] as usize);
+        let f = &mut self.data[s..s + n];
+        if let Some(k) = f.iter().position(|&u| u == t) {
+            f[k] = f[n - 1];
+            self.len[v] -= 1;
+        }
+    }
+}
+
 /// The current corners of triangle `t`.
 #[inline]
 fn corners(cur: &[u32], t: u32) -> [u32; 3] {
@@ -89,20 +159,26 @@ pub fn hierarchical(
     // The triangles as a list of corner slots, collapsed to the base mesh; per collapse,
     // the slots it rewrote (what its split restores).
     let mut cur: Vec<u32> = tris.iter().flatten().copied().collect();
-    let mut shows: Vec<Vec<u32>> = vec![Vec::new(); vertices];
+    // The slots that show each vertex (in lists); the slots each collapse rewrote, in the
+    // order of those lists, follow one another in `restore` (collapse i's from
+    // `restore_at[i]`).
+    let mut shows = SlotLists::new(vertices, cur.len());
     for (s, &v) in cur.iter().enumerate() {
-        shows[v as usize].push(s as u32);
+        shows.push(v, s as u32);
     }
-    let mut restore: Vec<Vec<u32>> = Vec::with_capacity(pairs.len());
+    let mut restore: Vec<u32> = Vec::with_capacity(cur.len());
+    let mut restore_at: Vec<u32> = Vec::with_capacity(pairs.len() + 1);
+    restore_at.push(0);
     for &(p, q) in pairs {
-        let moved = std::mem::take(&mut shows[p as usize]);
-        for &s in &moved {
+        for s in shows.iter(p) {
             cur[s as usize] = q;
+            restore.push(s);
         }
-        shows[q as usize].extend_from_slice(&moved);
-        restore.push(moved);
+        shows.append(p, q);
+        restore_at.push(restore.len() as u32);
     }
     drop(shows);
+    let restore = |i: usize| &restore[restore_at[i] as usize..restore_at[i + 1] as usize];
 
     // The base mesh's triangles in the order of its own strip.
     let base: Vec<u32> = (0..n as u32)
@@ -124,7 +200,7 @@ pub fn hierarchical(
     by_key.sort_unstable();
     let mut taken = vec![false; by_key.len()];
     let mut order = Order::new(n);
-    let mut fans: Vec<Vec<u32>> = vec![Vec::new(); vertices];
+    let mut fans = Fans::new(tris, vertices);
     stripify::each_triangle(&strip, |c| {
         let key = canonical(c);
         let mut i = by_key.partition_point(|e| e.0 < key);
@@ -136,7 +212,7 @@ pub fn hierarchical(
         let t = by_key[i].1;
         order.insert_after(order.tail, t);
         for v in c {
-            fans[v as usize].push(t);
+            fans.push(v, t);
         }
     });
 
@@ -146,14 +222,14 @@ pub fn hierarchical(
     let mut fresh: Vec<u32> = Vec::new();
     for (i, &(p, q)) in pairs.iter().enumerate().rev() {
         touched.clear();
-        for &s in &restore[i] {
+        for &s in restore(i) {
             let t = s / 3;
             if stamp[t as usize] != i as u32 {
                 stamp[t as usize] = i as u32;
                 touched.push((t, distinct(corners(&cur, t))));
             }
         }
-        for &s in &restore[i] {
+        for &s in restore(i) {
             cur[s as usize] = p;
         }
         fresh.clear();
@@ -163,14 +239,11 @@ pub fn hierarchical(
                 continue;
             }
             if was {
-                let f = &mut fans[q as usize];
-                if let Some(k) = f.iter().position(|&u| u == t) {
-                    f.swap_remove(k);
-                }
-                fans[p as usize].push(t);
+                fans.remove(q, t);
+                fans.push(p, t);
             } else {
                 for v in c {
-                    fans[v as usize].push(t);
+                    fans.push(v, t);
                 }
                 fresh.push(t);
             }
@@ -194,16 +267,25 @@ pub fn hierarchical(
 /// Inserts the new triangle `t` next to one of its neighbours (in the fans of its corners)
 /// where it joins the most: +1 per neighbour in the order it comes next to, −1 when it
 /// separates two that were joined. With no neighbour placed yet, at the end.
-fn place(order: &mut Order, fans: &[Vec<u32>], cur: &[u32], t: u32) {
+fn place(order: &mut Order, fans: &Fans, cur: &[u32], t: u32) {
     let c = corners(cur, t);
     let joins =
         |a: u32, b: u32| a != NONE && b != NONE && adjacent(corners(cur, a), corners(cur, b));
     let mut best: Option<(i32, u32)> = None;
-    for v in c {
-        for &u in &fans[v as usize] {
-            // Placed (in the order) and across an edge of t.
+    for (k, v) in c.into_iter().enumerate() {
+        for &u in fans.get(v) {
+            // Across an edge of t and placed (in the order). A neighbour is in the fans of
+            // both corners it shares with t: it is weighed from the first (the second
+            // would weigh the same places again, and only a greater gain counts).
+            if u == t {
+                continue;
+            }
+            let cu = corners(cur, u);
+            if !adjacent(c, cu) || c[..k].iter().any(|w| cu.contains(w)) {
+                continue;
+            }
             let placed = order.head == u || order.prev[u as usize] != NONE;
-            if u == t || !placed || !adjacent(c, corners(cur, u)) {
+            if !placed {
                 continue;
             }
             let after = order.next[u as usize];

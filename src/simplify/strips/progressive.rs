@@ -21,6 +21,7 @@
 //! restores one vertex and moves no other, as the record holds one position. The stream
 //! numbers vertices as it sends them: the base mesh's first, then one per split.
 
+use super::lists::SlotLists;
 use super::stripify::{self, StripParams, RESTART};
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
@@ -139,7 +140,10 @@ pub struct Progressive {
 /// vertices dropped, and triangles with a repeated position left out (they draw nothing).
 fn canonical_mesh(mesh: &TriMesh) -> TriMesh {
     let bits = |x: f32| (x + 0.0).to_bits();
-    let mut first: FxHashMap<Vec<u32>, u32> = FxHashMap::default();
+    // The key: the position and the attributes the mesh has, in a fixed array (the same
+    // attributes for every vertex, so the unused tail is zero for all): no allocation per
+    // vertex.
+    let mut first: FxHashMap<[u32; 12], u32> = FxHashMap::default();
     let mut id = vec![u32::MAX; mesh.vertex_count()];
     let mut out = TriMesh {
         normals: mesh.normals.as_ref().map(|_| Vec::new()),
@@ -147,7 +151,6 @@ fn canonical_mesh(mesh: &TriMesh) -> TriMesh {
         uvs: mesh.uvs.as_ref().map(|_| Vec::new()),
         ..TriMesh::default()
     };
-    let mut key = Vec::with_capacity(12);
     for t in &mesh.indices {
         let p = t.map(|v| mesh.positions[v as usize]);
         if p[0] == p[1] || p[1] == p[2] || p[0] == p[2] {
@@ -157,19 +160,26 @@ fn canonical_mesh(mesh: &TriMesh) -> TriMesh {
         for (k, &v) in t.iter().enumerate() {
             let v = v as usize;
             if id[v] == u32::MAX {
-                key.clear();
-                key.extend(mesh.positions[v].to_array().map(bits));
+                let mut key = [0u32; 12];
+                let mut at = 0;
+                let mut put = |xs: &[f32]| {
+                    for &x in xs {
+                        key[at] = bits(x);
+                        at += 1;
+                    }
+                };
+                put(&mesh.positions[v].to_array());
                 if let Some(n) = &mesh.normals {
-                    key.extend(n[v].to_array().map(bits));
+                    put(&n[v].to_array());
                 }
                 if let Some(c) = &mesh.colors {
-                    key.extend(c[v].map(bits));
+                    put(&c[v]);
                 }
                 if let Some(u) = &mesh.uvs {
-                    key.extend(u[v].to_array().map(bits));
+                    put(&u[v].to_array());
                 }
                 let next = out.positions.len() as u32;
-                let c = *first.entry(key.clone()).or_insert(next);
+                let c = *first.entry(key).or_insert(next);
                 if c == next {
                     out.positions.push(mesh.positions[v]);
                     push_attributes(&mut out, mesh, v);
@@ -204,25 +214,30 @@ struct Replay {
     /// With E-PS references.
     slots: Vec<u32>,
     /// Per vertex: the offsets that show it (Naive-PS) and that name it (E-PS).
-    shows: Vec<Vec<u32>>,
-    names: Vec<Vec<u32>>,
-    /// Scratch for [`Replay::collapse`].
+    shows: SlotLists,
+    names: SlotLists,
+    /// Scratch for [`Replay::collapse`]: the offsets that name the vertex removed, and a
+    /// state per offset.
+    named: Vec<u32>,
     state: Vec<u8>,
 }
 
 impl Replay {
     fn new(strip: Vec<u32>, vertices: usize) -> Replay {
-        let mut shows = vec![Vec::new(); vertices];
+        let mut shows = SlotLists::new(vertices, strip.len());
+        let mut names = SlotLists::new(vertices, strip.len());
         for (o, &v) in strip.iter().enumerate() {
             if v != RESTART {
-                shows[v as usize].push(o as u32);
+                shows.push(v, o as u32);
+                names.push(v, o as u32);
             }
         }
         Replay {
             slots: strip.clone(),
             resolved: strip,
-            names: shows.clone(),
+            names,
             shows,
+            named: Vec::new(),
             state: Vec::new(),
         }
     }
@@ -239,7 +254,10 @@ impl Replay {
         // of p is settled to name q, and the passes go on. So each group of p's slots that
         // reach one another through neighbours costs at most one named slot, and none when
         // one of them is next to q.
-        let names = std::mem::take(&mut self.names[p as usize]);
+        let mut names = std::mem::take(&mut self.named);
+        names.clear();
+        names.extend(self.names.iter(p));
+        self.names.clear(p);
         // Per slot of p: 0 undecided, 1 a reference, 2 settled to name q.
         let mut state = std::mem::take(&mut self.state);
         state.clear();
@@ -290,16 +308,17 @@ impl Replay {
         for (i, &o) in names.iter().enumerate() {
             if state[i] == 2 {
                 self.slots[o as usize] = q;
-                self.names[q as usize].push(o);
+                self.names.push(q, o);
             }
             encoded.push((o, self.slots[o as usize]));
         }
         self.state = state;
-        let mut naive = std::mem::take(&mut self.shows[p as usize]);
+        self.named = names;
+        let mut naive: Vec<u32> = self.shows.iter(p).collect();
         for &o in &naive {
             self.resolved[o as usize] = q;
         }
-        self.shows[q as usize].extend_from_slice(&naive);
+        self.shows.append(p, q);
         naive.sort_unstable();
         encoded.sort_unstable();
         Split {

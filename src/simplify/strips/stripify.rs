@@ -123,15 +123,20 @@ impl EdgeMap {
         for w in self.start.windows(2) {
             let row = &self.fan[w[0] as usize..w[1] as usize];
             for &[next, _, c] in row {
-                // Without branches in the loop (a match is unpredictable): the last match
-                // and the number of them.
-                let (mut found, mut count) = (NONE, 0u32);
-                for &[_, prev, d] in row {
+                // Without branches in the loop (a match is unpredictable): the position of
+                // the last match in the row (its triangle, a division, read once after) and
+                // the number of them.
+                let (mut found, mut count) = (0usize, 0u32);
+                for (j, &[_, prev, _]) in row.iter().enumerate() {
                     let m = prev == next;
                     count += m as u32;
-                    found = if m { d / 3 } else { found };
+                    found = if m { j } else { found };
                 }
-                twin[c as usize] = if count > 1 { MANY } else { found };
+                twin[c as usize] = match count {
+                    0 => NONE,
+                    1 => row[found][2] / 3,
+                    _ => MANY,
+                };
             }
         }
         twin
@@ -148,10 +153,11 @@ const MANY: u32 = u32::MAX - 1;
 pub fn stripify(triangles: &[[u32; 3]], params: &StripParams) -> Vec<u32> {
     let distinct = |t: &[u32; 3]| t[0] != t[1] && t[1] != t[2] && t[0] != t[2];
     let kept: Vec<[u32; 3]>;
-    // Triangle ids must stay below the markers of [`EdgeMap::twins`]; so many
-    // triangles (48 GiB of indices) are out of reach of this greedy anyway.
+    // Triangle ids must stay below the markers of [`EdgeMap::twins`] and the simulated
+    // cache's miss count (at most 5 per triangle) within a u32; so many triangles (10 GiB
+    // of indices) are out of reach of this greedy anyway.
     assert!(
-        triangles.len() < MANY as usize,
+        triangles.len() <= (u32::MAX / 5) as usize,
         "too many triangles to stripify"
     );
     let tris = if triangles.iter().all(distinct) {
@@ -176,8 +182,10 @@ struct Stripper<'t> {
     /// [`EdgeMap::twins`].
     twin: Vec<u32>,
     used: Vec<bool>,
-    /// Unused triangles per vertex.
-    valence: Vec<u32>,
+    /// Per vertex: unused triangles (the valence), and when it last entered the simulated
+    /// vertex cache (the number of cache misses then, 0 for never), side by side as the
+    /// strip reads both for the corners it takes.
+    vert: Vec<[u32; 2]>,
     /// The next `window` unused triangles of the input order, ascending: `[a, b, c, t]`.
     /// It holds exactly the unused triangles below `cursor`.
     buffer: Vec<[u32; 4]>,
@@ -185,10 +193,11 @@ struct Stripper<'t> {
     /// Global order: triangles by their number of unused neighbours (0..=3), lazily.
     buckets: [Vec<u32>; 4],
     free_nb: Vec<u8>,
-    /// A FIFO vertex cache over what was emitted: in the windowed order, a triangle
+    /// A FIFO vertex cache over what was emitted, as the number of misses so far: a vertex
+    /// is cached when it entered within the last [`CACHE`] misses (a FIFO evicts in the
+    /// order of entry and a hit does not refresh). In the windowed order, a triangle
     /// outside the window continues a strip only when its new vertex is still cached.
-    cache: [u32; CACHE],
-    cache_at: usize,
+    misses: u32,
     out: Vec<u32>,
 }
 
@@ -210,7 +219,7 @@ impl<'t> Stripper<'t> {
             .max()
             .map_or(0, |v| v as usize + 1);
         let edges = EdgeMap::new(tris, vertices);
-        let valence = edges.start.windows(2).map(|w| w[1] - w[0]).collect();
+        let vert = edges.start.windows(2).map(|w| [w[1] - w[0], 0]).collect();
         let twin = edges.twins();
         let mut s = Stripper {
             tris,
@@ -219,14 +228,18 @@ impl<'t> Stripper<'t> {
             edges,
             twin,
             used: vec![false; tris.len()],
-            valence,
+            vert,
             buffer: Vec::with_capacity(params.window),
             cursor: 0,
             buckets: Default::default(),
             free_nb: Vec::new(),
-            cache: [RESTART; CACHE],
-            cache_at: 0,
-            out: Vec::with_capacity(tris.len() * 2),
+            misses: 0,
+            // At most 4 indices per triangle with restarts (a restart and a strip of
+            // one), 5 with degenerate joins: never reallocated.
+            out: Vec::with_capacity(match params.join {
+                Join::Restart => tris.len() * 4,
+                Join::Degenerate => tris.len() * 5,
+            }),
         };
         if s.window == 0 {
             s.free_nb = (0..tris.len()).map(|t| s.neighbours(t)).collect();
@@ -262,7 +275,7 @@ impl<'t> Stripper<'t> {
         }
         let tri = self.tris[t as usize];
         for v in tri {
-            self.valence[v as usize] -= 1;
+            self.vert[v as usize][0] -= 1;
         }
         if self.window == 0 {
             let [a, b, c] = tri;
@@ -334,20 +347,24 @@ impl<'t> Stripper<'t> {
         if (u as usize) < self.cursor {
             Some((u, u, v))
         } else {
-            (self.window == 0 || self.cache.contains(&v)).then_some((OUTSIDE, u, v))
+            (self.window == 0 || self.cached(v)).then_some((OUTSIDE, u, v))
         }
+    }
+
+    /// Whether vertex `v` is in the simulated cache.
+    #[inline]
+    fn cached(&self, v: u32) -> bool {
+        let at = self.vert[v as usize][1];
+        at != 0 && self.misses - at < CACHE as u32
     }
 
     /// Emits `v`, through the simulated vertex cache.
     #[inline]
     fn emit(&mut self, v: u32) {
         self.out.push(v);
-        if v != RESTART && !self.cache.contains(&v) {
-            self.cache[self.cache_at] = v;
-            self.cache_at += 1;
-            if self.cache_at == CACHE {
-                self.cache_at = 0;
-            }
+        if v != RESTART && !self.cached(v) {
+            self.misses += 1;
+            self.vert[v as usize][1] = self.misses;
         }
     }
 
@@ -369,9 +386,9 @@ impl<'t> Stripper<'t> {
             // meshoptimizer's findStripFirst: least valence of a corner in the window.
             let mut best: Option<(u32, u32)> = None;
             for &[a, b, c, t] in &self.buffer {
-                let v = self.valence[a as usize]
-                    .min(self.valence[b as usize])
-                    .min(self.valence[c as usize]);
+                let v = self.vert[a as usize][0]
+                    .min(self.vert[b as usize][0])
+                    .min(self.vert[c as usize][0]);
                 if best.is_none_or(|b| v < b.0) {
                     best = Some((v, t));
                 }
@@ -435,15 +452,22 @@ impl<'t> Stripper<'t> {
             let ea = self.find(t, c, b);
             let eb = self.find(t, a, c);
             let ec = self.find(t, b, a);
-            let mine = [ea, eb, ec].iter().flatten().map(|x| x.0).min();
-            if ea.is_some_and(|x| Some(x.0) == mine) {
-                next = ea.map(|x| (x.1, x.2));
-            } else if eb.is_some_and(|x| Some(x.0) == mine) {
-                (a, b, c) = (b, c, a);
-                next = eb.map(|x| (x.1, x.2));
-            } else if ec.is_some_and(|x| Some(x.0) == mine) {
-                (a, b, c) = (c, a, b);
-                next = ec.map(|x| (x.1, x.2));
+            // The first of the least rank.
+            let mut best: Option<(u32, usize, u32, u32)> = None;
+            for (i, e) in [ea, eb, ec].into_iter().enumerate() {
+                if let Some((rank, u, w)) = e {
+                    if best.is_none_or(|b| rank < b.0) {
+                        best = Some((rank, i, u, w));
+                    }
+                }
+            }
+            if let Some((_, i, u, w)) = best {
+                if i == 1 {
+                    (a, b, c) = (b, c, a);
+                } else if i == 2 {
+                    (a, b, c) = (c, a, b);
+                }
+                next = Some((u, w));
             }
             match self.join {
                 Join::Restart => {
