@@ -168,6 +168,14 @@ impl Bvh {
             .or_else(|| self.closest(p, None, f64::INFINITY))
     }
 
+    /// The (unnormalised) normal (b − a) × (c − a) of the triangle in build slot `slot`, from
+    /// the hierarchy's own f64 copy of its corners: the very bits of computing it from the
+    /// mesh's corners, without loading the mesh.
+    pub fn normal(&self, slot: u32) -> DVec3 {
+        let t = &self.tris[slot as usize];
+        t.ab.cross(t.ac)
+    }
+
     /// The build slot of each of the mesh's triangles (the inverse of [`Hit::triangle`]
     /// to [`Hit::slot`]), for seeding [`Bvh::closest_bounded_by`].
     pub fn slots(&self) -> Vec<u32> {

@@ -182,7 +182,7 @@ pub struct Collapse<'m> {
     /// Scratch of that check: the moved faces (face, corners, new corner positions) and
     /// the faces near them.
     moved: Vec<Moved>,
-    near: Vec<(u32, DVec3, DVec3)>,
+    near: Vec<(u32, super::guard::Item)>,
     // Vertex pairs (`params.pair_distance`): heap slot `3 × faces + i` is pair i.
     /// Per pair: its two ends, renamed as their vertices are collapsed.
     pub(crate) pair_ends: Vec<[u32; 2]>,
@@ -467,7 +467,7 @@ impl<'m> Collapse<'m> {
         }
         if params.check_intersections {
             let mut g = super::guard::Guard::default();
-            g.build(c.faces.len(), |_| true, |f| c.face_box(f));
+            g.build(c.faces.len(), |_| true, |f| c.face_box(f), |f| c.faces[f]);
             c.guard = Some(g);
             let bvh = crate::mesh::Bvh::new(mesh);
             let slots = bvh.slots();
@@ -658,21 +658,21 @@ impl<'m> Collapse<'m> {
             }
             let mut near = std::mem::take(&mut self.near);
             guard.collect(lo, hi, &mut near);
-            hit = near.iter().any(|&(g, glo, ghi)| {
+            // The guard returns live faces only, with their corners' vertices: no face is
+            // loaded here until a triangle test needs its corners' positions.
+            hit = near.iter().any(|(_, it)| {
+                let gt = it.ids.map(|u| if u == b { a } else { u });
+                // Every moved face holds a (the new vertex): such a face shares it (the fan
+                // itself, a good part of the faces found, is passed here at once).
+                if gt.contains(&a) {
+                    return false;
+                }
+                let (glo, ghi) = (it.lo, it.hi);
                 // Disjoint boxes cannot meet: a face whose box meets no moved face's box is
-                // passed without loading its corners.
+                // passed without a test.
                 let meets =
                     |tlo: DVec3, thi: DVec3| !(tlo.cmpgt(ghi).any() || glo.cmpgt(thi).any());
                 if !moved.iter().any(|&(_, _, _, tlo, thi)| meets(tlo, thi)) {
-                    return false;
-                }
-                let g = g as usize;
-                if !self.face_alive[g] {
-                    return false;
-                }
-                let gt = self.faces[g].map(|u| if u == b { a } else { u });
-                // Every moved face holds a (the new vertex): such a face shares it.
-                if gt.contains(&a) {
                     return false;
                 }
                 // Its corners only once a moved face shares no vertex with it and meets
@@ -682,8 +682,7 @@ impl<'m> Collapse<'m> {
                     if gt.iter().any(|u| ids.contains(u)) || !meets(*tlo, *thi) {
                         return false;
                     }
-                    let gp =
-                        *gp.get_or_insert_with(|| self.faces[g].map(|u| self.vx[u as usize].p));
+                    let gp = *gp.get_or_insert_with(|| it.ids.map(|u| self.vx[u as usize].p));
                     crate::mesh::intersect::triangles_intersect(*tri, gp)
                 })
             });
@@ -709,8 +708,10 @@ impl<'m> Collapse<'m> {
             let centre = (tri[0] + tri[1] + tri[2]) / 3.0;
             if let Some(h) = bvh.closest_bounded_by(centre, self.fold_hint[f as usize]) {
                 self.fold_hint[f as usize] = h.slot;
-                let [p, q, r] = self.mesh.corners(h.triangle as usize);
-                if n.dot((q - p).cross(r - p)) < 0.0 {
+                // The input triangle's normal from the hierarchy's own record of it (just
+                // loaded by the search; the same f64 corners, so the same bits as from the
+                // mesh, without two more cache misses).
+                if n.dot(bvh.normal(h.slot)) < 0.0 {
                     return true;
                 }
             }
@@ -718,9 +719,10 @@ impl<'m> Collapse<'m> {
         false
     }
 
-    /// After a collapse into `s`: the moved faces' boxes grow into the guard (rebuilt when
-    /// half of its faces have died).
-    fn refit(&mut self, s: u32) {
+    /// After a collapse into `s`: the faces that died from `dead[first..]` leave the
+    /// guard, the moved faces' boxes grow into it and their corners are renamed (rebuilt
+    /// when half of its faces have died).
+    fn refit(&mut self, s: u32, first: usize) {
         let Some(mut guard) = self.guard.take() else {
             return;
         };
@@ -729,11 +731,15 @@ impl<'m> Collapse<'m> {
                 self.faces.len(),
                 |f| self.face_alive[f],
                 |f| self.face_box(f),
+                |f| self.faces[f],
             );
         } else {
+            for &f in &self.dead[first..] {
+                guard.kill(f as usize);
+            }
             self.each_face(s, |f| {
                 let (lo, hi) = self.face_box(f);
-                guard.grow(f, lo, hi);
+                guard.grow(f, lo, hi, self.faces[f]);
             });
         }
         self.guard = Some(guard);
@@ -1199,7 +1205,7 @@ impl<'m> Collapse<'m> {
                 position: c.p,
             });
         }
-        self.refit(s);
+        self.refit(s, dead_before);
     }
 
     /// Whether corner `cnr`'s face died in the collapse under way (`gone`: the faces it

@@ -4,8 +4,8 @@
 //!
 //! Why this is correct: every node's box contains the current box of every live face below
 //! it (a moved face's new box is merged into its leaf and ancestors before the next query;
-//! boxes never shrink, dead faces are skipped by the caller), so a box query returns a
-//! superset of the live faces whose boxes meet the query box, and the exact
+//! boxes never shrink, a dead face's own box is emptied), so a box query returns a
+//! superset of the live faces whose boxes meet the query box (and no dead face), and the exact
 //! triangle–triangle test ([`crate::mesh::intersect::triangles_intersect`]) decides. The
 //! rebuild only tightens boxes. Written here rather than reusing [`crate::mesh::Bvh`]: that
 //! one is immutable (built once for closest-point queries) and has no refit.
@@ -26,14 +26,24 @@ struct Node {
     parent: u32,
 }
 
+/// A face as the guard keeps it: its current box (exact, not grown) and its corners'
+/// vertices, so that a query keeps only the faces whose own box meets it and the caller
+/// can tell the faces sharing a vertex with a moved face without loading the face (a cache
+/// miss per face found was most of the check's time). A dead face has an empty box.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Item {
+    pub lo: DVec3,
+    pub hi: DVec3,
+    pub ids: [u32; 3],
+}
+
 /// Growing boxes over faces.
 #[derive(Debug, Default)]
 pub(crate) struct Guard {
     nodes: Vec<Node>,
     items: Vec<u32>,
-    /// Per item: its face's current box (exact, not grown), so that a query keeps only
-    /// the faces whose own box meets it and no caller loads a far face's corners.
-    boxes: Vec<(DVec3, DVec3)>,
+    /// Per item: its face's record (see [`Item`]).
+    boxes: Vec<Item>,
     leaf_of: Vec<u32>,
     /// Per face: its index in `items`.
     item_of: Vec<u32>,
@@ -43,13 +53,18 @@ pub(crate) struct Guard {
     scratch: Vec<(u32, DVec3, DVec3)>,
 }
 
+/// The box a face has once dead: it meets no box.
+const DEAD: (DVec3, DVec3) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+
 impl Guard {
-    /// (Re)builds over the faces `live` says are alive, with boxes from `tri_box`.
+    /// (Re)builds over the faces `live` says are alive, with boxes from `tri_box` and
+    /// corners from `corners`.
     pub(crate) fn build(
         &mut self,
         faces: usize,
         live: impl Fn(usize) -> bool,
         tri_box: impl Fn(usize) -> (DVec3, DVec3),
+        corners: impl Fn(usize) -> [u32; 3],
     ) {
         self.nodes.clear();
         self.leaf_of.clear();
@@ -69,7 +84,11 @@ impl Guard {
         self.items.clear();
         self.items.extend(items.iter().map(|t| t.0));
         self.boxes.clear();
-        self.boxes.extend(items.iter().map(|t| (t.1, t.2)));
+        self.boxes.extend(items.iter().map(|t| Item {
+            lo: t.1,
+            hi: t.2,
+            ids: corners(t.0 as usize),
+        }));
         for (i, &f) in self.items.iter().enumerate() {
             self.item_of[f as usize] = i as u32;
         }
@@ -122,10 +141,18 @@ impl Guard {
         live * 2 < self.built_with
     }
 
-    /// Face `f` now spans [lo, hi]: grow its leaf and the ancestors until one holds it.
-    pub(crate) fn grow(&mut self, f: usize, lo: DVec3, hi: DVec3) {
+    /// Face `f` died: no query returns it again.
+    pub(crate) fn kill(&mut self, f: usize) {
         if let Some(&i) = self.item_of.get(f).filter(|&&i| i != NONE) {
-            self.boxes[i as usize] = (lo, hi);
+            (self.boxes[i as usize].lo, self.boxes[i as usize].hi) = DEAD;
+        }
+    }
+
+    /// Face `f` now spans [lo, hi] with corners `ids`: grow its leaf and the ancestors until
+    /// one holds it.
+    pub(crate) fn grow(&mut self, f: usize, lo: DVec3, hi: DVec3, ids: [u32; 3]) {
+        if let Some(&i) = self.item_of.get(f).filter(|&&i| i != NONE) {
+            self.boxes[i as usize] = Item { lo, hi, ids };
         }
         let mut n = self.leaf_of.get(f).copied().unwrap_or(NONE);
         while n != NONE {
@@ -139,16 +166,16 @@ impl Guard {
         }
     }
 
-    /// Every face whose own box meets [lo, hi], with that box, into `out` (cleared first):
-    /// one walk for a whole fan of moved faces instead of one per face.
-    pub(crate) fn collect(&mut self, lo: DVec3, hi: DVec3, out: &mut Vec<(u32, DVec3, DVec3)>) {
+    /// Every live face whose own box meets [lo, hi], with its record, into `out` (cleared
+    /// first): one walk for a whole fan of moved faces instead of one per face.
+    pub(crate) fn collect(&mut self, lo: DVec3, hi: DVec3, out: &mut Vec<(u32, Item)>) {
         out.clear();
         let boxes = std::mem::take(&mut self.boxes);
         let items = std::mem::take(&mut self.items);
         self.any(lo, hi, |i| {
-            let (flo, fhi) = boxes[i as usize];
-            if !(flo.cmpgt(hi).any() || lo.cmpgt(fhi).any()) {
-                out.push((items[i as usize], flo, fhi));
+            let it = boxes[i as usize];
+            if !(it.lo.cmpgt(hi).any() || lo.cmpgt(it.hi).any()) {
+                out.push((items[i as usize], it));
             }
             false
         });

@@ -68,8 +68,20 @@ pub fn cone_direction(normals: &[DVec3]) -> Option<DVec3> {
                 continue;
             }
             let r = r / len;
-            for r in [r, -r] {
-                if admissible(r, -1e-12) {
+            // Whether r and whether −r is admissible, from one dot product per normal
+            // (n · (−r) is −(n · r) to the bit) and stopping once both fail: the very
+            // outcome of testing each in turn, at half the dot products or less.
+            let (mut pos, mut neg) = (true, true);
+            for n in normals {
+                let s = n.dot(r);
+                pos &= s >= -1e-12;
+                neg &= -s >= -1e-12;
+                if !(pos || neg) {
+                    break;
+                }
+            }
+            for (r, ok) in [(r, pos), (-r, neg)] {
+                if ok {
                     sum += r;
                     rays += 1;
                 }
@@ -123,28 +135,38 @@ pub fn kernel(edges: &[(DVec2, DVec2)], lo: DVec2, hi: DVec2, out: &mut Poly) {
     for p in [lo, DVec2::new(hi.x, lo.y), hi, DVec2::new(lo.x, hi.y)] {
         out.push(p);
     }
+    // Two buffers clipped into in turn (swapping them moved 1 kB per edge).
     let mut tmp = Poly::default();
+    let mut in_tmp = false;
     for &(x, y) in edges {
+        let (src, dst) = match in_tmp {
+            true => (&tmp, &mut *out),
+            false => (&*out, &mut tmp),
+        };
         let e = y - x;
         let side = |p: DVec2| e.perp_dot(p - x);
-        tmp.clear();
-        let n = out.len;
+        dst.clear();
+        let n = src.len;
         for i in 0..n {
-            let (p, q) = (out.pts[i], out.pts[(i + 1) % n]);
+            let (p, q) = (src.pts[i], src.pts[(i + 1) % n]);
             let (sp, sq) = (side(p), side(q));
             if sp > 0.0 {
-                tmp.push(p);
+                dst.push(p);
             }
             if (sp > 0.0) != (sq > 0.0) && sp != sq {
                 let t = sp / (sp - sq);
-                tmp.push(p + (q - p) * t);
+                dst.push(p + (q - p) * t);
             }
         }
-        std::mem::swap(out, &mut tmp);
-        if out.len < 3 {
+        in_tmp = !in_tmp;
+        if dst.len < 3 {
             out.clear();
             return;
         }
+    }
+    if in_tmp {
+        out.pts[..tmp.len].copy_from_slice(&tmp.pts[..tmp.len]);
+        out.len = tmp.len;
     }
     if out.area() <= 1e-18 * (hi - lo).length_squared() {
         out.clear();
