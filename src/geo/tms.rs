@@ -9,6 +9,18 @@
 //! borders then makes neighbouring tiles of a level split their shared edges alike: shared
 //! edge vertices are identical, no cracks, no T-junctions (see `terrain::extract`).
 //!
+//! With partial levels asked for (`tileset_to`), the level matching the grid's spacing and
+//! the partial levels below it hold the grid's own bilinear surface, not only the lattice's heights: their error trees add to each node the
+//! lattice's distance from the grid over the node (`lattice_error`), so a fan the extractor
+//! keeps is within the tolerance of the grid everywhere, and where the lattice itself is
+//! farther than the tolerance from the grid (at walls and steep edges the geographic lattice,
+//! turned against the grid, cuts corners) the tile's quadrant gets a child tile one level
+//! down, whose lattice is twice as fine, down to [`MAX_PARTIAL_LEVEL`]. The partial levels'
+//! tiles are triangulated one by one with every border node split (all 65 lattice points on
+//! each edge), so neighbours there share their edge vertices without reconciling; a tile
+//! next to a missing neighbour meets its parent's level, which Cesium's skirts close as
+//! between any two levels.
+//!
 //! Heights: each lattice sample is projected into the input's CRS (proj4rs) and sampled
 //! bilinearly from the filled grid; outside the survey the grid's edge is continued
 //! (coordinates clamped), so tiles that reach past the survey have no cliffs. Heights are the
@@ -23,9 +35,9 @@
 //! they are bit-identical in both tiles.
 
 use crate::error::{Error, Result};
-use crate::geo::ToWgs84;
+use crate::geo::{lattice_error, ToWgs84};
 use crate::terrain::extract::{self, Criterion, ExtractParams, Refiner, TileTriangulation};
-use crate::terrain::quadtree::{self, Quadtree};
+use crate::terrain::quadtree::{self, NodeValues, Quadtree};
 use crate::terrain::{Tile, TileSet};
 use ndarray::Array2;
 use rayon::prelude::*;
@@ -37,8 +49,11 @@ pub const LATTICE: usize = 8;
 /// Largest tile span (degrees) projected through the lattice; larger tiles project every
 /// sample.
 pub const LATTICE_MAX_DEGREES: f64 = 0.01;
-/// The finest level terratile writes (tiles of 180/2^22 degrees, ≈ 4.8 m).
+/// The finest level terratile writes in full (tiles of 180/2^22 degrees, ≈ 4.8 m).
 pub const MAX_LEVEL: u32 = 22;
+/// The finest partial level (tiles of 180/2^24 degrees, ≈ 1.2 m north–south, lattice steps
+/// of ≈ 19 mm).
+pub const MAX_PARTIAL_LEVEL: u32 = 24;
 /// WGS 84 semi-major axis and flattening.
 const WGS84_A: f64 = 6_378_137.0;
 const WGS84_F: f64 = 1.0 / 298.257_223_563;
@@ -72,11 +87,13 @@ pub struct TerrainTile {
     pub triangles: Vec<[u32; 3]>,
 }
 
-/// The whole tileset: per level its tile range, and every tile.
+/// The whole tileset: per level the tiles it has, and every tile.
 #[derive(Debug, Clone)]
 pub struct Tileset {
-    /// Tile ranges, level 0 first.
-    pub levels: Vec<TileRange>,
+    /// Per level, level 0 first, the rectangles of tiles it has (one down to the level
+    /// matching the grid's spacing, which cover the survey; the partial levels below it
+    /// as many as their tiles need).
+    pub levels: Vec<Vec<TileRange>>,
     /// WGS 84 bounds of the survey [west, south, east, north].
     pub bounds: [f64; 4],
     /// The tiles, level by level, rows from the south, columns from the west.
@@ -211,8 +228,9 @@ impl Source<'_> {
 }
 
 /// Heights of tile (z, x, y)'s lattice with a one-sample apron: `(n + 3)²` values, index
-/// `(j + 1) * (n + 3) + (i + 1)` for lattice (i, j), i, j in −1..=n+1.
-fn tile_heights(src: &Source<'_>, z: u32, x: u32, y: u32) -> Vec<f64> {
+/// `(j + 1) * (n + 3) + (i + 1)` for lattice (i, j), i, j in −1..=n+1; and the fractional
+/// grid coordinates the lattice points (0..=n, without the apron) were sampled at.
+fn tile_heights(src: &Source<'_>, z: u32, x: u32, y: u32) -> (Vec<f64>, Vec<[f64; 2]>) {
     let n = TILE_INTERVALS;
     let w = n + 3;
     let step = tile_degrees(z) / n as f64;
@@ -226,6 +244,13 @@ fn tile_heights(src: &Source<'_>, z: u32, x: u32, y: u32) -> Vec<f64> {
         ]
     };
     let mut out = vec![0.0; w * w];
+    let mut at = vec![[0.0; 2]; (n + 1) * (n + 1)];
+    let mut put = |i: isize, j: isize, ij: [f64; 2]| {
+        out[(j + 1) as usize * w + (i + 1) as usize] = src.height(ij);
+        if (0..=n as isize).contains(&i) && (0..=n as isize).contains(&j) {
+            at[j as usize * (n + 1) + i as usize] = ij;
+        }
+    };
     if tile_degrees(z) <= LATTICE_MAX_DEGREES {
         let m = n / LATTICE + 1;
         // A lattice point outside the projection (never the case this close to a survey)
@@ -251,7 +276,7 @@ fn tile_heights(src: &Source<'_>, z: u32, x: u32, y: u32) -> Vec<f64> {
                     *v = (p(a, b)[k] * (1.0 - fa) + p(a + 1, b)[k] * fa) * (1.0 - fb)
                         + (p(a, b + 1)[k] * (1.0 - fa) + p(a + 1, b + 1)[k] * fa) * fb;
                 }
-                out[(j + 1) as usize * w + (i + 1) as usize] = src.height(ij);
+                put(i, j, ij);
             }
         }
     } else {
@@ -263,11 +288,11 @@ fn tile_heights(src: &Source<'_>, z: u32, x: u32, y: u32) -> Vec<f64> {
                 let ij = src
                     .grid_ij(lon.clamp(bw, be), lat.clamp(bs, bn))
                     .unwrap_or([0.0, 0.0]);
-                out[(j + 1) as usize * w + (i + 1) as usize] = src.height(ij);
+                put(i, j, ij);
             }
         }
     }
-    out
+    (out, at)
 }
 
 /// A tile's lattice lines on the ellipsoid, for its vertex normals: per column the sine and
@@ -326,21 +351,42 @@ impl Frame {
     }
 }
 
-/// The level's lattice as a tile set (degrees, metres) and each tile's apron heights.
-fn level_set(src: &Source<'_>, r: &TileRange) -> (TileSet, Vec<Vec<f64>>) {
+/// A level's (or one tile's) lattice as a tile set (degrees, metres), each tile's apron
+/// heights and, when asked, each lattice square's distance from the grid's bilinear surface
+/// ([`lattice_error::square_errors`]; empty otherwise).
+struct LevelSet {
+    set: TileSet,
+    aprons: Vec<Vec<f64>>,
+    squares: Vec<Vec<f32>>,
+}
+
+/// The tiles of range `r` as a [`LevelSet`]; `squares`: whether to measure the lattice
+/// squares against the grid.
+fn level_set(src: &Source<'_>, r: &TileRange, squares: bool) -> LevelSet {
     let n = TILE_INTERVALS;
     let grid = [
         (r.x[1] - r.x[0] + 1) as usize,
         (r.y[1] - r.y[0] + 1) as usize,
     ];
     let step = tile_degrees(r.z) / n as f64;
-    let aprons: Vec<Vec<f64>> = (0..grid[0] * grid[1])
+    let (aprons, squares): (Vec<Vec<f64>>, Vec<Vec<f32>>) = (0..grid[0] * grid[1])
         .into_par_iter()
         .map(|k| {
             let (col, row) = (k % grid[0], k / grid[0]);
-            tile_heights(src, r.z, r.x[0] + col as u32, r.y[0] + row as u32)
+            let (apron, at) = tile_heights(src, r.z, r.x[0] + col as u32, r.y[0] + row as u32);
+            let sq = if squares {
+                let w = n + 3;
+                let h: Vec<f64> = (0..(n + 1) * (n + 1))
+                    .map(|q| apron[(q / (n + 1) + 1) * w + q % (n + 1) + 1])
+                    .collect();
+                let lattice = lattice_error::Lattice { n, at: &at, h: &h };
+                lattice_error::square_errors(&lattice, |p| src.height(p))
+            } else {
+                Vec::new()
+            };
+            (apron, sq)
         })
-        .collect();
+        .unzip();
     let tiles = aprons
         .iter()
         .enumerate()
@@ -379,7 +425,83 @@ fn level_set(src: &Source<'_>, r: &TileRange) -> (TileSet, Vec<Vec<f64>>) {
         crs: None,
         tiles,
     };
-    (set, aprons)
+    LevelSet {
+        set,
+        aprons,
+        squares,
+    }
+}
+
+/// The vertical error tree of `ls` against the grid's own bilinear surface: each node's
+/// bound on its fan's distance from the lattice heights (`quadtree::vertical_error`) plus the
+/// largest distance of the lattice's finest triangulation from the grid over the node's
+/// squares, propagated and reconciled again. A node's fan minus that triangulation is linear
+/// on the finest triangles (every fan triangle is a union of them) and bounded at their
+/// corners by the first term, so the sum bounds the fan's distance from the grid everywhere
+/// in the node. With `closed_borders` every node touching the tile's border is always split,
+/// so the tile's edges carry every lattice point: identical to any neighbour's without
+/// reconciling with it (the partial levels, whose tiles are triangulated one by one).
+fn grid_error_tree(ls: &LevelSet, closed_borders: bool) -> Result<Vec<NodeValues>> {
+    let mut err = quadtree::vertical_error(&ls.set);
+    for (m, sq) in err.iter_mut().zip(&ls.squares) {
+        let size = m.size();
+        let mut pyramid = sq.clone();
+        let mut side = size - 1;
+        let mut levels = Vec::new();
+        for level in 1..=(size - 1).trailing_zeros() {
+            let half = side / 2;
+            pyramid = (0..half * half)
+                .map(|k| {
+                    let (a, b) = (2 * (k % half), 2 * (k / half));
+                    let at = |da: usize, db: usize| pyramid[(b + db) * side + a + da];
+                    at(0, 0).max(at(1, 0)).max(at(0, 1)).max(at(1, 1))
+                })
+                .collect();
+            side = half;
+            levels.push(
+                m.level(level)
+                    .iter()
+                    .zip(&pyramid)
+                    .enumerate()
+                    .map(|(k, (&v, &e))| {
+                        let (a, b) = (k % side, k / side);
+                        let border = a == 0 || b == 0 || a + 1 == side || b + 1 == side;
+                        if closed_borders && border {
+                            f32::MAX
+                        } else {
+                            v + e
+                        }
+                    })
+                    .collect(),
+            );
+        }
+        *m = NodeValues::from_levels(size, levels)
+            .ok_or_else(|| Error::Internal("node levels of a lattice tile".into()))?;
+    }
+    quadtree::merge(ls.set.grid, 1.0, &mut err);
+    Ok(err)
+}
+
+/// The quadrants of tile `t` of `ls` (bit 0 south-west, 1 south-east, 2 north-west, 3
+/// north-east, Cesium's child order) where a finest fan (half edge 1, which the extractor
+/// cannot split) may lie farther than `tolerance` from the grid's bilinear surface under the
+/// error tree of [`grid_error_tree`]. A finest node whose value there is within the tolerance
+/// has its fan within it; one whose value exceeds it makes its parent and the neighbours of
+/// its parent that it borders split (the tree holds each node at least at the children of
+/// its own and of its neighbours that border it), so all four of its edge midpoints exist
+/// and its fan is the lattice's finest triangulation there: its distance from the grid is
+/// the lattice's alone, its squares' largest.
+fn rough_quadrants(ls: &LevelSet, t: usize, tolerance: f64) -> u8 {
+    let n = TILE_INTERVALS;
+    let sq = &ls.squares[t];
+    let mut mask = 0u8;
+    for (k, &e) in sq.iter().enumerate() {
+        let (i, j) = (k % n, k / n);
+        if f64::from(e) > tolerance {
+            mask |= 1u8 << (usize::from(i >= n / 2) + 2 * usize::from(j >= n / 2));
+        }
+    }
+    mask
 }
 
 /// One triangulated tile as the encoder wants it: vertices renumbered by first use.
@@ -420,8 +542,18 @@ fn terrain_tile(
 }
 
 /// The tileset of `set` from level 0 down to the level matching its spacing, every mesh
-/// within `tolerance_m` metres (vertically) of its level's lattice heights.
+/// within `tolerance_m` metres (vertically) of its level's lattice heights, without partial
+/// levels (see [`tileset_to`]).
 pub fn tileset(set: &TileSet, tolerance_m: f64) -> Result<Tileset> {
+    tileset_to(set, tolerance_m, 0)
+}
+
+/// [`tileset`] with partial levels down to at most level `max_level`. When it is not below
+/// the level matching the grid there are none, and that level's meshes are within the
+/// tolerance of its lattice's heights only (the cheaper tileset: no lattice squares measured
+/// against the grid).
+pub fn tileset_to(set: &TileSet, tolerance_m: f64, max_level: u32) -> Result<Tileset> {
+    let max_level = max_level.min(MAX_PARTIAL_LEVEL);
     let to_wgs84 = check(set)?;
     let bounds = survey_bounds(set, &to_wgs84)
         .ok_or_else(|| Error::Internal("survey bounds after check".into()))?;
@@ -439,30 +571,81 @@ pub fn tileset(set: &TileSet, tolerance_m: f64) -> Result<Tileset> {
         ..ExtractParams::default()
     }
     .validate()?;
-    // The tolerance criterion reads the vertical error tree only: Röttger's d2 (which only
-    // the view-dependent criterion reads) is not computed for these sets.
-    let no_d2 = Quadtree {
-        c: 0.0,
-        k: 0.0,
-        d2: Vec::new(),
-    };
+    let finest = finest_level(cell_m);
+    // With partial levels, the grid's level and those below it hold the grid's own surface:
+    // where a tile's finest fans may not, its quadrants get children one level down, whose
+    // finer lattice follows the grid more closely.
+    let partial = max_level > finest;
     let mut levels = Vec::new();
     let mut tiles = Vec::new();
-    for z in 0..=finest_level(cell_m) {
+    let mut rough = Vec::new();
+    for z in 0..=finest {
         let r = tile_range(z, bounds);
-        let (lset, aprons) = level_set(&src, &r);
-        let err = quadtree::vertical_error(&lset);
-        let criterion = Criterion::Tolerance {
-            max_error: tolerance_m,
+        let ls = level_set(&src, &r, partial && z == finest);
+        let err = if partial && z == finest {
+            grid_error_tree(&ls, false)?
+        } else {
+            quadtree::vertical_error(&ls.set)
         };
-        let refiner = Refiner::new(&lset, &no_d2, Some(&err), criterion)?;
-        let meshes = extract::extract(&lset, &refiner)?;
+        let meshes = triangulate(&ls, &err, tolerance_m)?;
         tiles.par_extend(
             meshes
                 .par_iter()
-                .map(|tri| terrain_tile(&r, &lset, tri, &aprons[tri.tile])),
+                .map(|tri| terrain_tile(&r, &ls.set, tri, &ls.aprons[tri.tile])),
         );
-        levels.push(r);
+        if partial && z == finest {
+            rough = (0..ls.set.tiles.len())
+                .into_par_iter()
+                .map(|t| {
+                    let tile = &ls.set.tiles[t];
+                    let xy = [r.x[0] + tile.col as u32, r.y[0] + tile.row as u32];
+                    (xy, rough_quadrants(&ls, t, tolerance_m))
+                })
+                .collect();
+        }
+        levels.push(vec![r]);
+    }
+    // The partial levels: the children of the rough quadrants, each tile triangulated on its
+    // own with closed borders, rows from the south, columns from the west.
+    for z in finest + 1..=max_level.max(finest) {
+        let mut wanted: Vec<[u32; 2]> = rough
+            .iter()
+            .flat_map(|&([x, y], mask)| {
+                (0..4u32)
+                    .filter(move |q| mask & (1 << q) != 0)
+                    .map(move |q| [2 * x + q % 2, 2 * y + q / 2])
+            })
+            .collect();
+        if wanted.is_empty() {
+            break;
+        }
+        wanted.sort_unstable_by_key(|&[x, y]| (y, x));
+        let made: Vec<(TerrainTile, ([u32; 2], u8))> = wanted
+            .par_iter()
+            .map(|&[x, y]| {
+                let r = TileRange {
+                    z,
+                    x: [x, x],
+                    y: [y, y],
+                };
+                let ls = level_set(&src, &r, true);
+                let err = grid_error_tree(&ls, true)?;
+                let tri = triangulate(&ls, &err, tolerance_m)?.remove(0);
+                let mask = if z < max_level {
+                    rough_quadrants(&ls, 0, tolerance_m)
+                } else {
+                    0
+                };
+                Ok((
+                    terrain_tile(&r, &ls.set, &tri, &ls.aprons[0]),
+                    ([x, y], mask),
+                ))
+            })
+            .collect::<Result<_>>()?;
+        let (made, next): (Vec<TerrainTile>, Vec<([u32; 2], u8)>) = made.into_iter().unzip();
+        tiles.extend(made);
+        levels.push(rectangles(z, &wanted));
+        rough = next;
     }
     Ok(Tileset {
         levels,
@@ -470,6 +653,66 @@ pub fn tileset(set: &TileSet, tolerance_m: f64) -> Result<Tileset> {
         tiles,
         tolerance_m,
     })
+}
+
+/// The meshes of `ls`'s tiles under the tolerance criterion with the error tree `err`.
+fn triangulate(
+    ls: &LevelSet,
+    err: &[NodeValues],
+    tolerance_m: f64,
+) -> Result<Vec<TileTriangulation>> {
+    // The tolerance criterion reads the vertical error tree only: Röttger's d2 (which only
+    // the view-dependent criterion reads) is not computed for these sets.
+    let no_d2 = Quadtree {
+        c: 0.0,
+        k: 0.0,
+        d2: Vec::new(),
+    };
+    let criterion = Criterion::Tolerance {
+        max_error: tolerance_m,
+    };
+    let refiner = Refiner::new(&ls.set, &no_d2, Some(err), criterion)?;
+    extract::extract(&ls.set, &refiner)
+}
+
+/// Tiles `xy` of level `z` (sorted by row, then column) as rectangles: runs of columns per
+/// row, a run continued over the following rows where they have the same run.
+pub fn rectangles(z: u32, xy: &[[u32; 2]]) -> Vec<TileRange> {
+    let mut done: Vec<TileRange> = Vec::new();
+    let mut open: Vec<TileRange> = Vec::new();
+    let mut k = 0;
+    while k < xy.len() {
+        let y = xy[k][1];
+        let mut runs = Vec::new();
+        while k < xy.len() && xy[k][1] == y {
+            let x0 = xy[k][0];
+            while k + 1 < xy.len() && xy[k + 1] == [xy[k][0] + 1, y] {
+                k += 1;
+            }
+            runs.push([x0, xy[k][0]]);
+            k += 1;
+        }
+        let mut still = Vec::new();
+        for r in open.drain(..) {
+            if r.y[1] + 1 == y && runs.contains(&r.x) {
+                still.push(TileRange {
+                    y: [r.y[0], y],
+                    ..r
+                });
+            } else {
+                done.push(r);
+            }
+        }
+        for x in runs {
+            if !still.iter().any(|r| r.x == x) {
+                still.push(TileRange { z, x, y: [y, y] });
+            }
+        }
+        open = still;
+    }
+    done.extend(open);
+    done.sort_unstable_by_key(|r| (r.y[0], r.x[0]));
+    done
 }
 
 #[cfg(test)]
@@ -488,6 +731,23 @@ mod tests {
         assert_eq!(finest_level(1.0), 18);
         assert_eq!(finest_level(1.2), 17);
         assert_eq!(finest_level(1e9), 0);
+    }
+
+    #[test]
+    fn rectangles_cover_exactly_the_tiles() {
+        // Rows 3 and 4 share the run 5..=6, row 4 has another at 9; row 6 is apart.
+        let xy = [[5, 3], [6, 3], [5, 4], [6, 4], [9, 4], [5, 6]];
+        let r = rectangles(7, &xy);
+        let want = |x: [u32; 2], y: [u32; 2]| TileRange { z: 7, x, y };
+        assert_eq!(
+            r,
+            vec![
+                want([5, 6], [3, 4]),
+                want([9, 9], [4, 4]),
+                want([5, 5], [6, 6])
+            ]
+        );
+        assert!(rectangles(7, &[]).is_empty());
     }
 
     #[test]

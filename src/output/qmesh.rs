@@ -120,10 +120,15 @@ pub fn layer_json(ts: &Tileset) -> serde_json::Value {
     let available: Vec<serde_json::Value> = ts
         .levels
         .iter()
-        .map(|r| {
-            serde_json::json!([{
-                "startX": r.x[0], "startY": r.y[0], "endX": r.x[1], "endY": r.y[1]
-            }])
+        .map(|level| {
+            level
+                .iter()
+                .map(|r| {
+                    serde_json::json!({
+                        "startX": r.x[0], "startY": r.y[0], "endX": r.x[1], "endY": r.y[1]
+                    })
+                })
+                .collect()
         })
         .collect();
     serde_json::json!({
@@ -131,7 +136,8 @@ pub fn layer_json(ts: &Tileset) -> serde_json::Value {
         "name": "terratile",
         "description": format!(
             "quantized-mesh tiles; heights in metres of the input's vertical datum; \
-             meshes within {} m of each level's resampled heights",
+             meshes within {0} m of each level's resampled heights, the most detailed tiles \
+             within {0} m of the grid's bilinear heights",
             ts.tolerance_m
         ),
         "version": "1.0.0",
@@ -151,7 +157,7 @@ pub fn layer_json(ts: &Tileset) -> serde_json::Value {
 /// Writes the tileset under `dir/terrain`; returns the files written, relative to `dir`.
 pub fn write(dir: &Path, ts: &Tileset) -> Result<Vec<String>> {
     let root = dir.join(TERRAIN_DIR);
-    for r in &ts.levels {
+    for r in ts.levels.iter().flatten() {
         for x in r.x[0]..=r.x[1] {
             let p = root.join(format!("{}/{x}", r.z));
             std::fs::create_dir_all(&p).map_err(|e| Error::io(&p, e))?;
