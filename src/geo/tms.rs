@@ -87,6 +87,20 @@ pub struct TerrainTile {
     pub triangles: Vec<[u32; 3]>,
 }
 
+impl TerrainTile {
+    /// The heap bytes of a tile on a full lattice (65 × 65 vertices, two triangles a square):
+    /// the most any tile holds.
+    pub const MAX_HEAP_BYTES: u64 = 65 * 65 * (4 + 8 + 12) + 2 * 64 * 64 * 12;
+
+    /// The heap bytes this tile holds.
+    pub fn heap_bytes(&self) -> u64 {
+        (self.ij.capacity() * 4
+            + self.heights.capacity() * 8
+            + self.normals.capacity() * 12
+            + self.triangles.capacity() * 12) as u64
+    }
+}
+
 /// The whole tileset: per level the tiles it has, and every tile.
 #[derive(Debug, Clone)]
 pub struct Tileset {
@@ -620,6 +634,16 @@ pub fn tileset_to(set: &TileSet, tolerance_m: f64, max_level: u32) -> Result<Til
             break;
         }
         wanted.sort_unstable_by_key(|&[x, y]| (y, x));
+        // Every tile made is held until the writer runs: a level is refused, naming the key,
+        // when its tiles at their largest (a full 65 × 65 lattice) would pass the budget.
+        let held: u64 = tiles.iter().map(TerrainTile::heap_bytes).sum();
+        let more = (wanted.len() as u64).saturating_mul(TerrainTile::MAX_HEAP_BYTES);
+        crate::memory::check_alloc(held.saturating_add(more), || {
+            format!(
+                "output.quantized_mesh_max_level = {max_level}: level {z} asks for {} more tiles",
+                wanted.len()
+            )
+        })?;
         let made: Vec<(TerrainTile, ([u32; 2], u8))> = wanted
             .par_iter()
             .map(|&[x, y]| {
