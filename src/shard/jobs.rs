@@ -1222,19 +1222,7 @@ pub fn merge_run(at: &Path) -> Result<MergeSummary> {
             outputs.push(o);
         }
     }
-    // The CRS as the in-memory run takes it: the first input that states one (headers
-    // only: no point is read).
-    let opts = ReadOptions {
-        max_points: Some(0),
-        ..run.pipeline.config.input.read_options()
-    };
-    let mut crs = None;
-    for_each_input(&run.inputs, &opts, |c| {
-        if crs.is_none() {
-            crs = c.crs().cloned();
-        }
-        Ok(())
-    })?;
+    let crs = run.input_crs()?;
     let geo = Heightfield::empty(1, 1, spec.corner, spec.cell_size, spec.z_offset, crs);
     let cfg = &run.pipeline.config;
     let staged = checked.stage_output_dir()?;

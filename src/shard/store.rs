@@ -143,7 +143,7 @@ impl Reader {
             _ => {}
         }
         let bytes = crate::fsutil::map_file(path)?;
-        if &bytes[..8] != MAGIC {
+        if bytes.len() < HEADER || &bytes[..8] != MAGIC {
             return bad(0, "not a terratile shard result (no TTSHARD1 header)");
         }
         let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap_or([0; 4]));
