@@ -65,16 +65,89 @@ struct Tree {
     h: f64,
 }
 
+/// Features bucketed on a square grid of `cell` metres by the cells their bounding box
+/// covers, in insertion order, so that a query visits only the features near a point.
+struct FeatureGrid {
+    cell: f64,
+    cols: usize,
+    rows: usize,
+    cells: Vec<Vec<u32>>,
+}
+
+impl FeatureGrid {
+    fn new(w: f64, h: f64, cell: f64) -> FeatureGrid {
+        let cols = (w / cell).ceil() as usize + 1;
+        let rows = (h / cell).ceil() as usize + 1;
+        FeatureGrid {
+            cell,
+            cols,
+            rows,
+            cells: vec![Vec::new(); cols * rows],
+        }
+    }
+
+    /// The cells (column range, row range) that `[c − r, c + r]` covers, clamped to the grid.
+    fn span(
+        &self,
+        c: [f64; 2],
+        r: [f64; 2],
+    ) -> (
+        std::ops::RangeInclusive<usize>,
+        std::ops::RangeInclusive<usize>,
+    ) {
+        let lo = |v: f64| (v / self.cell).floor().max(0.0) as usize;
+        let hi = |v: f64, n: usize| ((v / self.cell).max(0.0) as usize).min(n - 1);
+        (
+            lo(c[0] - r[0]).min(self.cols - 1)..=hi(c[0] + r[0], self.cols),
+            lo(c[1] - r[1]).min(self.rows - 1)..=hi(c[1] + r[1], self.rows),
+        )
+    }
+
+    fn insert(&mut self, k: usize, c: [f64; 2], r: [f64; 2]) {
+        let (cs, rs) = self.span(c, r);
+        for row in rs {
+            for col in cs.clone() {
+                self.cells[row * self.cols + col].push(k as u32);
+            }
+        }
+    }
+
+    /// Every feature whose box may meet `[c − r, c + r]` (some more than once).
+    fn near(&self, c: [f64; 2], r: [f64; 2]) -> impl Iterator<Item = usize> + '_ {
+        let (cs, rs) = self.span(c, r);
+        rs.flat_map(move |row| {
+            cs.clone().flat_map(move |col| {
+                self.cells[row * self.cols + col]
+                    .iter()
+                    .map(|&k| k as usize)
+            })
+        })
+    }
+
+    /// The features whose box covers the cell of (u, v), in insertion order.
+    fn at(&self, u: f64, v: f64) -> &[u32] {
+        let c = ((u / self.cell).max(0.0) as usize).min(self.cols - 1);
+        let r = (v / self.cell).max(0.0) as usize;
+        self.cells
+            .get(r * self.cols + c)
+            .map_or(&[][..], |v| v.as_slice())
+    }
+}
+
+/// The largest building half-size and tree radius `World::new` draws (for grid queries).
+const MAX_HALF: f64 = 15.0;
+const MAX_TREE_R: f64 = 6.0;
+
 /// The terrain and objects of a scene, in local metres (origin at the south-west corner).
 struct World {
     w: f64,
     h: f64,
     buildings: Vec<Building>,
     trees: Vec<Tree>,
-    /// Trees bucketed on a coarse grid for fast lookup.
-    tree_grid: Vec<Vec<u32>>,
-    tree_cell: f64,
-    tree_cols: usize,
+    /// Buildings and trees bucketed on 20 m cells, so that placing a feature and finding
+    /// the feature under a return cost the same on a survey of 10⁹ points as on 10⁵.
+    building_grid: FeatureGrid,
+    tree_grid: FeatureGrid,
     lake: ([f64; 2], [f64; 2]),
 }
 
@@ -91,18 +164,19 @@ impl World {
             h,
             buildings: Vec::new(),
             trees: Vec::new(),
-            tree_grid: Vec::new(),
-            tree_cell: 20.0,
-            tree_cols: 1,
+            building_grid: FeatureGrid::new(w, h, 20.0),
+            tree_grid: FeatureGrid::new(w, h, 20.0),
             lake,
         };
         let area = w * h;
         let n_buildings = ((area / 12_000.0).round() as usize).max(2);
         let n_trees = ((area / 1_200.0).round() as usize).max(8);
+        // Placement gives up after this many tries; the bound grows with the count asked
+        // for, so a large survey is as built-up as a small one.
         let mut tries = 0;
-        while world.buildings.len() < n_buildings && tries < 10_000 {
+        while world.buildings.len() < n_buildings && tries < (20 * n_buildings).max(10_000) {
             tries += 1;
-            let half = [rng.range(6.0, 15.0), rng.range(5.0, 12.0)];
+            let half = [rng.range(6.0, MAX_HALF), rng.range(5.0, 12.0)];
             let c = [
                 rng.range(half[0] + 2.0, w - half[0] - 2.0),
                 rng.range(half[1] + 2.0, h - half[1] - 2.0),
@@ -111,36 +185,20 @@ impl World {
                 continue;
             }
             let roof = world.ground(c[0], c[1]) + rng.range(5.0, 14.0);
+            world.building_grid.insert(world.buildings.len(), c, half);
             world.buildings.push(Building { c, half, roof });
         }
         tries = 0;
-        while world.trees.len() < n_trees && tries < 100_000 {
+        while world.trees.len() < n_trees && tries < (20 * n_trees).max(100_000) {
             tries += 1;
-            let r = rng.range(2.5, 6.0);
+            let r = rng.range(2.5, MAX_TREE_R);
             let c = [rng.range(0.0, w), rng.range(0.0, h)];
             if !world.clear_of_features(c, r + 1.0) {
                 continue;
             }
             let h = rng.range(8.0, 20.0);
+            world.tree_grid.insert(world.trees.len(), c, [r, r]);
             world.trees.push(Tree { c, r, h });
-        }
-        world.tree_cols = (w / world.tree_cell).ceil() as usize + 1;
-        let rows = (h / world.tree_cell).ceil() as usize + 1;
-        world.tree_grid = vec![Vec::new(); world.tree_cols * rows];
-        for (k, t) in world.trees.iter().enumerate() {
-            let (c0, c1) = (
-                ((t.c[0] - t.r) / world.tree_cell).floor().max(0.0) as usize,
-                ((t.c[0] + t.r) / world.tree_cell) as usize,
-            );
-            let (r0, r1) = (
-                ((t.c[1] - t.r) / world.tree_cell).floor().max(0.0) as usize,
-                ((t.c[1] + t.r) / world.tree_cell) as usize,
-            );
-            for r in r0..=r1.min(rows - 1) {
-                for c in c0..=c1.min(world.tree_cols - 1) {
-                    world.tree_grid[r * world.tree_cols + c].push(k as u32);
-                }
-            }
         }
         world
     }
@@ -153,13 +211,16 @@ impl World {
             dx * dx + dy * dy < 1.0
         };
         let near_cliff = self.cliff_distance(c[0], c[1]).abs() < r + 3.0 && c[0] > 0.5 * self.w;
-        let near_building = self.buildings.iter().any(|b| {
+        let reach = MAX_HALF + r;
+        let near_building = self.building_grid.near(c, [reach, reach]).any(|k| {
+            let b = &self.buildings[k];
             (c[0] - b.c[0]).abs() < b.half[0] + r && (c[1] - b.c[1]).abs() < b.half[1] + r
         });
-        let near_tree = self
-            .trees
-            .iter()
-            .any(|t| (c[0] - t.c[0]).hypot(c[1] - t.c[1]) < t.r + r * 0.5);
+        let reach = MAX_TREE_R + r * 0.5;
+        let near_tree = self.tree_grid.near(c, [reach, reach]).any(|k| {
+            let t = &self.trees[k];
+            (c[0] - t.c[0]).hypot(c[1] - t.c[1]) < t.r + r * 0.5
+        });
         !(in_lake || near_cliff || near_building || near_tree)
     }
 
@@ -200,16 +261,15 @@ impl World {
     }
 
     fn building_at(&self, u: f64, v: f64) -> Option<&Building> {
-        self.buildings
-            .iter()
-            .find(|b| (u - b.c[0]).abs() < b.half[0] && (v - b.c[1]).abs() < b.half[1])
+        // Buildings never overlap (placement keeps them 4 m apart): at most one matches.
+        self.building_grid.at(u, v).iter().find_map(|&k| {
+            let b = &self.buildings[k as usize];
+            ((u - b.c[0]).abs() < b.half[0] && (v - b.c[1]).abs() < b.half[1]).then_some(b)
+        })
     }
 
     fn tree_at(&self, u: f64, v: f64) -> Option<(&Tree, f64)> {
-        let c = ((u / self.tree_cell).max(0.0) as usize).min(self.tree_cols - 1);
-        let r = (v / self.tree_cell).max(0.0) as usize;
-        let cell = self.tree_grid.get(r * self.tree_cols + c)?;
-        cell.iter().find_map(|&k| {
+        self.tree_grid.at(u, v).iter().find_map(|&k| {
             let t = &self.trees[k as usize];
             let d = (u - t.c[0]).hypot(v - t.c[1]);
             (d < t.r).then(|| (t, d / t.r))
@@ -239,20 +299,31 @@ impl Ret {
     }
 }
 
-/// One scan line's returns.
-fn scan_line(world: &World, v0: f64, spacing: f64, seed: u64, out: &mut Vec<Ret>) {
+/// A rectangle of the scene in local metres, `[u0, u1) × [v0, v1)`.
+#[derive(Debug, Clone, Copy)]
+struct Rect {
+    u0: f64,
+    u1: f64,
+    v0: f64,
+    v1: f64,
+}
+
+/// The returns of one scan line (at `v0`) inside `rect`. The pulses start at `rect.u0`, so
+/// that each tile of a survey scans its part of a line from its own seed, with no state
+/// carried from the tile to its west.
+fn scan_line(world: &World, rect: Rect, v0: f64, spacing: f64, seed: u64, out: &mut Vec<Ret>) {
     let mut rng = SplitMix64::new(seed);
     // Along the line the pulse spacing follows the mirror: dense at the swath edges, sparse
     // in the middle (swath 150 m), as oscillating-mirror scanners produce.
     let swath = 150.0;
-    let mut u = rng.range(0.0, spacing);
-    while u < world.w {
+    let mut u = rect.u0 + rng.range(0.0, spacing);
+    while u < rect.u1 {
         let phase = (u / swath * std::f64::consts::PI).sin().abs();
         let step = spacing * (0.6 + 0.8 * phase);
         let pu = u + rng.range(-0.2, 0.2) * step;
         let pv = v0 + rng.range(-0.25, 0.25) * spacing;
         u += step;
-        if pu < 0.0 || pu >= world.w || pv < 0.0 || pv >= world.h {
+        if pu < rect.u0 || pu >= rect.u1 || pv < rect.v0 || pv >= rect.v1 {
             continue;
         }
         if world.in_lake(pu, pv) {
@@ -297,9 +368,27 @@ pub const MAX_TILES: u64 = 65_536;
 pub const MIN_POINTS: u64 = 100;
 /// Largest scene area in m² (200 km × 200 km): the tree index is one cell per 400 m².
 pub const MAX_AREA: f64 = 4e10;
-/// Bytes `generate` holds per point at its peak: the scan returns (about 1.1 per point,
-/// 40 bytes each), the sample's indices and the cloud (29 bytes), plus the LAS being built.
+/// Bytes `generate` holds per point of the tile being made, at its peak: the scan returns
+/// (about 1.1 per point, 40 bytes each), the sample's indices and the cloud (29 bytes), plus
+/// the LAS being built.
 pub const BYTES_PER_POINT: u64 = 120;
+
+/// Bytes of `generate`'s memory at its peak for `points` points in `tiles` tiles over an area
+/// of `area` m²: one tile at a time (the largest a quarter above the mean, since tiles share
+/// the points by their returns and a lake has none), plus the feature index (two grids of
+/// 20 m cells, 24 bytes each).
+pub fn memory_needed(points: u64, area: f64, tiles: (usize, usize)) -> u64 {
+    let n = (tiles.0 as u64 * tiles.1 as u64).max(1);
+    let per_tile = if n == 1 {
+        points
+    } else {
+        points.div_ceil(n).saturating_mul(5) / 4
+    };
+    let cells = (area / 400.0) as u64;
+    per_tile
+        .saturating_mul(BYTES_PER_POINT)
+        .saturating_add(cells.saturating_mul(48))
+}
 
 /// Checks `generate`'s counts against what the machine can do before any work: the points
 /// against the memory budget, the area and the tile count against fixed bounds.
@@ -311,21 +400,22 @@ pub fn check_bounds(points: u64, size: Option<[f64; 2]>, tiles: (usize, usize)) 
             "--points {points}: at least {MIN_POINTS}"
         )));
     }
-    let need = points.saturating_mul(BYTES_PER_POINT);
-    let budget = crate::memory::budget();
-    if need > budget {
-        return Err(Error::Usage(format!(
-            "--points {points}: needs about {}, more than the memory budget of {} (fewer points, or raise --max-memory)",
-            crate::memory::human(need),
-            crate::memory::human(budget)
-        )));
-    }
     if let Some([w, h]) = size {
         if w * h > MAX_AREA {
             return Err(Error::Usage(format!(
                 "--size {w}x{h}: at most {MAX_AREA:e} m² (200 km × 200 km)"
             )));
         }
+    }
+    let area = size.map_or(points as f64 / 1.5, |[w, h]| w * h);
+    let need = memory_needed(points, area, tiles);
+    let budget = crate::memory::budget();
+    if need > budget {
+        return Err(Error::Usage(format!(
+            "--points {points}: needs about {}, more than the memory budget of {} (fewer points, more --tiles, or raise --max-memory)",
+            crate::memory::human(need),
+            crate::memory::human(budget)
+        )));
     }
     let t = tiles.0 as u64 * tiles.1 as u64;
     if t > MAX_TILES.min(points) {
@@ -339,7 +429,321 @@ pub fn check_bounds(points: u64, size: Option<[f64; 2]>, tiles: (usize, usize)) 
     Ok(())
 }
 
-/// Generates a scene.
+/// Multipliers that decorrelate the seeds of scan lines, passes and tile columns.
+const GOLDEN: u64 = 0x9E37_79B9_7F4A_7C15;
+const PASS_MIX: u64 = 0xD1B5_4A32_D192_ED03;
+const COLUMN_MIX: u64 = 0xA24B_AED4_963E_E407;
+/// Most passes of scan lines a scene adds when a large lake leaves too few returns.
+const MAX_PASSES: u64 = 8;
+
+/// A survey being generated: the world and the scan plan that all its tiles share, and how
+/// many points each tile gets. Tiles are made one at a time ([`Survey::tile`]), so a survey
+/// of 10⁹ points needs the memory of one tile, not of the whole.
+///
+/// Each tile scans the lines that cross it, each line's part from its own seed (line, pass,
+/// tile column), so a tile does not depend on the others. The points are then shared out
+/// exactly: a first pass counts every tile's returns, each tile keeps its share of the
+/// `points` asked for in proportion to them (largest remainders; the outliers likewise),
+/// and a seeded sample of its own returns gives it that many. A one-tile survey skips the
+/// count and is the scene [`generate`] has always made.
+pub struct Survey {
+    params: GenerateParams,
+    world: World,
+    tiles: (usize, usize),
+    spacing: f64,
+    lines: usize,
+    line_seed: u64,
+    /// The generator's state after the world and the line seed: one tile samples with it.
+    rng: SplitMix64,
+    /// Seed of each tile's own sample when there are several.
+    tile_seed: u64,
+    /// Passes of scan lines every tile runs; `None` for one tile, which adds passes until it
+    /// has enough returns.
+    passes: Option<u64>,
+    /// Points of each tile (outliers included), row-major from the south-west.
+    points: Vec<u64>,
+    /// Outliers of each tile.
+    outliers: Vec<u64>,
+}
+
+/// `total` shared out in proportion to `weights` by largest remainders (ties to the lower
+/// index); each share at most its weight, so with `total` ≥ the weights' sum every share is
+/// its weight.
+fn apportion(total: u64, weights: &[u64]) -> Vec<u64> {
+    let sum: u128 = weights.iter().map(|&w| w as u128).sum();
+    if sum == 0 || total as u128 >= sum {
+        return weights
+            .iter()
+            .map(|&w| if sum == 0 { 0 } else { w })
+            .collect();
+    }
+    let exact: Vec<(u64, u128)> = weights
+        .iter()
+        .map(|&w| {
+            let q = total as u128 * w as u128;
+            ((q / sum) as u64, q % sum)
+        })
+        .collect();
+    let mut share: Vec<u64> = exact.iter().map(|e| e.0).collect();
+    let left = total - share.iter().sum::<u64>();
+    let mut order: Vec<usize> = (0..weights.len()).collect();
+    order.sort_by(|&a, &b| exact[b].1.cmp(&exact[a].1).then(a.cmp(&b)));
+    for &t in order.iter().take(left as usize) {
+        share[t] += 1;
+    }
+    share
+}
+
+impl Survey {
+    /// Plans a survey of `params.points` points cut into `tiles` = (columns, rows) tiles.
+    pub fn new(params: &GenerateParams, tiles: (usize, usize)) -> Result<Survey> {
+        if params.points < MIN_POINTS {
+            return Err(Error::param(
+                "generate",
+                "points",
+                params.points,
+                "at least 100 points",
+            ));
+        }
+        if tiles.0 == 0 || tiles.1 == 0 {
+            return Err(Error::param(
+                "generate",
+                "tiles",
+                format!("{}x{}", tiles.0, tiles.1),
+                "at least 1x1",
+            ));
+        }
+        // Returns per pulse is about 1.1; the lake and the trees' misses take some pulses.
+        let [w, h] = params.size.unwrap_or_else(|| {
+            let side = (params.points as f64 / 1.5).sqrt();
+            [side, side]
+        });
+        if !(w > 1.0 && h > 1.0 && w.is_finite() && h.is_finite()) || w * h > MAX_AREA {
+            return Err(Error::param(
+                "generate",
+                "size",
+                format!("{w}x{h}"),
+                "width and height must be > 1 m, the area at most 4e10 m²",
+            ));
+        }
+        let mut rng = SplitMix64::new(params.seed);
+        let world = World::new(w, h, &mut rng);
+        // Aim 6 % above the target, then thin to exactly `points` with a seeded sample.
+        let spacing = (w * h * 1.06 / (params.points as f64 * 1.02)).sqrt();
+        let lines = (h / spacing).ceil() as usize;
+        let line_seed = rng.next_u64();
+        let n_out =
+            ((params.points as u128 * params.outliers_per_million as u128) / 1_000_000) as u64;
+        let mut survey = Survey {
+            params: params.clone(),
+            world,
+            tiles,
+            spacing,
+            lines,
+            line_seed,
+            rng,
+            tile_seed: 0,
+            passes: None,
+            points: vec![params.points],
+            outliers: vec![n_out],
+        };
+        if tiles != (1, 1) {
+            survey.tile_seed = survey.rng.next_u64();
+            let n = tiles.0 * tiles.1;
+            let count = |pass: u64| -> Vec<u64> {
+                (0..n)
+                    .map(|t| survey.pass_returns(t, pass, None) as u64)
+                    .collect()
+            };
+            let mut returns = count(0);
+            let mut pass = 1;
+            while returns.iter().sum::<u64>() < params.points && pass < MAX_PASSES {
+                for (r, more) in returns.iter_mut().zip(count(pass)) {
+                    *r += more;
+                }
+                pass += 1;
+            }
+            survey.passes = Some(pass);
+            survey.points = apportion(params.points, &returns);
+            survey.outliers = apportion(n_out, &survey.points);
+        }
+        Ok(survey)
+    }
+
+    /// Number of tiles.
+    pub fn len(&self) -> usize {
+        self.tiles.0 * self.tiles.1
+    }
+
+    /// Always false: a survey has at least one tile.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
+    /// (column, row) of tile `t`, (0, 0) at the south-west.
+    pub fn position(&self, t: usize) -> (usize, usize) {
+        (t % self.tiles.0, t / self.tiles.0)
+    }
+
+    /// Points tile `t` gets (it may get fewer when a scene yields too few returns).
+    pub fn points(&self, t: usize) -> u64 {
+        self.points[t]
+    }
+
+    fn rect(&self, t: usize) -> Rect {
+        let (c, r) = self.position(t);
+        let [w, h] = [self.world.w, self.world.h];
+        // The same expression on both sides of a seam: tiles partition the scene exactly.
+        let edge = |k: usize, n: usize, len: f64| {
+            if k == n {
+                len
+            } else {
+                k as f64 * len / n as f64
+            }
+        };
+        Rect {
+            u0: edge(c, self.tiles.0, w),
+            u1: edge(c + 1, self.tiles.0, w),
+            v0: edge(r, self.tiles.1, h),
+            v1: edge(r + 1, self.tiles.1, h),
+        }
+    }
+
+    /// The returns of one pass of scan lines in tile `t`, appended to `out`, or only counted
+    /// when `out` is `None`. Returns how many.
+    fn pass_returns(&self, t: usize, pass: u64, out: Option<&mut Vec<Ret>>) -> usize {
+        let rect = self.rect(t);
+        let column = (self.position(t).0 as u64).wrapping_mul(COLUMN_MIX);
+        let s = self.spacing;
+        let offset = if pass == 0 {
+            0.5
+        } else {
+            0.5 / (pass as f64 + 1.0)
+        };
+        // Lines whose returns (within ±s/4 of the line) can fall in the tile's rows.
+        let first = ((rect.v0 / s - offset - 0.25).floor() - 1.0).max(0.0) as usize;
+        let end = (((rect.v1 / s - offset + 0.25).ceil() + 1.0).max(0.0) as usize).min(self.lines);
+        let line = |k: usize, out: &mut Vec<Ret>| {
+            let seed = if pass == 0 {
+                self.line_seed ^ (k as u64).wrapping_mul(GOLDEN)
+            } else {
+                self.line_seed ^ pass.wrapping_mul(PASS_MIX) ^ k as u64
+            };
+            let v0 = (k as f64 + offset) * s;
+            scan_line(&self.world, rect, v0, s, seed ^ column, out);
+        };
+        let range = first.min(end)..end;
+        match out {
+            None => range
+                .into_par_iter()
+                .map_init(Vec::new, |buf, k| {
+                    buf.clear();
+                    line(k, buf);
+                    buf.len()
+                })
+                .sum(),
+            Some(out) => {
+                let before = out.len();
+                let rets: Vec<Ret> = range
+                    .into_par_iter()
+                    .map(|k| {
+                        let mut buf = Vec::new();
+                        line(k, &mut buf);
+                        buf
+                    })
+                    .flatten_iter()
+                    .collect();
+                out.extend(rets);
+                out.len() - before
+            }
+        }
+    }
+
+    /// Generates tile `t`: its points in scan order, its outliers, its extent.
+    pub fn tile(&self, t: usize) -> Scene {
+        let params = &self.params;
+        let target = self.points[t];
+        let mut rets = Vec::new();
+        let mut pass = 0;
+        loop {
+            self.pass_returns(t, pass, Some(&mut rets));
+            pass += 1;
+            let done = match self.passes {
+                Some(p) => pass >= p,
+                // Too few (an unlucky scene with a big lake): densify by offset passes.
+                None => rets.len() as u64 >= target || pass >= MAX_PASSES,
+            };
+            if done {
+                break;
+            }
+        }
+        let mut rng = if self.passes.is_none() {
+            self.rng.clone()
+        } else {
+            SplitMix64::new(self.tile_seed ^ (t as u64 + 1).wrapping_mul(GOLDEN))
+        };
+        let rect = self.rect(t);
+        let n_out = self.outliers[t] as usize;
+        let keep = rng.sample_indices(rets.len(), target as usize - n_out);
+        let mut cloud = PointCloud::default();
+        let n = target as usize;
+        cloud.x.reserve_exact(n);
+        cloud.y.reserve_exact(n);
+        cloud.z.reserve_exact(n);
+        cloud.classification.reserve_exact(n);
+        cloud.return_number.reserve_exact(n);
+        cloud.number_of_returns.reserve_exact(n);
+        cloud.intensity.reserve_exact(n);
+        let [ox, oy] = params.origin;
+        let push = |c: &mut PointCloud, r: &Ret| {
+            c.x.push(ox + r.p[0]);
+            c.y.push(oy + r.p[1]);
+            c.z.push(r.p[2]);
+            c.classification.push(r.class);
+            c.return_number.push(r.ret);
+            c.number_of_returns.push(r.nret);
+            c.intensity.push(r.intensity);
+        };
+        // Outliers sit at evenly spread positions in scan order, half high (birds, haze:
+        // 80–250 m up), half low (multipath: 15–60 m down).
+        let mut outliers = Vec::with_capacity(n_out);
+        let every = n.checked_div(n_out).unwrap_or(usize::MAX);
+        let mut kept = keep.iter();
+        for i in 0..n {
+            if n_out > 0 && i % every == every / 2 && outliers.len() < n_out {
+                let u = rng.range(rect.u0, rect.u1);
+                let v = rng.range(rect.v0, rect.v1);
+                let g = self.world.ground(u, v);
+                let high = outliers.len() % 2 == 0;
+                let z = if high {
+                    g + rng.range(80.0, 250.0)
+                } else {
+                    g - rng.range(15.0, 60.0)
+                };
+                outliers.push(i as u32);
+                push(
+                    &mut cloud,
+                    &Ret {
+                        p: [u, v, z],
+                        class: 1,
+                        ret: 1,
+                        nret: 1,
+                        intensity: rng.below(30) as u16,
+                    },
+                );
+            } else if let Some(&k) = kept.next() {
+                push(&mut cloud, &rets[k as usize]);
+            }
+        }
+        Scene {
+            cloud,
+            outliers,
+            extent: [ox + rect.u0, oy + rect.v0, ox + rect.u1, oy + rect.v1],
+        }
+    }
+}
+
+/// Generates a scene (a one-tile [`Survey`]).
 ///
 /// ```
 /// use terratile::generate::{generate, GenerateParams};
@@ -348,129 +752,7 @@ pub fn check_bounds(points: u64, size: Option<[f64; 2]>, tiles: (usize, usize)) 
 /// assert!(scene.cloud.classification.contains(&2), "ground points");
 /// ```
 pub fn generate(params: &GenerateParams) -> Result<Scene> {
-    if params.points < MIN_POINTS {
-        return Err(Error::param(
-            "generate",
-            "points",
-            params.points,
-            "at least 100 points",
-        ));
-    }
-    // Returns per pulse is about 1.1; the lake and the trees' misses take some pulses.
-    let [w, h] = params.size.unwrap_or_else(|| {
-        let side = (params.points as f64 / 1.5).sqrt();
-        [side, side]
-    });
-    if !(w > 1.0 && h > 1.0 && w.is_finite() && h.is_finite()) || w * h > MAX_AREA {
-        return Err(Error::param(
-            "generate",
-            "size",
-            format!("{w}x{h}"),
-            "width and height must be > 1 m, the area at most 4e10 m²",
-        ));
-    }
-    let mut rng = SplitMix64::new(params.seed);
-    let world = World::new(w, h, &mut rng);
-    // Aim 6 % above the target, then thin to exactly `points` with a seeded sample.
-    let spacing = (w * h * 1.06 / (params.points as f64 * 1.02)).sqrt();
-    let lines = (h / spacing).ceil() as usize;
-    let line_seed = rng.next_u64();
-    let mut rets: Vec<Ret> = (0..lines)
-        .into_par_iter()
-        .map(|k| {
-            let mut out = Vec::new();
-            let v0 = (k as f64 + 0.5) * spacing;
-            scan_line(
-                &world,
-                v0,
-                spacing,
-                line_seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
-                &mut out,
-            );
-            out
-        })
-        .flatten_iter()
-        .collect();
-    // Too few (an unlucky scene with a big lake): densify by a second, offset pass.
-    let mut pass = 1u64;
-    while (rets.len() as u64) < params.points && pass < 8 {
-        let extra: Vec<Ret> = (0..lines)
-            .into_par_iter()
-            .map(|k| {
-                let mut out = Vec::new();
-                let v0 = (k as f64 + 0.5 / (pass as f64 + 1.0)) * spacing;
-                scan_line(
-                    &world,
-                    v0,
-                    spacing,
-                    line_seed ^ pass.wrapping_mul(0xD1B5_4A32_D192_ED03) ^ k as u64,
-                    &mut out,
-                );
-                out
-            })
-            .flatten_iter()
-            .collect();
-        rets.extend(extra);
-        pass += 1;
-    }
-    let n_out =
-        ((params.points as u128 * params.outliers_per_million as u128) / 1_000_000) as usize;
-    let keep = rng.sample_indices(rets.len(), params.points as usize - n_out);
-    let mut cloud = PointCloud::default();
-    let n = params.points as usize;
-    cloud.x.reserve_exact(n);
-    cloud.y.reserve_exact(n);
-    cloud.z.reserve_exact(n);
-    cloud.classification.reserve_exact(n);
-    cloud.return_number.reserve_exact(n);
-    cloud.number_of_returns.reserve_exact(n);
-    cloud.intensity.reserve_exact(n);
-    let [ox, oy] = params.origin;
-    let push = |c: &mut PointCloud, r: &Ret| {
-        c.x.push(ox + r.p[0]);
-        c.y.push(oy + r.p[1]);
-        c.z.push(r.p[2]);
-        c.classification.push(r.class);
-        c.return_number.push(r.ret);
-        c.number_of_returns.push(r.nret);
-        c.intensity.push(r.intensity);
-    };
-    // Outliers sit at evenly spread positions in scan order, half high (birds, haze: 80–250 m
-    // up), half low (multipath: 15–60 m down).
-    let mut outliers = Vec::with_capacity(n_out);
-    let every = n.checked_div(n_out).unwrap_or(usize::MAX);
-    let mut kept = keep.iter();
-    for i in 0..n {
-        if n_out > 0 && i % every == every / 2 && outliers.len() < n_out {
-            let u = rng.range(0.0, w);
-            let v = rng.range(0.0, h);
-            let g = world.ground(u, v);
-            let high = outliers.len() % 2 == 0;
-            let z = if high {
-                g + rng.range(80.0, 250.0)
-            } else {
-                g - rng.range(15.0, 60.0)
-            };
-            outliers.push(i as u32);
-            push(
-                &mut cloud,
-                &Ret {
-                    p: [u, v, z],
-                    class: 1,
-                    ret: 1,
-                    nret: 1,
-                    intensity: rng.below(30) as u16,
-                },
-            );
-        } else if let Some(&k) = kept.next() {
-            push(&mut cloud, &rets[k as usize]);
-        }
-    }
-    Ok(Scene {
-        cloud,
-        outliers,
-        extent: [ox, oy, ox + w, oy + h],
-    })
+    Ok(Survey::new(params, (1, 1))?.tile(0))
 }
 
 /// The CRS of generated scenes: WGS 84 / UTM zone 32N, metres.
@@ -545,40 +827,49 @@ pub fn write_xyz(path: &Path, cloud: &PointCloud) -> Result<()> {
     })
 }
 
-/// Splits a scene into `cols` × `rows` tiles by position (tile (0, 0) at the south-west).
-pub fn split_tiles(scene: &Scene, cols: usize, rows: usize) -> Vec<((usize, usize), PointCloud)> {
-    let [x0, y0, x1, y1] = scene.extent;
-    let (tw, th) = ((x1 - x0) / cols as f64, (y1 - y0) / rows as f64);
-    let c = &scene.cloud;
-    let mut ids: Vec<Vec<u32>> = vec![Vec::new(); cols * rows];
-    for i in 0..c.len() {
-        let tc = (((c.x[i] - x0) / tw).floor().max(0.0) as usize).min(cols - 1);
-        let tr = (((c.y[i] - y0) / th).floor().max(0.0) as usize).min(rows - 1);
-        ids[tr * cols + tc].push(i as u32);
-    }
-    ids.into_iter()
-        .enumerate()
-        .map(|(k, idx)| ((k % cols, k / cols), c.gather(&idx)))
-        .collect()
-}
-
-/// Writes a scene to `out` (or, with tiles, to `stem-C-R.ext` beside it), cycling through
-/// `formats` tile by tile. Returns the files written with their (quantised) clouds.
-pub fn write_scene(
-    scene: &Scene,
-    out: &Path,
-    formats: &[OutFormat],
-    tiles: (usize, usize),
-) -> Result<Vec<(PathBuf, PointCloud)>> {
+/// Writes one cloud as `format` to `path`, rounded first to what the format stores (so the
+/// cloud returned equals what reading the file gives back) and with its source recorded.
+pub fn write_cloud(path: &Path, mut cloud: PointCloud, format: OutFormat) -> Result<PointCloud> {
     let opts = LasWriteOptions {
         crs: Some(scene_crs()),
         ..Default::default()
     };
-    let parts = if tiles == (1, 1) {
-        vec![((0, 0), scene.cloud.clone())]
-    } else {
-        split_tiles(scene, tiles.0, tiles.1)
-    };
+    quantize(&mut cloud, format, &opts);
+    match format {
+        OutFormat::Las => crate::points::write_las(path, &cloud, &opts)?,
+        OutFormat::Xyz => write_xyz(path, &cloud)?,
+    }
+    cloud.sources = vec![SourceInfo {
+        path: path.to_path_buf(),
+        format: match format {
+            OutFormat::Las => crate::points::Format::Las,
+            OutFormat::Xyz => crate::points::Format::Xyz,
+        },
+        version: None,
+        point_format: None,
+        record_length: None,
+        points_in_file: cloud.len() as u64,
+        points_read: cloud.len() as u64,
+        scale: None,
+        offset: None,
+        header_bounds: None,
+        crs: None,
+    }];
+    Ok(cloud)
+}
+
+/// Writes a survey to `out` (or, with tiles, to `stem-C-R.ext` beside it), one tile at a
+/// time, cycling through `formats` tile by tile; `each` sees every file as it is written,
+/// with its (rounded) cloud. Returns the files and their point counts.
+///
+/// Every name is checked before the first file is written, and if a later tile fails (a
+/// full disk), the files this call wrote are removed again: no half-written set.
+pub fn write_survey(
+    survey: &Survey,
+    out: &Path,
+    formats: &[OutFormat],
+    mut each: impl FnMut(&Path, &PointCloud),
+) -> Result<Vec<(PathBuf, u64)>> {
     let stem = out
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
@@ -588,42 +879,152 @@ pub fn write_scene(
             OutFormat::Las => "las",
             OutFormat::Xyz => "xyz",
         };
-        if tiles == (1, 1) {
+        if survey.len() == 1 {
             out.to_path_buf()
         } else {
-            out.with_file_name(format!("{stem}-{}-{}.{ext}", k % tiles.0, k / tiles.0))
+            let (c, r) = survey.position(k);
+            out.with_file_name(format!("{stem}-{c}-{r}.{ext}"))
         }
     };
-    // Every name is checked before the first file is written: no half-written set.
-    for k in 0..tiles.0 * tiles.1 {
+    for k in 0..survey.len() {
         crate::fsutil::check_file_output(&path_of(k), &[])?;
     }
-    let mut written = Vec::new();
-    for (k, (_, mut cloud)) in parts.into_iter().enumerate() {
-        let format = formats[k % formats.len()];
+    let mut written: Vec<(PathBuf, u64)> = Vec::new();
+    for k in 0..survey.len() {
         let path = path_of(k);
-        quantize(&mut cloud, format, &opts);
-        match format {
-            OutFormat::Las => crate::points::write_las(&path, &cloud, &opts)?,
-            OutFormat::Xyz => write_xyz(&path, &cloud)?,
+        match write_cloud(&path, survey.tile(k).cloud, formats[k % formats.len()]) {
+            Ok(cloud) => {
+                each(&path, &cloud);
+                written.push((path, cloud.len() as u64));
+            }
+            Err(e) => {
+                for (p, _) in &written {
+                    let _ = std::fs::remove_file(p);
+                }
+                return Err(e);
+            }
         }
-        cloud.sources = vec![SourceInfo {
-            path: path.clone(),
-            format: match format {
-                OutFormat::Las => crate::points::Format::Las,
-                OutFormat::Xyz => crate::points::Format::Xyz,
-            },
-            version: None,
-            point_format: None,
-            record_length: None,
-            points_in_file: cloud.len() as u64,
-            points_read: cloud.len() as u64,
-            scale: None,
-            offset: None,
-            header_bounds: None,
-            crs: None,
-        }];
-        written.push((path, cloud));
     }
     Ok(written)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn apportion_is_exact_and_proportional() {
+        assert_eq!(apportion(10, &[3, 3, 3, 3]), vec![3, 3, 2, 2]);
+        assert_eq!(apportion(7, &[0, 5, 5]), vec![0, 4, 3]);
+        assert_eq!(
+            apportion(100, &[10, 20]),
+            vec![10, 20],
+            "capped at the weights"
+        );
+        assert_eq!(apportion(0, &[3, 4]), vec![0, 0]);
+        assert_eq!(apportion(5, &[0, 0]), vec![0, 0]);
+        let w = [1_000_003, 999_989, 17, 1_234_567];
+        let s = apportion(1_000_000, &w);
+        assert_eq!(s.iter().sum::<u64>(), 1_000_000);
+        let sum: u64 = w.iter().sum();
+        for (a, b) in s.iter().zip(w) {
+            let exact = 1_000_000.0 * b as f64 / sum as f64;
+            assert!((*a as f64 - exact).abs() < 1.0, "{a} vs {exact}");
+        }
+    }
+
+    /// The feature grid finds what a plain scan over every feature finds.
+    #[test]
+    fn feature_lookups_equal_a_plain_scan() {
+        let mut rng = SplitMix64::new(4);
+        let world = World::new(900.0, 700.0, &mut rng);
+        assert!(world.buildings.len() > 20 && world.trees.len() > 200);
+        for _ in 0..20_000 {
+            let (u, v) = (rng.range(0.0, 900.0), rng.range(0.0, 700.0));
+            let b = world
+                .buildings
+                .iter()
+                .find(|b| (u - b.c[0]).abs() < b.half[0] && (v - b.c[1]).abs() < b.half[1]);
+            assert_eq!(
+                world.building_at(u, v).map(|b| b.c),
+                b.map(|b| b.c),
+                "({u}, {v})"
+            );
+            let t = world
+                .trees
+                .iter()
+                .find(|t| (u - t.c[0]).hypot(v - t.c[1]) < t.r);
+            assert_eq!(world.tree_at(u, v).map(|t| t.0.c), t.map(|t| t.c));
+            let r = rng.range(1.0, 20.0);
+            let c = [u, v];
+            let plain_b = world.buildings.iter().any(|b| {
+                (c[0] - b.c[0]).abs() < b.half[0] + r && (c[1] - b.c[1]).abs() < b.half[1] + r
+            });
+            let plain_t = world
+                .trees
+                .iter()
+                .any(|t| (c[0] - t.c[0]).hypot(c[1] - t.c[1]) < t.r + r * 0.5);
+            let reach = MAX_HALF + r;
+            let grid_b = world.building_grid.near(c, [reach, reach]).any(|k| {
+                let b = &world.buildings[k];
+                (c[0] - b.c[0]).abs() < b.half[0] + r && (c[1] - b.c[1]).abs() < b.half[1] + r
+            });
+            let reach = MAX_TREE_R + r * 0.5;
+            let grid_t = world.tree_grid.near(c, [reach, reach]).any(|k| {
+                let t = &world.trees[k];
+                (c[0] - t.c[0]).hypot(c[1] - t.c[1]) < t.r + r * 0.5
+            });
+            assert_eq!((grid_b, grid_t), (plain_b, plain_t), "({u}, {v}) r {r}");
+        }
+    }
+
+    #[test]
+    fn tiles_share_the_points_exactly_and_stay_in_their_extent() {
+        let p = GenerateParams {
+            seed: 12,
+            points: 60_000,
+            outliers_per_million: 500,
+            ..Default::default()
+        };
+        let survey = Survey::new(&p, (3, 2)).unwrap();
+        let mut total = 0;
+        let mut outliers = 0;
+        for t in 0..survey.len() {
+            let a = survey.tile(t);
+            let b = rayon::ThreadPoolBuilder::new()
+                .num_threads(1)
+                .build()
+                .unwrap()
+                .install(|| survey.tile(t));
+            assert_eq!(a.cloud.x, b.cloud.x, "tile {t}: same points on one thread");
+            assert_eq!(a.cloud.z, b.cloud.z);
+            assert_eq!(a.cloud.len() as u64, survey.points(t));
+            let [x0, y0, x1, y1] = a.extent;
+            assert!((0..a.cloud.len())
+                .all(|i| (x0..x1).contains(&a.cloud.x[i]) && (y0..y1).contains(&a.cloud.y[i])));
+            // Densities agree within a few per cent (the lake takes its tile's returns).
+            let density = a.cloud.len() as f64 / ((x1 - x0) * (y1 - y0));
+            assert!(
+                (1.2..1.8).contains(&density),
+                "tile {t}: {density} points/m²"
+            );
+            total += a.cloud.len();
+            outliers += a.outliers.len();
+        }
+        assert_eq!(total, 60_000);
+        assert_eq!(outliers, 30, "500 per million of 60 000");
+        // One tile is the scene `generate` makes.
+        let one = Survey::new(&p, (1, 1)).unwrap().tile(0);
+        let g = generate(&p).unwrap();
+        assert_eq!(one.cloud.x, g.cloud.x);
+        assert_eq!(one.outliers, g.outliers);
+    }
+
+    #[test]
+    fn memory_is_that_of_one_tile() {
+        let one = memory_needed(1_000_000_000, 1e9 / 1.5, (1, 1));
+        let hundred = memory_needed(1_000_000_000, 1e9 / 1.5, (10, 10));
+        assert!(one > 100 << 30, "{one}");
+        assert!(hundred < 2 << 30, "{hundred}");
+    }
 }

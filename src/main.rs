@@ -1203,7 +1203,6 @@ fn generate(g: &GenerateArgs) -> Result<()> {
         outliers_per_million: g.outliers_per_million,
         ..Default::default()
     };
-    let scene = gen::generate(&params)?;
     let ext = g
         .output
         .extension()
@@ -1239,10 +1238,12 @@ fn generate(g: &GenerateArgs) -> Result<()> {
     if let Some(parent) = g.output.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
     }
-    let written = gen::write_scene(&scene, &g.output, &formats, g.tiles)?;
-    for (p, c) in &written {
+    // The whole survey is planned (and, with tiles, its returns counted) before the first
+    // file is written; the tiles are then made and written one at a time.
+    let survey = gen::Survey::new(&params, g.tiles)?;
+    gen::write_survey(&survey, &g.output, &formats, |p, c| {
         outln!("{}: {} points", p.display(), c.len());
-    }
+    })?;
     Ok(())
 }
 

@@ -302,23 +302,27 @@ version_format_tests! {
 
 #[test]
 fn generated_las_and_xyz_read_back_exactly() {
-    use terratile::generate::{generate, write_scene, GenerateParams, OutFormat};
+    use terratile::generate::{write_survey, GenerateParams, OutFormat, Survey};
     let dir = tempfile::tempdir().unwrap();
-    let scene = generate(&GenerateParams {
-        seed: 3,
-        points: 20_000,
-        ..Default::default()
-    })
-    .unwrap();
-    assert_eq!(scene.cloud.len(), 20_000);
-    let written = write_scene(
-        &scene,
-        &dir.path().join("s.las"),
-        &[OutFormat::Las, OutFormat::Xyz],
+    let survey = Survey::new(
+        &GenerateParams {
+            seed: 3,
+            points: 20_000,
+            ..Default::default()
+        },
         (2, 1),
     )
     .unwrap();
+    let mut written = Vec::new();
+    let counts = write_survey(
+        &survey,
+        &dir.path().join("s.las"),
+        &[OutFormat::Las, OutFormat::Xyz],
+        |p, c| written.push((p.to_path_buf(), c.clone())),
+    )
+    .unwrap();
     assert_eq!(written.len(), 2);
+    assert_eq!(counts.len(), 2);
     let total: usize = written.iter().map(|(_, c)| c.len()).sum();
     assert_eq!(total, 20_000);
     for (path, expected) in &written {

@@ -17,7 +17,7 @@ fn small_files() -> Vec<(String, Vec<u8>)> {
     })
     .unwrap();
     let las = dir.path().join("s.las");
-    terratile::generate::write_scene(&scene, &las, &[terratile::generate::OutFormat::Las], (1, 1))
+    terratile::generate::write_cloud(&las, scene.cloud, terratile::generate::OutFormat::Las)
         .unwrap();
     let mut files = vec![("s.las".to_string(), std::fs::read(&las).unwrap())];
     // A real LAZ (small) when the shared data is there.

@@ -2,7 +2,7 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
-use terratile::generate::{generate, write_scene, GenerateParams, OutFormat};
+use terratile::generate::{generate, write_cloud, GenerateParams, OutFormat};
 use terratile::mesh::{io, TriMesh};
 
 /// The paper's largest case (seed 003, Table 1).
@@ -22,7 +22,7 @@ pub fn paper_las(dir: &Path) -> PathBuf {
     })
     .expect("generate");
     let path = dir.join("paper.las");
-    write_scene(&scene, &path, &[OutFormat::Las], (1, 1)).expect("write");
+    write_cloud(&path, scene.cloud, OutFormat::Las).expect("write");
     path
 }
 
