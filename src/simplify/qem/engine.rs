@@ -158,6 +158,9 @@ pub struct Collapse<'m> {
     /// Scratch of an update: the new keys of `half`'s slots.
     keys: Vec<Option<u128>>,
     dead: Vec<u32>,
+    /// Scratch of an update: the dead faces' corners that were in the heap (their places go
+    /// to the edges of the survivor).
+    freed: Vec<u32>,
     pairs: Vec<[u32; 2]>,
     // Figures.
     tris: usize,
@@ -437,6 +440,7 @@ impl<'m> Collapse<'m> {
             half: Vec::new(),
             keys: Vec::new(),
             dead: Vec::new(),
+            freed: Vec::new(),
             pairs: Vec::new(),
             tris,
             collapses: 0,
@@ -1227,11 +1231,21 @@ impl<'m> Collapse<'m> {
     /// `s` get their canonical corner anew and a new cost; and the edges of its neighbours
     /// that were refused before are examined again (their validity may have changed; their
     /// cost has not, so the entries still in the heap stay as they are).
+    ///
+    /// A dead face's corner in the heap stood for an edge of the collapsed edge's triangles,
+    /// and such an edge goes on as an edge of `s`: its heap place goes to a corner of s that
+    /// enters the heap ([`IndexedHeap::replace`]: one sift instead of two). The heap then
+    /// holds the same entries as after removing and inserting them one by one, and as the
+    /// entries are totally ordered, the collapses come out in the same order.
     fn update(&mut self, s: u32) {
         let mut dead = std::mem::take(&mut self.dead);
+        let mut freed = std::mem::take(&mut self.freed);
+        freed.clear();
         for &f in &dead {
             for c in 3 * f..3 * f + 3 {
-                self.heap.remove(c);
+                if self.heap.contains(c) {
+                    freed.push(c);
+                }
                 self.refused[c as usize] = false;
             }
         }
@@ -1259,10 +1273,20 @@ impl<'m> Collapse<'m> {
         for (&(_, corner), &k) in half.iter().zip(&keys) {
             self.refused[corner as usize] = false;
             match k {
-                Some(k) => self.heap.set(corner, k),
+                Some(k) => match freed.last() {
+                    Some(&old) if !self.heap.contains(corner) => {
+                        freed.pop();
+                        self.heap.replace(old, corner, k);
+                    }
+                    _ => self.heap.set(corner, k),
+                },
                 None => self.heap.remove(corner),
             }
         }
+        for &c in &freed {
+            self.heap.remove(c);
+        }
+        self.freed = freed;
         self.keys = keys;
         self.half = half;
         self.update_pairs(s);
