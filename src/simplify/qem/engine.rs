@@ -11,9 +11,9 @@
 //! refused. A collapse into `s` changes which corner is canonical only for edges at `s`
 //! (faces die only on the collapsed edge), and those are all re-examined after it.
 
+use super::edges::Edges;
 use super::heap::IndexedHeap;
 use super::{QemParams, QemReport, QemResult, QuadricMerge};
-use crate::mesh::adjacency::EdgeFaces;
 use crate::mesh::TriMesh;
 use crate::simplify::prep::Prepared;
 use crate::simplify::quadric::Quadric;
@@ -158,6 +158,9 @@ pub struct Collapse<'m> {
     /// Scratch of an update: the new keys of `half`'s slots.
     keys: Vec<Option<u128>>,
     dead: Vec<u32>,
+    /// Scratch of an update: the dead faces' corners that were in the heap (their places go
+    /// to the edges of the survivor).
+    freed: Vec<u32>,
     pairs: Vec<[u32; 2]>,
     // Figures.
     tris: usize,
@@ -219,7 +222,7 @@ fn live_faces(prep: &Prepared<'_>) -> (Vec<[u32; 3]>, Vec<u32>) {
 /// or two cache lines per walk, where linked lists cost a dependent load per corner), in
 /// decreasing order: per vertex (start, len), and the pool (with room to grow:
 /// [`Collapse::collapse`] moves a list that outgrows its run to the pool's end).
-fn corner_lists(n: usize, faces: &[[u32; 3]]) -> (Vec<(u32, u32)>, Vec<u32>) {
+pub(super) fn corner_lists(n: usize, faces: &[[u32; 3]]) -> (Vec<(u32, u32)>, Vec<u32>) {
     let mut span = vec![(0u32, 0u32); n];
     for t in faces {
         for &v in t {
@@ -246,7 +249,7 @@ fn corner_lists(n: usize, faces: &[[u32; 3]]) -> (Vec<(u32, u32)>, Vec<u32>) {
 /// nor a half-disk (a vertex with f triangles has f neighbours inside a surface, f + 1 on a
 /// border with two border edges). Returns per vertex whether it is on a border and whether
 /// it is locked (not manifold).
-fn manifold(n: usize, faces: &[[u32; 3]], ef: &EdgeFaces) -> (Vec<bool>, Vec<bool>) {
+fn manifold(n: usize, faces: &[[u32; 3]], ef: &Edges) -> (Vec<bool>, Vec<bool>) {
     let mut border = vec![false; n];
     let mut locked = vec![false; n];
     let mut border_edges = vec![0u32; n];
@@ -255,7 +258,7 @@ fn manifold(n: usize, faces: &[[u32; 3]], ef: &EdgeFaces) -> (Vec<bool>, Vec<boo
     for (e, &[a, b]) in ef.edges().iter().enumerate() {
         degree[a as usize] += 1;
         degree[b as usize] += 1;
-        match ef.faces(e as u32).len() {
+        match ef.corners(e).len() {
             1 => {
                 border[a as usize] = true;
                 border[b as usize] = true;
@@ -287,15 +290,15 @@ fn manifold(n: usize, faces: &[[u32; 3]], ef: &EdgeFaces) -> (Vec<bool>, Vec<boo
 /// Border planes: the preparation adds, at a border edge, the plane through the edge
 /// perpendicular to its triangle with weight |e|²; the engine adds it again
 /// BORDER_WEIGHT − 1 times (see BORDER_WEIGHT).
-fn add_border_planes(quad: &mut [Quadric], pos: &[DVec3], faces: &[[u32; 3]], ef: &EdgeFaces) {
+fn add_border_planes(quad: &mut [Quadric], pos: &[DVec3], faces: &[[u32; 3]], ef: &Edges) {
     let extra = BORDER_WEIGHT - 1.0;
     if extra > 0.0 {
         for (e, &[a, b]) in ef.edges().iter().enumerate() {
-            let fs = ef.faces(e as u32);
-            if fs.len() != 1 {
+            let cs = ef.corners(e);
+            if cs.len() != 1 {
                 continue;
             }
-            let t = faces[fs[0] as usize];
+            let t = faces[cs[0] as usize / 3];
             let [p0, p1, p2] = t.map(|v| pos[v as usize]);
             let n = (p1 - p0).cross(p2 - p0).normalize_or_zero();
             let (pa, pb) = (pos[a as usize], pos[b as usize]);
@@ -312,12 +315,12 @@ fn add_border_planes(quad: &mut [Quadric], pos: &[DVec3], faces: &[[u32; 3]], ef
 
 /// The border edges of `prep`'s welded mesh as zero-area triangles (a, b, b) for a
 /// closest-point hierarchy; `None` without border.
-fn border_edges(prep: &Prepared<'_>, ef: &EdgeFaces) -> Option<crate::mesh::Bvh> {
+fn border_edges(prep: &Prepared<'_>, ef: &Edges) -> Option<crate::mesh::Bvh> {
     let indices: Vec<[u32; 3]> = ef
         .edges()
         .iter()
         .enumerate()
-        .filter(|&(e, _)| ef.faces(e as u32).len() == 1)
+        .filter(|&(e, _)| ef.corners(e).len() == 1)
         .map(|(_, &[a, b])| [a, b, b])
         .collect();
     if indices.is_empty() {
@@ -376,7 +379,7 @@ impl<'m> Collapse<'m> {
         let mut quad: Vec<Quadric> = prep.active.iter().map(|&v| qs[v as usize]).collect();
         let (faces, orig_face) = live_faces(prep);
         let (span, pool) = corner_lists(n, &faces);
-        let ef = EdgeFaces::new(&faces);
+        let ef = Edges::new(&faces, &span, &pool);
         let (border, mut locked) = manifold(n, &faces, &ef);
         let non_manifold = locked.iter().filter(|&&l| l).count();
         add_border_planes(&mut quad, &pos, &faces, &ef);
@@ -437,6 +440,7 @@ impl<'m> Collapse<'m> {
             half: Vec::new(),
             keys: Vec::new(),
             dead: Vec::new(),
+            freed: Vec::new(),
             pairs: Vec::new(),
             tris,
             collapses: 0,
@@ -481,25 +485,15 @@ impl<'m> Collapse<'m> {
     /// Every edge of at most two faces at its canonical corner, its cost computed in
     /// parallel (the one parallel part: the collapses themselves are a sequence); fills the
     /// heap and clears the refusal marks.
-    fn seed_heap(&mut self, ef: &EdgeFaces) {
+    fn seed_heap(&mut self, ef: &Edges) {
         let mut canon: Vec<(u32, u32, u32)> = Vec::with_capacity(ef.len());
         for (e, &[a, b]) in ef.edges().iter().enumerate() {
-            let fs = ef.faces(e as u32);
-            if fs.len() > 2 {
+            let cs = ef.corners(e);
+            if cs.len() > 2 {
                 continue;
             }
-            let corner = fs
-                .iter()
-                .flat_map(|&f| {
-                    let t = self.faces[f as usize];
-                    (0..3).filter_map(move |k| {
-                        let (u, v) = (t[k], t[(k + 1) % 3]);
-                        ((u == a && v == b) || (u == b && v == a)).then_some(3 * f + k as u32)
-                    })
-                })
-                .min()
-                .expect("an edge's face holds it");
-            canon.push((corner, a.min(b), a.max(b)));
+            // The least of the edge's corners (they come in increasing order).
+            canon.push((cs[0], a, b));
         }
         let base = self.pair_base();
         canon.extend(
@@ -1237,11 +1231,21 @@ impl<'m> Collapse<'m> {
     /// `s` get their canonical corner anew and a new cost; and the edges of its neighbours
     /// that were refused before are examined again (their validity may have changed; their
     /// cost has not, so the entries still in the heap stay as they are).
+    ///
+    /// A dead face's corner in the heap stood for an edge of the collapsed edge's triangles,
+    /// and such an edge goes on as an edge of `s`: its heap place goes to a corner of s that
+    /// enters the heap ([`IndexedHeap::replace`]: one sift instead of two). The heap then
+    /// holds the same entries as after removing and inserting them one by one, and as the
+    /// entries are totally ordered, the collapses come out in the same order.
     fn update(&mut self, s: u32) {
         let mut dead = std::mem::take(&mut self.dead);
+        let mut freed = std::mem::take(&mut self.freed);
+        freed.clear();
         for &f in &dead {
             for c in 3 * f..3 * f + 3 {
-                self.heap.remove(c);
+                if self.heap.contains(c) {
+                    freed.push(c);
+                }
                 self.refused[c as usize] = false;
             }
         }
@@ -1269,10 +1273,20 @@ impl<'m> Collapse<'m> {
         for (&(_, corner), &k) in half.iter().zip(&keys) {
             self.refused[corner as usize] = false;
             match k {
-                Some(k) => self.heap.set(corner, k),
+                Some(k) => match freed.last() {
+                    Some(&old) if !self.heap.contains(corner) => {
+                        freed.pop();
+                        self.heap.replace(old, corner, k);
+                    }
+                    _ => self.heap.set(corner, k),
+                },
                 None => self.heap.remove(corner),
             }
         }
+        for &c in &freed {
+            self.heap.remove(c);
+        }
+        self.freed = freed;
         self.keys = keys;
         self.half = half;
         self.update_pairs(s);

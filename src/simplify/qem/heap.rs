@@ -108,6 +108,30 @@ impl IndexedHeap {
         }
     }
 
+    /// Whether `slot` is in the heap.
+    #[inline]
+    pub(crate) fn contains(&self, slot: u32) -> bool {
+        self.slots[slot as usize].at != NONE
+    }
+
+    /// Takes `old` (which must be in the heap) out and puts `slot` (which must not be) in
+    /// with `key`, in `old`'s place: one sift where [`IndexedHeap::remove`] and
+    /// [`IndexedHeap::set`] take two. The entries are those of the two calls, so what comes
+    /// out, and in which order, is the same.
+    pub(crate) fn replace(&mut self, old: u32, slot: u32, key: u128) {
+        let i = self.slots[old as usize].at;
+        debug_assert!(i != NONE && !self.contains(slot));
+        let i = i as usize;
+        self.slots[old as usize].at = NONE;
+        let was = self.items[i];
+        self.slots[slot as usize].tie = key as u64;
+        let x = ((key >> 64) as u64, slot);
+        // `was` is out of the heap but its tie is still in its record.
+        let smaller = self.less(x, was);
+        self.place(i, x);
+        self.sift(i, smaller);
+    }
+
     /// Takes out the entry of least key.
     pub(crate) fn pop(&mut self) -> Option<(u128, u32)> {
         let top = *self.items.first()?;
@@ -180,7 +204,7 @@ mod tests {
         #[test]
         fn the_heap_equals_a_sorted_map(
             init in proptest::collection::btree_map(0u32..64, 0u128..50, 0..40),
-            ops in proptest::collection::vec((0u8..3, 0u32..64, 0u128..50), 0..200),
+            ops in proptest::collection::vec((0u8..4, 0u32..64, 0u128..50), 0..200),
         ) {
             // Keys with both halves in play: the high one decides, the low one breaks ties.
             let spread = |k: u128| (k / 10) << 64 | (k % 10);
@@ -191,6 +215,16 @@ mod tests {
                 let key = spread(key);
                 match op {
                     0 => { h.set(slot, key); twin.insert(slot, key); }
+                    3 => {
+                        // Replace the least slot in the heap by `slot`, when it is not in.
+                        if let Some(&old) = twin.keys().nth(key as usize % twin.len().max(1)) {
+                            if !twin.contains_key(&slot) {
+                                h.replace(old, slot, key);
+                                twin.remove(&old);
+                                twin.insert(slot, key);
+                            }
+                        }
+                    }
                     1 => { h.remove(slot); twin.remove(&slot); }
                     _ => {
                         // Equal keys come out in slot order: the least (key, slot).

@@ -35,6 +35,7 @@
 //! and checks for the later stages and keep a slow twin; meshoptimizer (the reference in the
 //! tests) is a C++ library with a fixed cost.
 
+mod edges;
 mod engine;
 mod guard;
 mod heap;
