@@ -41,6 +41,7 @@
 //! Every length is given in metres and converted to the data's units with the CRS's
 //! metres-per-unit (Autzen is in international feet).
 
+use super::ground_refine as refine;
 use super::voidfill;
 use crate::error::{Error, Result};
 use rayon::prelude::*;
@@ -89,11 +90,11 @@ pub struct GroundParams {
     /// Largest window radius of the progressive opening in metres: objects up to about
     /// twice this wide are removed (default 18 m).
     pub window: Option<f64>,
-    /// Terrain slope the opening tolerates, rise over run (default 0.15).
+    /// Terrain slope the opening tolerates, rise over run (default 0.2).
     pub slope: Option<f64>,
     /// Slope of the hysteresis: a region of object cells stays an object only when the
     /// opening lowers one of its cells by more than this slope × the window radius (default
-    /// 0.3; a value ≤ `slope` turns the hysteresis off).
+    /// 0.5; a value ≤ `slope` turns the hysteresis off).
     pub sure_slope: Option<f64>,
     /// Elevation threshold of the final test in metres (default 0.5 m).
     pub threshold: Option<f64>,
@@ -124,9 +125,9 @@ impl Default for GroundParams {
 /// point per 16 m² get a quarter of their point spacing.
 pub const DEFAULT_CELL: f64 = 1.0;
 /// Default slope tolerance of the opening, rise over run.
-pub const DEFAULT_SLOPE: f64 = 0.15;
+pub const DEFAULT_SLOPE: f64 = 0.2;
 /// Default slope of the hysteresis (an object region must hold a cell this steep a cut).
-pub const DEFAULT_SURE_SLOPE: f64 = 0.3;
+pub const DEFAULT_SURE_SLOPE: f64 = 0.5;
 /// Default largest window radius, metres.
 pub const DEFAULT_WINDOW: f64 = 18.0;
 /// Default elevation threshold, metres.
@@ -316,11 +317,14 @@ pub fn classify(
     drop((neg, closed));
     // The measured cells that are not low; every other cell unknown (+∞, the erosion's
     // identity): not inpainted, see `progressive_object_mask`.
-    let base: Vec<f32> = zmin
+    let mut base: Vec<f32> = zmin
         .par_iter()
         .zip(&low)
         .map(|(v, l)| if *l || v.is_nan() { f32::INFINITY } else { *v })
         .collect();
+    // The gaps between points (up to one spacing) take the nearest height: see
+    // `ground_refine`.
+    refine::nearest_fill(&mut base, cols, rows, refine::fill_reach(spacing_m, cell_m));
     let window_m = params.window.unwrap_or(DEFAULT_WINDOW);
     let radius = ((window_m / cell_m).ceil() as usize).max(1);
     let slope = params.slope.unwrap_or(DEFAULT_SLOPE);
@@ -331,6 +335,12 @@ pub fn classify(
     if sure_slope > slope {
         hysteresis(&mut object, &sure, &empty, cols, rows);
     }
+    // Crests, rims and embankments the openings cut are ground again where ground holds them
+    // up on two opposite sides: see `ground_refine`.
+    let live: Vec<bool> = empty.par_iter().zip(&low).map(|(e, l)| !e && !l).collect();
+    let support_m = refine::SUPPORT_RADIUS * spacing_m.max(cell_m);
+    refine::readmit_supported(&mut object, &live, &zmin, cols, rows, cell_m, support_m);
+    drop(live);
     // 4. Provisional DEM.
     let mut dem: Vec<f32> = (0..zmin.len())
         .into_par_iter()
