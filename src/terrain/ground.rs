@@ -11,15 +11,18 @@
 //!    cells stay unknown (not inpainted: see step 3);
 //! 2. low outliers: cells more than 5 × `cell_size` below the closing of their measured
 //!    3 × 3 neighbourhood are dropped (multipath returns under the ground);
-//! 3. the progressive opening of the measured cells (an unknown cell is each pass's identity,
-//!    so in a sparse survey a window judges a point only once it reaches the point's
-//!    neighbours): openings by square windows of radius 1, 2, … cells up to
+//! 3. the progressive opening of the measured cells (an empty cell within one point spacing
+//!    of a point takes the nearest point's height, `ground_refine::nearest_fill`; a wider
+//!    gap is each pass's identity, so a window judges a point only once it reaches the
+//!    point's neighbours): openings by square windows of radius 1, 2, … cells up to
 //!    `window`, each applied to the previous one; a cell that one opening lowers by more
 //!    than `slope` × the window radius is an object cell; then hysteresis (the two-threshold
 //!    linking of Canny, "A computational approach to edge detection", 1986): a connected
 //!    region of object cells stays an object only when it holds a cell some opening lowers
 //!    by more than `sure_slope` × the radius; other regions are terrain the low threshold
-//!    cut (quarry rims, embankments, crests of steep slopes) and are ground again;
+//!    cut (quarry rims, embankments, crests of steep slopes) and are ground again; then
+//!    object cells held up by ground at their height in two opposite directions are ground
+//!    again too (`ground_refine::readmit_supported`: crests cut along their line);
 //! 4. the provisional DEM: the minimum surface without the object, low and empty cells,
 //!    inpainted;
 //! 5. the final test: a point is ground when it lies within `threshold` +
