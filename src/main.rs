@@ -651,10 +651,10 @@ struct ClassifyArgs {
     /// Largest window radius, metres (default 18).
     #[arg(long, value_name = "M")]
     window: Option<f64>,
-    /// Slope tolerance, rise over run (default 0.15).
+    /// Slope tolerance, rise over run (default 0.2).
     #[arg(long)]
     slope: Option<f64>,
-    /// Hysteresis slope: an object region needs a cell cut this steeply (default 0.3).
+    /// Hysteresis slope: an object region needs a cell cut this steeply (default 0.5).
     #[arg(long)]
     sure_slope: Option<f64>,
     /// Elevation threshold, metres (default 0.5).

@@ -11,15 +11,18 @@
 //!    cells stay unknown (not inpainted: see step 3);
 //! 2. low outliers: cells more than 5 × `cell_size` below the closing of their measured
 //!    3 × 3 neighbourhood are dropped (multipath returns under the ground);
-//! 3. the progressive opening of the measured cells (an unknown cell is each pass's identity,
-//!    so in a sparse survey a window judges a point only once it reaches the point's
-//!    neighbours): openings by square windows of radius 1, 2, … cells up to
+//! 3. the progressive opening of the measured cells (an empty cell within one point spacing
+//!    of a point takes the nearest point's height, `ground_refine::nearest_fill`; a wider
+//!    gap is each pass's identity, so a window judges a point only once it reaches the
+//!    point's neighbours): openings by square windows of radius 1, 2, … cells up to
 //!    `window`, each applied to the previous one; a cell that one opening lowers by more
 //!    than `slope` × the window radius is an object cell; then hysteresis (the two-threshold
 //!    linking of Canny, "A computational approach to edge detection", 1986): a connected
 //!    region of object cells stays an object only when it holds a cell some opening lowers
 //!    by more than `sure_slope` × the radius; other regions are terrain the low threshold
-//!    cut (quarry rims, embankments, crests of steep slopes) and are ground again;
+//!    cut (quarry rims, embankments, crests of steep slopes) and are ground again; then
+//!    object cells held up by ground at their height in two opposite directions are ground
+//!    again too (`ground_refine::readmit_supported`: crests cut along their line);
 //! 4. the provisional DEM: the minimum surface without the object, low and empty cells,
 //!    inpainted;
 //! 5. the final test: a point is ground when it lies within `threshold` +
@@ -41,6 +44,7 @@
 //! Every length is given in metres and converted to the data's units with the CRS's
 //! metres-per-unit (Autzen is in international feet).
 
+use super::ground_refine as refine;
 use super::voidfill;
 use crate::error::{Error, Result};
 use rayon::prelude::*;
@@ -89,11 +93,11 @@ pub struct GroundParams {
     /// Largest window radius of the progressive opening in metres: objects up to about
     /// twice this wide are removed (default 18 m).
     pub window: Option<f64>,
-    /// Terrain slope the opening tolerates, rise over run (default 0.15).
+    /// Terrain slope the opening tolerates, rise over run (default 0.2).
     pub slope: Option<f64>,
     /// Slope of the hysteresis: a region of object cells stays an object only when the
     /// opening lowers one of its cells by more than this slope × the window radius (default
-    /// 0.3; a value ≤ `slope` turns the hysteresis off).
+    /// 0.5; a value ≤ `slope` turns the hysteresis off).
     pub sure_slope: Option<f64>,
     /// Elevation threshold of the final test in metres (default 0.5 m).
     pub threshold: Option<f64>,
@@ -124,9 +128,9 @@ impl Default for GroundParams {
 /// point per 16 m² get a quarter of their point spacing.
 pub const DEFAULT_CELL: f64 = 1.0;
 /// Default slope tolerance of the opening, rise over run.
-pub const DEFAULT_SLOPE: f64 = 0.15;
+pub const DEFAULT_SLOPE: f64 = 0.2;
 /// Default slope of the hysteresis (an object region must hold a cell this steep a cut).
-pub const DEFAULT_SURE_SLOPE: f64 = 0.3;
+pub const DEFAULT_SURE_SLOPE: f64 = 0.5;
 /// Default largest window radius, metres.
 pub const DEFAULT_WINDOW: f64 = 18.0;
 /// Default elevation threshold, metres.
@@ -316,11 +320,14 @@ pub fn classify(
     drop((neg, closed));
     // The measured cells that are not low; every other cell unknown (+∞, the erosion's
     // identity): not inpainted, see `progressive_object_mask`.
-    let base: Vec<f32> = zmin
+    let mut base: Vec<f32> = zmin
         .par_iter()
         .zip(&low)
         .map(|(v, l)| if *l || v.is_nan() { f32::INFINITY } else { *v })
         .collect();
+    // The gaps between points (up to one spacing) take the nearest height: see
+    // `ground_refine`.
+    refine::nearest_fill(&mut base, cols, rows, refine::fill_reach(spacing_m, cell_m));
     let window_m = params.window.unwrap_or(DEFAULT_WINDOW);
     let radius = ((window_m / cell_m).ceil() as usize).max(1);
     let slope = params.slope.unwrap_or(DEFAULT_SLOPE);
@@ -331,6 +338,12 @@ pub fn classify(
     if sure_slope > slope {
         hysteresis(&mut object, &sure, &empty, cols, rows);
     }
+    // Crests, rims and embankments the openings cut are ground again where ground holds them
+    // up on two opposite sides: see `ground_refine`.
+    let live: Vec<bool> = empty.par_iter().zip(&low).map(|(e, l)| !e && !l).collect();
+    let support_m = refine::SUPPORT_RADIUS * spacing_m.max(cell_m);
+    refine::readmit_supported(&mut object, &live, &zmin, cols, rows, cell_m, support_m);
+    drop(live);
     // 4. Provisional DEM.
     let mut dem: Vec<f32> = (0..zmin.len())
         .into_par_iter()
