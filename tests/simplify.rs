@@ -793,13 +793,15 @@ fn qem_runs_as_an_asset_and_its_keys_are_checked() {
 /// in ε), SALIENCY_SPREAD (0 or 1), SALIENCY_POWER, SALIENCY_AREA (0 or 1), SALIENCY_PLATEAU,
 /// SALIENCY_RULE (quadric or cost: the first three columns), SALIENCY_TOP and SALIENCY_GAP
 /// (a step in the weight at the top share of the area) try other weightings;
-/// SALIENCY_MESHES=cow,spot picks meshes and SALIENCY_KINDS=hybrid the columns. The last column is each simplification's seconds (weights known), for the speed
+/// SALIENCY_MESHES=cow,spot picks meshes and SALIENCY_KINDS=hybrid the columns;
+/// SALIENCY_AREA_NORM (γ, [`area_normalised`]) tries weights divided by vertex area^γ and
+/// SALIENCY_CACHE=DIR keeps the maps between trials ([`cached_maps`]). The last column is each simplification's seconds (weights known), for the speed
 /// ratio of weighted to plain QEM.
 #[test]
 #[ignore]
 fn saliency_table() {
     use terratile::simplify::qem::{self, WeightRule};
-    use terratile::simplify::saliency::{self, image::ViewParams, texture, Weighting};
+    use terratile::simplify::saliency::{texture, Weighting};
     let env = |k: &str| std::env::var(k).ok().and_then(|s| s.parse::<f64>().ok());
     let d = Weighting::default();
     let w = Weighting {
@@ -824,6 +826,10 @@ fn saliency_table() {
         Ok("cost") => WeightRule::Cost,
         _ => WeightRule::Quadric,
     };
+    // SALIENCY_AREA_NORM=γ: each weight also times (mean vertex area / the vertex's
+    // area)^γ, so that a finely tessellated salient feature (whose quadrics, area-weighted,
+    // are small) is not collapsed first for its small triangles.
+    let area_norm = env("SALIENCY_AREA_NORM").unwrap_or(0.0);
     let only = std::env::var("SALIENCY_MESHES").ok();
     let wanted = |n: &str| {
         only.as_deref()
@@ -852,21 +858,21 @@ fn saliency_table() {
         let t = m.triangle_count() as u64;
         cases.push((name.into(), m, vec![t / 10, t / 50]));
     }
-    println!("{w:?} {rule}");
+    println!("{w:?} {rule} area_norm {area_norm}");
     println!("| mesh | triangles | weights | whole (%) | salient 20 % (%) | salient vs plain | whole vs plain | QEM s |");
     println!("|---|---|---|---|---|---|---|---|");
     for (name, m, targets) in cases {
         let t = std::time::Instant::now();
-        let maps = saliency::maps(&m, &ViewParams::default()).unwrap();
+        let [hybrid, mesh_saliency, image_mean] = cached_maps(&name, &m);
         eprintln!("{name}: maps in {:.2} s", t.elapsed().as_secs_f64());
-        let salient = salient_fifth(&m, &maps.hybrid);
+        let salient = salient_fifth(&m, &hybrid);
         let diag = m.diagonal();
         let hp = HausdorffParams { samples: 0 };
-        let weights = |v: &[f64]| w.weights(&m, v);
+        let weights = |v: &[f64]| w.weights(&m, v).map(|h| area_normalised(&m, h, area_norm));
         let (wh, wm, wi) = (
-            weights(&maps.hybrid),
-            weights(&maps.mesh_saliency),
-            weights(&maps.image.mean),
+            weights(&hybrid),
+            weights(&mesh_saliency),
+            weights(&image_mean),
         );
         for &target in &targets {
             let mut plain = [0.0; 2];
@@ -1088,6 +1094,59 @@ fn qem_keeps_spot_uv_seams_unless_told() {
 
 /// The triangles of `m` with the highest mean `h` of their corners, most salient first,
 /// until a fifth of the area.
+/// The hybrid, mesh saliency and mean image saliency of `m` ([`saliency::maps`] with the
+/// default views); with SALIENCY_CACHE=DIR read from or written to DIR/NAME.maps (raw f64
+/// little endian, for repeated trials of the weighting: the maps do not depend on it).
+fn cached_maps(name: &str, m: &TriMesh) -> [Vec<f64>; 3] {
+    use terratile::simplify::saliency::{self, image::ViewParams};
+    let n = m.vertex_count();
+    let file = std::env::var("SALIENCY_CACHE")
+        .ok()
+        .map(|d| std::path::Path::new(&d).join(format!("{name}.maps")));
+    if let Some(bytes) = file.as_ref().and_then(|f| std::fs::read(f).ok()) {
+        if bytes.len() == 3 * 8 * n {
+            let v: Vec<f64> = bytes
+                .chunks_exact(8)
+                .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
+                .collect();
+            return [0, 1, 2].map(|k| v[k * n..(k + 1) * n].to_vec());
+        }
+    }
+    let maps = saliency::maps(m, &ViewParams::default()).unwrap();
+    let out = [maps.hybrid, maps.mesh_saliency, maps.image.mean];
+    if let Some(f) = file {
+        let bytes: Vec<u8> = out.iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
+        std::fs::create_dir_all(f.parent().unwrap()).unwrap();
+        std::fs::write(f, bytes).unwrap();
+    }
+    out
+}
+
+/// `h` times (mean vertex area / vertex area)^`gamma` (a third of each triangle's area at
+/// its corners; a vertex without area keeps its weight); `h` itself for `gamma` = 0.
+fn area_normalised(m: &TriMesh, h: Vec<f64>, gamma: f64) -> Vec<f64> {
+    if gamma == 0.0 {
+        return h;
+    }
+    let mut a = vec![0.0f64; m.vertex_count()];
+    for (f, t) in m.indices.iter().enumerate() {
+        for &v in t {
+            a[v as usize] += m.face_area(f) / 3.0;
+        }
+    }
+    let mean = a.iter().sum::<f64>() / a.iter().filter(|&&x| x > 0.0).count().max(1) as f64;
+    h.iter()
+        .zip(&a)
+        .map(|(&w, &x)| {
+            if x > 0.0 {
+                w * (mean / x).powf(gamma)
+            } else {
+                w
+            }
+        })
+        .collect()
+}
+
 fn salient_fifth(m: &TriMesh, h: &[f64]) -> TriMesh {
     let score: Vec<f64> = m
         .indices

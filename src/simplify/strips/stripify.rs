@@ -60,83 +60,99 @@ impl Default for StripParams {
     }
 }
 
-/// Corners by vertex (compressed rows, ascending triangle): for each corner of vertex v,
-/// the next and previous vertex of its triangle and the corner (3t + k), so that the
-/// triangles of a directed edge (v, w) or (w, v) are found in v's row alone. Built by a
-/// counting sort (two passes over the corners, no hashing); the row lengths are the
-/// valences.
+/// Half-edges by their lower vertex (compressed rows, ascending triangle): row 2v holds
+/// the half-edges (v, w) with w > v, row 2v + 1 those (w, v) with w > v, each as (w, the
+/// apex of its triangle, its corner 3t + k where t[k] is its first vertex). A directed
+/// edge and its reverse are thus in the two rows of the same vertex, a few entries each.
+/// Built by a counting sort (two passes over the corners, no hashing).
 struct EdgeMap {
-    /// Row of v: `fan[start[v]..start[v + 1]]`.
+    /// Row r: `rows[start[r]..start[r + 1]]`.
     start: Vec<u32>,
-    /// (next vertex, previous vertex, corner).
-    fan: Vec<[u32; 3]>,
+    /// (other vertex, apex, corner).
+    rows: Vec<[u32; 3]>,
+}
+
+/// The row and the other vertex of the directed edge (a, b).
+#[inline]
+fn key(a: u32, b: u32) -> (usize, u32) {
+    if a < b {
+        (2 * a as usize, b)
+    } else {
+        (2 * b as usize + 1, a)
+    }
 }
 
 impl EdgeMap {
-    fn new(tris: &[[u32; 3]], vertices: usize) -> EdgeMap {
-        let mut start = vec![0u32; vertices + 1];
-        for t in tris {
-            for &v in t {
-                start[v as usize] += 1;
+    fn new(tris: &[[u32; 3]], vertices: usize, valence: &mut [u32]) -> EdgeMap {
+        let mut start = vec![0u32; 2 * vertices + 1];
+        for &[a, b, c] in tris {
+            for (x, y) in [(a, b), (b, c), (c, a)] {
+                start[key(x, y).0] += 1;
+                valence[x as usize] += 1;
             }
         }
-        // Inclusive sums, then filled from the back: each row ends ascending and `start[v]`
+        // Inclusive sums, then filled from the back: each row ends ascending and `start[r]`
         // ends at the row's first entry.
         let mut sum = 0u32;
         for s in start.iter_mut() {
             sum += *s;
             *s = sum;
         }
-        let mut fan = vec![[0u32; 3]; tris.len() * 3];
+        let mut rows = vec![[0u32; 3]; tris.len() * 3];
         for (t, &[a, b, c]) in tris.iter().enumerate().rev() {
-            for (k, v, next, prev) in [(2, c, a, b), (1, b, c, a), (0, a, b, c)] {
-                let s = &mut start[v as usize];
+            for (k, x, y, z) in [(2, c, a, b), (1, b, c, a), (0, a, b, c)] {
+                let (r, w) = key(x, y);
+                let s = &mut start[r];
                 *s -= 1;
-                fan[*s as usize] = [next, prev, 3 * t as u32 + k];
+                rows[*s as usize] = [w, z, 3 * t as u32 + k];
             }
         }
-        EdgeMap { start, fan }
+        EdgeMap { start, rows }
     }
 
-    /// The corners of vertex `v`.
     #[inline]
-    fn row(&self, v: u32) -> &[[u32; 3]] {
-        &self.fan[self.start[v as usize] as usize..self.start[v as usize + 1] as usize]
+    fn row(&self, r: usize) -> &[[u32; 3]] {
+        &self.rows[self.start[r] as usize..self.start[r + 1] as usize]
     }
 
     /// The first unused triangle with directed edge (e0, e1).
     #[inline]
     fn find(&self, used: &[bool], e0: u32, e1: u32) -> Option<u32> {
-        self.row(e0)
+        let (r, w) = key(e0, e1);
+        self.row(r)
             .iter()
-            .find(|&&[next, _, c]| next == e1 && !used[c as usize / 3])
+            .find(|&&[x, _, c]| x == w && !used[c as usize / 3])
             .map(|&[_, _, c]| c / 3)
     }
 
     /// Per corner 3t + k: the triangle across edge (t[k], t[k + 1]), that is the one with
-    /// the directed edge (t[k + 1], t[k]); [`NONE`] if there is none, [`MANY`] if there are
-    /// several (a non-manifold or doubly covered edge: those are looked up in the rows).
-    /// The triangles across (v, w) are those whose corner at v comes after w, in v's own
-    /// row: one pass over the rows in order, each read once from memory.
-    fn twins(&self) -> Vec<u32> {
-        let mut twin = vec![NONE; self.fan.len()];
-        for w in self.start.windows(2) {
-            let row = &self.fan[w[0] as usize..w[1] as usize];
-            for &[next, _, c] in row {
-                // Without branches in the loop (a match is unpredictable): the position of
-                // the last match in the row (its triangle, a division, read once after) and
-                // the number of them.
-                let (mut found, mut count) = (0usize, 0u32);
-                for (j, &[_, prev, _]) in row.iter().enumerate() {
-                    let m = prev == next;
-                    count += m as u32;
-                    found = if m { j } else { found };
+    /// the directed edge (t[k + 1], t[k]), and its apex; [`NONE`] if there is none,
+    /// [`MANY`] if there are several (a non-manifold or doubly covered edge: those are
+    /// looked up in the rows). An edge's reverse is in the other row of its lower vertex:
+    /// one pass over the rows in order, each read once from memory, each entry compared
+    /// with the few of the other row (about 3 on a closed mesh, where the rows by vertex
+    /// held all 6 corners of both directions). The apex saves the strip a read of the
+    /// triangle across, scattered in memory, for every edge it tries.
+    fn twins(&self) -> Vec<[u32; 2]> {
+        let mut twin = vec![[NONE, 0]; self.rows.len()];
+        for v in 0..(self.start.len() - 1) / 2 {
+            let (lo, hi) = (self.row(2 * v), self.row(2 * v + 1));
+            for (this, other) in [(lo, hi), (hi, lo)] {
+                for &[w, _, c] in this {
+                    // Without branches in the loop (a match is unpredictable): the position
+                    // of the last match and the number of them.
+                    let (mut found, mut count) = (0usize, 0u32);
+                    for (j, &[x, _, _]) in other.iter().enumerate() {
+                        let m = x == w;
+                        count += m as u32;
+                        found = if m { j } else { found };
+                    }
+                    twin[c as usize] = match count {
+                        0 => [NONE, 0],
+                        1 => [other[found][2] / 3, other[found][1]],
+                        _ => [MANY, 0],
+                    };
                 }
-                twin[c as usize] = match count {
-                    0 => NONE,
-                    1 => row[found][2] / 3,
-                    _ => MANY,
-                };
             }
         }
         twin
@@ -180,12 +196,14 @@ struct Stripper<'t> {
     window: usize,
     edges: EdgeMap,
     /// [`EdgeMap::twins`].
-    twin: Vec<u32>,
+    twin: Vec<[u32; 2]>,
     used: Vec<bool>,
-    /// Per vertex: unused triangles (the valence), and when it last entered the simulated
-    /// vertex cache (the number of cache misses then, 0 for never), side by side as the
-    /// strip reads both for the corners it takes.
-    vert: Vec<[u32; 2]>,
+    /// Per vertex: unused triangles (the valence). Apart from `stamp` (the window's choice
+    /// of a strip's first triangle reads only this, so it is kept small).
+    vert: Vec<u32>,
+    /// Per vertex: when it last entered the simulated vertex cache (the number of cache
+    /// misses then, 0 for never).
+    stamp: Vec<u32>,
     /// The next `window` unused triangles of the input order, ascending: `[a, b, c, t]`.
     /// It holds exactly the unused triangles below `cursor`.
     buffer: Vec<[u32; 4]>,
@@ -198,6 +216,13 @@ struct Stripper<'t> {
     /// order of entry and a hit does not refresh). In the windowed order, a triangle
     /// outside the window continues a strip only when its new vertex is still cached.
     misses: u32,
+    /// The same cache as the vertices it holds, oldest overwritten ([`RESTART`] for an
+    /// empty entry): whether the new vertex of a triangle across an edge is cached is a
+    /// compare of these few values, where `stamp` would be a scattered read for every
+    /// edge tried (most fail).
+    ring: [u32; CACHE],
+    /// The entry of `ring` to overwrite next.
+    ring_at: usize,
     out: Vec<u32>,
 }
 
@@ -218,8 +243,14 @@ impl<'t> Stripper<'t> {
             .map(|t| t[0].max(t[1]).max(t[2]))
             .max()
             .map_or(0, |v| v as usize + 1);
-        let edges = EdgeMap::new(tris, vertices);
-        let vert = edges.start.windows(2).map(|w| [w[1] - w[0], 0]).collect();
+        // A vertex numbered RESTART could not be told from a restart in the strip (and
+        // `ring` marks empty entries with it).
+        assert!(
+            vertices <= RESTART as usize,
+            "a vertex index equals RESTART"
+        );
+        let mut vert = vec![0u32; vertices];
+        let edges = EdgeMap::new(tris, vertices, &mut vert);
         let twin = edges.twins();
         let mut s = Stripper {
             tris,
@@ -229,11 +260,14 @@ impl<'t> Stripper<'t> {
             twin,
             used: vec![false; tris.len()],
             vert,
+            stamp: vec![0; vertices],
             buffer: Vec::with_capacity(params.window),
             cursor: 0,
             buckets: Default::default(),
             free_nb: Vec::new(),
             misses: 0,
+            ring: [RESTART; CACHE],
+            ring_at: 0,
             // At most 4 indices per triangle with restarts (a restart and a strip of
             // one), 5 with degenerate joins: never reallocated.
             out: Vec::with_capacity(match params.join {
@@ -256,7 +290,7 @@ impl<'t> Stripper<'t> {
         [(b, a), (c, b), (a, c)]
             .iter()
             .enumerate()
-            .filter(|&(k, &(x, y))| match self.twin[3 * t + k] {
+            .filter(|&(k, &(x, y))| match self.twin[3 * t + k][0] {
                 NONE => false,
                 MANY => self.edges.find(&self.used, x, y).is_some(),
                 u => !self.used[u as usize],
@@ -275,18 +309,19 @@ impl<'t> Stripper<'t> {
         }
         let tri = self.tris[t as usize];
         for v in tri {
-            self.vert[v as usize][0] -= 1;
+            self.vert[v as usize] -= 1;
         }
         if self.window == 0 {
             let [a, b, c] = tri;
             for (k, (x, y)) in [(b, a), (c, b), (a, c)].into_iter().enumerate() {
-                match self.twin[3 * t as usize + k] {
+                match self.twin[3 * t as usize + k][0] {
                     NONE => {}
                     MANY => {
-                        for i in 0..self.edges.row(x).len() {
-                            let [next, _, c] = self.edges.row(x)[i];
+                        let (r, w) = key(x, y);
+                        for i in 0..self.edges.row(r).len() {
+                            let [o, _, c] = self.edges.row(r)[i];
                             let u = c / 3;
-                            if next == y && !self.used[u as usize] {
+                            if o == w && !self.used[u as usize] {
                                 self.drop_neighbour(u);
                             }
                         }
@@ -332,39 +367,53 @@ impl<'t> Stripper<'t> {
             // Not an edge of t turned around (an inconsistently oriented neighbour).
             3
         };
-        let u = match if k < 3 {
+        let [u, v] = if k < 3 {
             self.twin[3 * t as usize + k]
         } else {
-            MANY
-        } {
-            NONE => return None,
-            MANY => self.edges.find(&self.used, e0, e1)?,
-            u if self.used[u as usize] => return None,
-            u => u,
+            [MANY, 0]
         };
-        let [x, y, z] = self.tris[u as usize];
-        let v = x ^ y ^ z ^ e0 ^ e1;
+        let (u, v) = match u {
+            NONE => return None,
+            MANY => {
+                let u = self.edges.find(&self.used, e0, e1)?;
+                let [x, y, z] = self.tris[u as usize];
+                (u, x ^ y ^ z ^ e0 ^ e1)
+            }
+            u => (u, v),
+        };
         if (u as usize) < self.cursor {
-            Some((u, u, v))
+            (!self.used[u as usize]).then_some((u, u, v))
         } else {
-            (self.window == 0 || self.cached(v)).then_some((OUTSIDE, u, v))
+            ((self.window == 0 || self.cached(v)) && !self.used[u as usize])
+                .then_some((OUTSIDE, u, v))
         }
     }
 
-    /// Whether vertex `v` is in the simulated cache.
+    /// Whether vertex `v` is in the simulated cache (`v` is not [`RESTART`]).
     #[inline]
     fn cached(&self, v: u32) -> bool {
-        let at = self.vert[v as usize][1];
-        at != 0 && self.misses - at < CACHE as u32
+        self.ring.iter().fold(false, |a, &x| a | (x == v))
     }
 
-    /// Emits `v`, through the simulated vertex cache.
+    /// Emits `v`, through the simulated vertex cache (its own vertices are read through
+    /// `stamp`, whose entry the strip has just touched, rather than by a scan of `ring`
+    /// right after writing it).
     #[inline]
     fn emit(&mut self, v: u32) {
         self.out.push(v);
-        if v != RESTART && !self.cached(v) {
+        if v == RESTART {
+            return;
+        }
+        let at = self.stamp[v as usize];
+        if at == 0 || self.misses - at >= CACHE as u32 {
             self.misses += 1;
-            self.vert[v as usize][1] = self.misses;
+            self.stamp[v as usize] = self.misses;
+            self.ring[self.ring_at] = v;
+            self.ring_at = if self.ring_at + 1 == CACHE {
+                0
+            } else {
+                self.ring_at + 1
+            };
         }
     }
 
@@ -386,9 +435,9 @@ impl<'t> Stripper<'t> {
             // meshoptimizer's findStripFirst: least valence of a corner in the window.
             let mut best: Option<(u32, u32)> = None;
             for &[a, b, c, t] in &self.buffer {
-                let v = self.vert[a as usize][0]
-                    .min(self.vert[b as usize][0])
-                    .min(self.vert[c as usize][0]);
+                let v = self.vert[a as usize]
+                    .min(self.vert[b as usize])
+                    .min(self.vert[c as usize]);
                 if best.is_none_or(|b| v < b.0) {
                     best = Some((v, t));
                 }
