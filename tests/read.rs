@@ -384,3 +384,31 @@ fn generator_is_deterministic_and_has_the_scene_features() {
         assert!((a.cloud.z[i as usize] - ground_med).abs() > 10.0);
     }
 }
+
+/// The bounds the reader measures while decoding are the cloud's own (every real tile, with a
+/// class filter and a cap crossing LAZ batches too), and XYZ's are measured after the parse.
+#[test]
+fn bounds_measured_while_reading_are_the_clouds() {
+    let filtered = ReadOptions {
+        classes: ClassFilter::new(None, &[1]),
+        max_points: Some(1_500_000),
+        ..Default::default()
+    };
+    let mut files = common::lidar_files();
+    files.push(common::repo().join("fixtures/survey-1-0.xyz"));
+    files.push(common::repo().join("fixtures/survey-0-0.las"));
+    for f in &files {
+        for opts in [&ReadOptions::default(), &filtered] {
+            let (c, b) = points::read_with_bounds(f, opts, &NoProgress).unwrap();
+            let want = c.bounds();
+            for k in 0..3 {
+                assert!(
+                    b.min[k].to_bits() == want.min[k].to_bits()
+                        && b.max[k].to_bits() == want.max[k].to_bits(),
+                    "{}: axis {k}: {b:?} vs {want:?}",
+                    f.display()
+                );
+            }
+        }
+    }
+}

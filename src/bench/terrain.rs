@@ -17,7 +17,7 @@ use crate::config::Pipeline;
 use crate::error::{Error, Result};
 use crate::output::OutputConfig;
 use crate::pipeline::{
-    grid_stages, peak_rss, product_stages, reset_peak_rss, with_input_crs, TileStages,
+    grid_stages_with_bounds, peak_rss, product_stages, reset_peak_rss, with_input_crs, TileStages,
 };
 use crate::points::{self, PointCloud, ReadOptions};
 use crate::progress::{NoProgress, Progress};
@@ -310,11 +310,11 @@ fn tile_run(hf: &Heightfield, dirs: &RunDirs, run: usize) -> Result<TileRun> {
 fn grid_run(path: &Path) -> Result<GridRun> {
     let c0 = cpu_now();
     let t0 = Instant::now();
-    let cloud = points::read(path, &ReadOptions::default(), &NoProgress)?;
+    let (cloud, bounds) = points::read_with_bounds(path, &ReadOptions::default(), &NoProgress)?;
     let t1 = Instant::now();
     let read_cpu = cpu_since(c0);
     let clock = StageClock::default();
-    let g = grid_stages(&cloud, &bench_pipeline(), &clock)?;
+    let g = grid_stages_with_bounds(&cloud, Some(bounds), &bench_pipeline(), &clock)?;
     let Some(d) = g.denoised else {
         return Err(Error::Internal(
             "denoise was asked for and did not run".into(),

@@ -18,6 +18,7 @@ pub use memory::{current_rss, empty_input, estimate_pipeline, peak_rss, reset_pe
 pub use plan::Plan;
 pub use report::{stage_seconds, BaselineMeasurements, RunSummary, StageReport};
 pub use run::{
-    grid_stages, run, run_with_context, tile_stages, GridStages, RunContext, RunOutput, TileStages,
+    grid_stages, grid_stages_with_bounds, run, run_with_context, tile_stages, GridStages,
+    RunContext, RunOutput, TileStages,
 };
 pub use run::{product_stages, quadtree_report, tiles_report, tiles_report_with, with_input_crs};

@@ -136,13 +136,25 @@ pub fn grid_stages(
     cfg: &Pipeline,
     progress: &dyn Progress,
 ) -> Result<GridStages> {
+    grid_stages_with_bounds(cloud, None, cfg, progress)
+}
+
+/// [`grid_stages`] given the tight bounds of all of `cloud`'s points, as the reader measured
+/// them ([`points::read_with_bounds`]), so that noise removal need not measure them again;
+/// resampling takes the kept points' bounds that noise removal found.
+pub fn grid_stages_with_bounds(
+    cloud: &PointCloud,
+    bounds: Option<crate::points::Bounds>,
+    cfg: &Pipeline,
+    progress: &dyn Progress,
+) -> Result<GridStages> {
     let mut seconds = [0.0; 3];
     let mut scratch: Vec<u64> = Vec::new();
     let denoised = if cfg.denoise.enabled {
         progress.start("denoise", 0);
         let t = Instant::now();
         let mpu = cloud.crs().map_or(1.0, |c| c.metres_per_unit());
-        let d = terrain::denoise::denoise_reusing(cloud, &cfg.denoise, mpu, &mut scratch);
+        let d = terrain::denoise::denoise_reusing(cloud, &cfg.denoise, mpu, &mut scratch, bounds);
         seconds[0] = t.elapsed().as_secs_f64();
         progress.finish();
         Some(d?)
@@ -168,7 +180,12 @@ pub fn grid_stages(
     };
     progress.start("resample", 0);
     let t = Instant::now();
-    let r = terrain::resample::resample_reusing(cloud, keep, &cfg.resample, &mut scratch);
+    // Noise removal's kept bounds hold when its flags are the ones resampling takes.
+    let known = match (&denoised, &ground) {
+        (Some(d), None) => d.kept_bounds.map(|b| (b, d.kept)),
+        _ => None,
+    };
+    let r = terrain::resample::resample_reusing(cloud, keep, &cfg.resample, &mut scratch, known);
     drop(scratch);
     seconds[1] = t.elapsed().as_secs_f64();
     progress.finish();

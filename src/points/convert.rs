@@ -65,8 +65,7 @@ pub fn convert(input: &Path, output: &Path, selection: Selection) -> Result<u64>
         offset: h.offset,
     };
     let mut cloud = PointCloud::default();
-    las_records::decode(out, &layout, &ClassFilter::default(), None, &mut cloud);
-    let bounds = cloud.bounds();
+    let (_, bounds) = las_records::decode(out, &layout, &ClassFilter::default(), None, &mut cloud);
     write_raw_las(output, &h, out, &bounds)?;
     Ok(cloud.len() as u64)
 }

@@ -15,17 +15,8 @@ use std::path::Path;
 /// every core busy on LASzip chunks (50 000 points each) without holding the whole file.
 const LAZ_BATCH: u64 = 1 << 20;
 
-pub(crate) fn read_las(
-    path: &Path,
-    bytes: &[u8],
-    opts: &ReadOptions,
-    progress: &dyn Progress,
-) -> Result<PointCloud> {
-    read_las_keeping(path, bytes, opts, progress, None)
-}
-
-/// [`read_las`], also appending every decompressed record of a LAZ file to `keep` when given
-/// (the batches are decompressed straight into it, so nothing is copied): a writer that needs
+/// A LAS or LAZ file into a cloud, also appending every decompressed record of a LAZ file to
+/// `keep` when given (the batches are decompressed straight into it, so nothing is copied): a writer that needs
 /// the records then does not decode the file a second time. Uncompressed records are not
 /// kept (they are in the mapped file already).
 pub(crate) fn read_las_keeping(
@@ -33,8 +24,20 @@ pub(crate) fn read_las_keeping(
     bytes: &[u8],
     opts: &ReadOptions,
     progress: &dyn Progress,
-    mut keep: Option<&mut Vec<u8>>,
+    keep: Option<&mut Vec<u8>>,
 ) -> Result<PointCloud> {
+    read_las_bounds(path, bytes, opts, progress, keep).map(|(cloud, _)| cloud)
+}
+
+/// [`read_las_keeping`], also returning the tight bounds of the points read (measured while
+/// decoding).
+pub(crate) fn read_las_bounds(
+    path: &Path,
+    bytes: &[u8],
+    opts: &ReadOptions,
+    progress: &dyn Progress,
+    mut keep: Option<&mut Vec<u8>>,
+) -> Result<(PointCloud, super::Bounds)> {
     let h = LasHeader::parse(path, bytes)?;
     if opts.format == Some(Format::Las) && h.compressed {
         return Err(Error::format(
@@ -50,6 +53,7 @@ pub(crate) fn read_las_keeping(
         offset: h.offset,
     };
     let mut cloud = PointCloud::default();
+    let mut bounds = super::Bounds::EMPTY;
     let wanted = opts
         .max_points
         .map_or(h.point_count, |c| c.min(h.point_count));
@@ -63,7 +67,8 @@ pub(crate) fn read_las_keeping(
         let records = uncompressed_records(path, bytes, &h)?;
         fits()?;
         progress.start(&format!("reading {}", path.display()), h.point_count);
-        las_records::decode(records, &layout, &opts.classes, opts.max_points, &mut cloud);
+        bounds =
+            las_records::decode(records, &layout, &opts.classes, opts.max_points, &mut cloud).1;
         progress.advance(h.point_count);
     } else {
         // Reserved only once the chunk table vouches for the header's point count.
@@ -99,7 +104,8 @@ pub(crate) fn read_las_keeping(
                     &buf[..]
                 }
             };
-            las_records::decode(batch, &layout, &opts.classes, left, &mut cloud);
+            let (_, b) = las_records::decode(batch, &layout, &opts.classes, left, &mut cloud);
+            bounds = bounds.union(b);
             done += n;
             progress.advance(n);
         }
@@ -122,7 +128,7 @@ pub(crate) fn read_las_keeping(
         header_bounds: Some(h.bounds()),
         crs: h.crs.clone(),
     });
-    Ok(cloud)
+    Ok((cloud, bounds))
 }
 
 /// The point record bytes of an uncompressed LAS, checked against the header's promise.
@@ -364,7 +370,7 @@ pub(crate) fn for_each_batch(
 }
 
 /// Reads a LAS or LAZ file in batches of at most `batch` records, each decoded into `cloud`
-/// (cleared first) by the same record decoder as [`read_las`], with the class filter and
+/// (cleared first) by the same record decoder as [`read_las_keeping`], with the class filter and
 /// `opts.max_points`; calls `f` with every non-empty batch in file order. For the streaming
 /// run, which never holds a whole file's points. Returns the header and the points kept.
 pub(crate) fn for_each_decoded(
@@ -396,7 +402,7 @@ pub(crate) fn for_each_decoded(
             cloud.return_number.clear();
             cloud.number_of_returns.clear();
             cloud.intensity.clear();
-            kept += las_records::decode(part, &layout, &opts.classes, left, cloud) as u64;
+            kept += las_records::decode(part, &layout, &opts.classes, left, cloud).0 as u64;
             if !cloud.is_empty() {
                 f(cloud, &h)?;
             }

@@ -399,6 +399,24 @@ pub fn read(path: &Path, opts: &ReadOptions, progress: &dyn Progress) -> Result<
     cloud
 }
 
+/// [`read`], also returning the tight bounds of the points read, the same as
+/// [`PointCloud::bounds`] gives: a LAS or LAZ reader measures them chunk by chunk while it
+/// decodes (the chunks are still in the cache), which saves the first stage its own pass over
+/// the whole columns; for XYZ they are measured afterwards.
+pub fn read_with_bounds(
+    path: &Path,
+    opts: &ReadOptions,
+    progress: &dyn Progress,
+) -> Result<(PointCloud, Bounds)> {
+    let map = map_file(path)?;
+    let read = read_bytes_bounds(path, &map, opts, progress);
+    // As in `read`: a worker unmaps the file.
+    rayon::spawn(move || drop(map));
+    let (cloud, bounds) = read?;
+    let bounds = bounds.unwrap_or_else(|| cloud.bounds());
+    Ok((cloud, bounds))
+}
+
 /// [`read`] on the bytes of a file already in memory; `path` names it in messages.
 pub fn read_bytes(
     path: &Path,
@@ -406,6 +424,16 @@ pub fn read_bytes(
     opts: &ReadOptions,
     progress: &dyn Progress,
 ) -> Result<PointCloud> {
+    read_bytes_bounds(path, map, opts, progress).map(|(cloud, _)| cloud)
+}
+
+/// [`read_bytes`] with the points' bounds where the reader measured them (LAS, LAZ).
+fn read_bytes_bounds(
+    path: &Path,
+    map: &[u8],
+    opts: &ReadOptions,
+    progress: &dyn Progress,
+) -> Result<(PointCloud, Option<Bounds>)> {
     if map.is_empty() {
         return Err(Error::format(path, 0, "empty file"));
     }
@@ -414,7 +442,8 @@ pub fn read_bytes(
         None => detect_format(path, map)?,
     };
     match format {
-        Format::Las | Format::Laz => las_read::read_las(path, map, opts, progress),
+        Format::Las | Format::Laz => las_read::read_las_bounds(path, map, opts, progress, None)
+            .map(|(cloud, b)| (cloud, Some(b))),
         Format::Xyz => {
             if opts.classes.has_keep_list() {
                 return Err(Error::Usage(format!(
@@ -426,7 +455,7 @@ pub fn read_bytes(
             if let Some(cap) = opts.max_points {
                 cloud.truncate(cap as usize);
             }
-            Ok(cloud)
+            Ok((cloud, None))
         }
     }
 }

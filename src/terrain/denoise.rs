@@ -144,6 +144,10 @@ pub struct Denoised {
     pub voxels: usize,
     /// The settings used.
     pub settings: DenoiseSettings,
+    /// The tight bounds of the kept points (what [`super::bounds_of`] measures over them),
+    /// found while their flags were set, so that resampling needs no pass of its own (None
+    /// for a shard).
+    pub kept_bounds: Option<Bounds>,
 }
 
 impl Denoised {
@@ -507,20 +511,22 @@ pub fn denoise(
 
 /// [`denoise`] that leaves its sorted keys (8 bytes per point, already faulted in) in
 /// `scratch` for the next stage to reuse instead of freeing them
-/// ([`super::resample::resample_reusing`]).
+/// ([`super::resample::resample_reusing`]). `bounds`, when given, must be the tight bounds of
+/// all of `cloud`'s points (as the reader measured them: [`crate::points::read_with_bounds`]);
+/// otherwise they are measured here.
 pub(crate) fn denoise_reusing(
     cloud: &PointCloud,
     params: &DenoiseParams,
     metres_per_unit: f64,
     scratch: &mut Vec<u64>,
+    bounds: Option<Bounds>,
 ) -> Result<Denoised> {
     denoise_into(
-        &cloud.x,
-        &cloud.y,
-        &cloud.z,
+        [&cloud.x, &cloud.y, &cloud.z],
         params,
         metres_per_unit,
         scratch,
+        bounds,
     )
 }
 
@@ -532,16 +538,15 @@ pub fn denoise_xyz(
     params: &DenoiseParams,
     metres_per_unit: f64,
 ) -> Result<Denoised> {
-    denoise_into(x, y, z, params, metres_per_unit, &mut Vec::new())
+    denoise_into([x, y, z], params, metres_per_unit, &mut Vec::new(), None)
 }
 
 fn denoise_into(
-    x: &[f64],
-    y: &[f64],
-    z: &[f64],
+    [x, y, z]: [&[f64]; 3],
     params: &DenoiseParams,
     metres_per_unit: f64,
     scratch: &mut Vec<u64>,
+    bounds: Option<Bounds>,
 ) -> Result<Denoised> {
     let n = x.len();
     if n == 0 {
@@ -550,7 +555,7 @@ fn denoise_into(
             message: "no points to filter".into(),
         });
     }
-    let (bounds, _) = super::bounds_of(x, y, z, None);
+    let bounds = bounds.unwrap_or_else(|| super::bounds_of(x, y, z, None).0);
     let mut st = setup(x, y, z, &bounds, n, params, metres_per_unit)?;
     let Setup {
         settings,
@@ -594,7 +599,7 @@ fn denoise_into(
         (failing, voxels)
     };
 
-    finish(st, dense, sparse, voxels, None, scratch)
+    finish(st, dense, sparse, voxels, None, scratch, Some([x, y, z]))
 }
 
 /// What the count passes work on: the settings, the lattice and the points sorted by column.
@@ -642,7 +647,8 @@ fn setup(
 /// The low-layer rule and the keep flags, after the count test left `dense` (one flag per
 /// sorted key; `sparse` points failed it, in `voxels` occupied voxels). With `owned` (one
 /// flag per column: a shard's own columns), only points of owned columns are kept and
-/// counted; the others only lend their counts and profiles.
+/// counted; the others only lend their counts and profiles. With `coords` (the points'
+/// coordinates, not for a shard) the kept points' bounds are found on the way.
 fn finish(
     setup: Setup,
     dense: Vec<bool>,
@@ -650,6 +656,7 @@ fn finish(
     voxels: usize,
     owned: Option<&[bool]>,
     scratch: &mut Vec<u64>,
+    coords: Option<[&[f64]; 3]>,
 ) -> Result<Denoised> {
     let Setup {
         settings,
@@ -665,40 +672,64 @@ fn finish(
         Vec::new()
     };
 
+    // Points below the floor's first layer of their column are a detached low layer.
+    let floor = |c: usize| {
+        if floors.is_empty() {
+            0
+        } else {
+            floors[lat.group_of(c)].saturating_mul(lat.slab)
+        }
+    };
+    // The kept points' keys of column `c`, in (layer, index) order.
+    let kept_keys = |c: usize| {
+        let f = floor(c);
+        let range = sorted.starts[c] as usize..sorted.starts[c + 1] as usize;
+        sorted.keys[range.clone()]
+            .iter()
+            .zip(&dense[range])
+            .filter(move |(&key, &d)| d && layer(key) >= f)
+            .map(|(&key, _)| key)
+    };
+
     // The flags back in input order.
     let keep: Vec<AtomicBool> = (0..n)
         .into_par_iter()
         .map(|_| AtomicBool::new(false))
         .collect();
-    let low: usize = (0..lat.columns())
+    let (low, extremes) = (0..lat.columns())
         .into_par_iter()
         .with_min_len(256)
-        .map(|c| {
-            if owned.is_some_and(|o| !o[c]) {
-                return 0;
-            }
-            // Points below the floor's first layer are a detached low layer.
-            let floor = if floors.is_empty() {
-                0
-            } else {
-                floors[lat.group_of(c)].saturating_mul(lat.slab)
-            };
-            let range = sorted.starts[c] as usize..sorted.starts[c + 1] as usize;
-            let mut low = 0;
-            for (&key, &d) in sorted.keys[range.clone()].iter().zip(&dense[range]) {
-                if !d {
-                    continue;
+        .fold(
+            || (0usize, Extremes::NONE),
+            |(mut low, mut ext), c| {
+                if owned.is_some_and(|o| !o[c]) {
+                    return (low, ext);
                 }
-                if layer(key) < floor {
-                    low += 1;
-                } else {
-                    keep[(key & 0xFFFF_FFFF) as usize].store(true, Relaxed);
+                let floor = floor(c);
+                let range = sorted.starts[c] as usize..sorted.starts[c + 1] as usize;
+                let mut layers = (u32::MAX, 0);
+                for (&key, &d) in sorted.keys[range.clone()].iter().zip(&dense[range]) {
+                    if !d {
+                        continue;
+                    }
+                    if layer(key) < floor {
+                        low += 1;
+                    } else {
+                        keep[index(key)].store(true, Relaxed);
+                        layers = (layers.0.min(layer(key)), layer(key));
+                    }
                 }
-            }
-            low
-        })
-        .sum();
+                if let (Some([_, _, z]), true) = (coords, layers.0 != u32::MAX) {
+                    ext.column(c, &lat, layers, z, kept_keys(c));
+                }
+                (low, ext)
+            },
+        )
+        .reduce(|| (0, Extremes::NONE), |a, b| (a.0 + b.0, a.1.merge(&b.1)));
     let keep: Vec<bool> = keep.into_iter().map(AtomicBool::into_inner).collect();
+    let kept_bounds = coords
+        .filter(|_| extremes.z[0].0 != u32::MAX)
+        .map(|[x, y, _]| extremes.bounds(&lat, x, y, kept_keys));
     drop((dense, floors));
     let own_points = match owned {
         None => n,
@@ -726,7 +757,120 @@ fn finish(
         removed_low: low,
         voxels,
         settings,
+        kept_bounds,
     })
+}
+
+/// The point index of a sorted key.
+#[inline(always)]
+fn index(key: u64) -> usize {
+    (key & 0xFFFF_FFFF) as usize
+}
+
+/// Where the kept points' extremes lie, gathered column by column while their flags are set:
+/// the smallest and largest column index along x and y holding a kept point, and the
+/// lowest and highest layer with the smallest and largest z there. A point's column index
+/// and layer never decrease as its coordinate grows (each is the floor of a scaled offset,
+/// clamped, and squeezing the lattice keeps the order of the columns), so every extreme lies
+/// at the extreme index: only the points there are read, not a pass over all coordinates.
+#[derive(Debug, Clone, Copy)]
+struct Extremes {
+    /// Smallest and largest column index along x, then along y.
+    col: [u32; 4],
+    /// (lowest layer, smallest z in it), (highest layer, largest z in it).
+    z: [(u32, f64); 2],
+}
+
+impl Extremes {
+    const NONE: Extremes = Extremes {
+        col: [u32::MAX, 0, u32::MAX, 0],
+        z: [(u32::MAX, f64::INFINITY), (0, f64::NEG_INFINITY)],
+    };
+
+    fn low(&mut self, layer: u32, z: f64) {
+        let e = &mut self.z[0];
+        if layer < e.0 {
+            *e = (layer, z);
+        } else if layer == e.0 {
+            e.1 = e.1.min(z);
+        }
+    }
+
+    fn high(&mut self, layer: u32, z: f64) {
+        let e = &mut self.z[1];
+        if layer > e.0 {
+            *e = (layer, z);
+        } else if layer == e.0 {
+            e.1 = e.1.max(z);
+        }
+    }
+
+    /// Column `c` holding kept points in `layers` (lowest, highest), whose keys `kept` gives
+    /// in (layer, index) order: z is read only where a layer reaches an extreme so far.
+    fn column(
+        &mut self,
+        c: usize,
+        lat: &Lattice,
+        layers: (u32, u32),
+        z: &[f64],
+        kept: impl DoubleEndedIterator<Item = u64> + Clone,
+    ) {
+        let (ci, cj) = (c as u32 % lat.ncx, c as u32 / lat.ncx);
+        self.col = [
+            self.col[0].min(ci),
+            self.col[1].max(ci),
+            self.col[2].min(cj),
+            self.col[3].max(cj),
+        ];
+        if layers.0 <= self.z[0].0 {
+            for key in kept.clone().take_while(|&k| layer(k) == layers.0) {
+                self.low(layers.0, z[index(key)]);
+            }
+        }
+        if layers.1 >= self.z[1].0 {
+            for key in kept.rev().take_while(|&k| layer(k) == layers.1) {
+                self.high(layers.1, z[index(key)]);
+            }
+        }
+    }
+
+    fn merge(mut self, o: &Extremes) -> Extremes {
+        self.col = [
+            self.col[0].min(o.col[0]),
+            self.col[1].max(o.col[1]),
+            self.col[2].min(o.col[2]),
+            self.col[3].max(o.col[3]),
+        ];
+        self.low(o.z[0].0, o.z[0].1);
+        self.high(o.z[1].0, o.z[1].1);
+        self
+    }
+
+    /// The kept points' bounds: x and y from the kept points of the extreme columns (`kept`
+    /// gives a column's kept keys), z as gathered.
+    fn bounds<I: Iterator<Item = u64>>(
+        &self,
+        lat: &Lattice,
+        x: &[f64],
+        y: &[f64],
+        kept: impl Fn(usize) -> I,
+    ) -> Bounds {
+        let mut b = Bounds {
+            min: [f64::INFINITY, f64::INFINITY, self.z[0].1],
+            max: [f64::NEG_INFINITY, f64::NEG_INFINITY, self.z[1].1],
+        };
+        let [i0, i1, j0, j1] = self.col.map(|v| v as usize);
+        let nx = lat.ncx as usize;
+        for j in j0..=j1 {
+            kept(j * nx + i0).for_each(|k| b.min[0] = b.min[0].min(x[index(k)]));
+            kept(j * nx + i1).for_each(|k| b.max[0] = b.max[0].max(x[index(k)]));
+        }
+        for i in i0..=i1 {
+            kept(j0 * nx + i).for_each(|k| b.min[1] = b.min[1].min(y[index(k)]));
+            kept(j1 * nx + i).for_each(|k| b.max[1] = b.max[1].max(y[index(k)]));
+        }
+        b
+    }
 }
 
 /// The count test with voxels `q` layers tall: sets `flags` (one per sorted key) to true
@@ -1261,7 +1405,7 @@ pub fn shard_denoise(input: &ShardInput, q: u32) -> Result<Denoised> {
         st.settings.height_steps = q;
         st.settings.voxel_height *= q as f64;
     }
-    finish(st, dense, sparse, voxels, Some(&own), &mut Vec::new())
+    finish(st, dense, sparse, voxels, Some(&own), &mut Vec::new(), None)
 }
 
 #[cfg(test)]
@@ -1277,6 +1421,13 @@ mod tests {
             ..Default::default()
         })
         .unwrap()
+    }
+
+    /// The kept bounds noise removal found are those a pass over the kept points measures.
+    fn kept_bounds_hold(c: &PointCloud, d: &Denoised) {
+        let (b, n) = crate::terrain::bounds_of(&c.x, &c.y, &c.z, Some(&d.keep));
+        assert_eq!(n, d.kept);
+        assert_eq!(d.kept_bounds, Some(b));
     }
 
     #[test]
@@ -1298,6 +1449,7 @@ mod tests {
             let slow = reference::denoise(&c.x, &c.y, &c.z, &p, 1.0).unwrap();
             assert_eq!(fast.keep, slow, "seed {seed} nb {nb} low {low}");
             assert_eq!(fast.kept, slow.iter().filter(|k| **k).count());
+            kept_bounds_hold(c, &fast);
         }
     }
 
@@ -1340,7 +1492,10 @@ mod tests {
                 let fast = denoise(c, &p, 1.0);
                 let slow = reference::denoise(&c.x, &c.y, &c.z, &p, 1.0);
                 match (fast, slow) {
-                    (Ok(f), Ok(sl)) => assert_eq!(f.keep, sl, "{name} {p:?}"),
+                    (Ok(f), Ok(sl)) => {
+                        assert_eq!(f.keep, sl, "{name} {p:?}");
+                        kept_bounds_hold(c, &f);
+                    }
                     (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
                     (a, b) => panic!("{name}: {a:?} vs {b:?}"),
                 }
@@ -1369,6 +1524,7 @@ mod tests {
         let d = denoise_xyz(&c.x, &c.y, &c.z, &DenoiseParams::default(), 1.0).unwrap();
         assert!(d.keep[first..].iter().all(|k| !k), "mirror points kept");
         assert!(d.removed_low >= 40, "{}", d.removed_low);
+        kept_bounds_hold(&c, &d);
         assert_eq!(
             d.keep,
             reference::denoise(&c.x, &c.y, &c.z, &DenoiseParams::default(), 1.0).unwrap()

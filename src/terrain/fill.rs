@@ -276,6 +276,22 @@ fn fill_band(
         }
         0
     };
+    // The up distance each column's hole of the previous row found (`up_row[i]` = that row
+    // + 1, `up_d[i]` the distance, 0 for none): the hole below it has the same nearest
+    // measured cell above, one row closer (rows above are still unchanged), or when there
+    // was none within r rows, can only find one r rows up. A run of holes down a column thus
+    // costs one look per hole instead of a scan of up to r rows each (a strided scan: most of
+    // this stage's cache misses).
+    let mut up_row = vec![u32::MAX; cols];
+    let mut up_d = vec![0u16; cols];
+    let measured_at = |s: &[CellState], jj: usize, i: usize| -> bool {
+        jj < hi
+            && (if jj >= j1 {
+                above.2[(jj - above.0) * cols + i]
+            } else {
+                s[(jj - j0) * cols + i]
+            }) == CellState::Measured
+    };
     // Bottom-up: the nearest measured row below from a running record (`last`), the nearest
     // measured cell to the right from a backward scan of the row, to the left from a running
     // record along the row; then Kim & Shin's combination.
@@ -322,7 +338,16 @@ fn fill_band(
             let rt = right[i] as usize;
             let d = (j as u32).wrapping_sub(last[i]) as usize;
             let d = if last[i] != u32::MAX && d <= r { d } else { 0 };
-            let u = up_gap(s, j, i);
+            let u = match up_d[i] {
+                _ if up_row[i] != j as u32 => up_gap(s, j, i),
+                0 if r > 0 && measured_at(s, j + r, i) => r,
+                0 => 0,
+                d if d >= 2 => d as usize - 1,
+                // (The hole's cell was measured: cannot be; scan as without a record.)
+                _ => up_gap(s, j, i),
+            };
+            up_row[i] = j as u32 + 1;
+            up_d[i] = u as u16;
             let n = Neighbours {
                 left: (l > 0).then(|| (l as f64 * dx, h[row + i - l] as f64)),
                 right: (rt > 0).then(|| (rt as f64 * dx, h[row + i + rt] as f64)),

@@ -197,26 +197,29 @@ pub fn resample(
     keep: Option<&[bool]>,
     params: &ResampleParams,
 ) -> Result<Resampled> {
-    resample_reusing(cloud, keep, params, &mut Vec::new())
+    resample_reusing(cloud, keep, params, &mut Vec::new(), None)
 }
 
 /// [`resample`] reusing `scratch` (left there by [`super::denoise::denoise_reusing`]) for
 /// the per-cell sums: a buffer the size of the point count that is already mapped costs no
 /// page faults, while a fresh one of 40–85 MB at 5–10 M points is faulted in page by page.
+/// `known`, when given, must be the tight bounds of the kept points and their number (as
+/// noise removal found them: [`super::denoise::Denoised::kept_bounds`]); otherwise they are
+/// measured here.
 pub(crate) fn resample_reusing(
     cloud: &PointCloud,
     keep: Option<&[bool]>,
     params: &ResampleParams,
     scratch: &mut Vec<u64>,
+    known: Option<(Bounds, usize)>,
 ) -> Result<Resampled> {
     resample_into(
-        &cloud.x,
-        &cloud.y,
-        &cloud.z,
+        [&cloud.x, &cloud.y, &cloud.z],
         keep,
         params,
         cloud.crs().cloned(),
         scratch,
+        known,
     )
 }
 
@@ -229,20 +232,19 @@ pub fn resample_xyz(
     params: &ResampleParams,
     crs: Option<Crs>,
 ) -> Result<Resampled> {
-    resample_into(x, y, z, keep, params, crs, &mut Vec::new())
+    resample_into([x, y, z], keep, params, crs, &mut Vec::new(), None)
 }
 
 fn resample_into(
-    x: &[f64],
-    y: &[f64],
-    z: &[f64],
+    [x, y, z]: [&[f64]; 3],
     keep: Option<&[bool]>,
     params: &ResampleParams,
     crs: Option<Crs>,
     scratch: &mut Vec<u64>,
+    known: Option<(Bounds, usize)>,
 ) -> Result<Resampled> {
     params.validate()?;
-    let (bounds, points) = super::bounds_of(x, y, z, keep);
+    let (bounds, points) = known.unwrap_or_else(|| super::bounds_of(x, y, z, keep));
     if points == 0 {
         return Err(Error::Data {
             stage: "resample",
@@ -468,7 +470,7 @@ mod tests {
                         .num_threads(threads)
                         .build()
                         .unwrap()
-                        .install(|| resample_reusing(&c, Some(&keep), &p, &mut scratch))
+                        .install(|| resample_reusing(&c, Some(&keep), &p, &mut scratch, None))
                         .unwrap()
                         .grid;
                     assert!(same(&got, &want), "{method:?} {len} {threads}");
