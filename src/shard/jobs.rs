@@ -246,6 +246,34 @@ fn for_each_input(
     Ok(())
 }
 
+/// Reads one input with the pipeline's class filter and at most `cap` points, LAS and LAZ a
+/// batch at a time into `batch` (one reused buffer: a job is a fresh process, and reading
+/// each input whole into a new cloud made the kernel zero every page of it again), and
+/// hands `f` each batch; returns the points read.
+fn each_batch(
+    path: &Path,
+    opts: &ReadOptions,
+    cap: Option<u64>,
+    batch: &mut PointCloud,
+    mut f: impl FnMut(&PointCloud) -> Result<()>,
+) -> Result<u64> {
+    let o = ReadOptions {
+        max_points: cap,
+        ..opts.clone()
+    };
+    let map = points::map_file(path)?;
+    let format = match o.format {
+        Some(format) => format,
+        None => points::detect_format(path, &map)?,
+    };
+    if format == points::Format::Xyz {
+        let c = points::read_bytes(path, &map, &o, &NoProgress)?;
+        f(&c)?;
+        return Ok(c.len() as u64);
+    }
+    Ok(points::for_each_decoded(path, &map, &o, READ_BATCH, batch, |c, _| f(c))?.1)
+}
+
 /// `terratile plan`: checks the pipeline, counts the inputs' points and their bounds, and
 /// writes `dir/plan.json` for `shards` jobs per phase (the largest `sx × sy ≤ shards` with
 /// `sx = ⌊√shards⌋`). Planning again with the same pipeline and inputs writes the same plan,
@@ -269,15 +297,28 @@ pub fn plan(pipeline: &Path, dir: &Path, shards: usize) -> Result<JobPlan> {
     let mut n = 0usize;
     let mut sources = Vec::new();
     let (mut input_points, mut input_boxes) = (Vec::new(), Vec::new());
-    for_each_input(&checked.inputs, &opts, |c| {
-        let (b, k) = crate::terrain::bounds_of(&c.x, &c.y, &c.z, None);
-        bounds = bounds.union(b);
-        n += k;
-        input_points.push(k as u64);
-        input_boxes.push([b.min[0], b.min[1], b.max[0], b.max[1]].map(f64::to_bits));
+    // The sources (and their CRS) from the headers alone; the points batch by batch.
+    let headers = ReadOptions {
+        max_points: Some(0),
+        ..opts.clone()
+    };
+    for_each_input(&checked.inputs, &headers, |c| {
         sources.extend(c.sources);
         Ok(())
     })?;
+    let mut batch = PointCloud::default();
+    for p in &checked.inputs {
+        let mut b = Bounds::EMPTY;
+        let cap = opts.max_points.map(|c| c.saturating_sub(n as u64));
+        let k = each_batch(p, &opts, cap, &mut batch, |c| {
+            b = b.union(crate::terrain::bounds_of(&c.x, &c.y, &c.z, None).0);
+            Ok(())
+        })?;
+        bounds = bounds.union(b);
+        n += k as usize;
+        input_points.push(k);
+        input_boxes.push([b.min[0], b.min[1], b.max[0], b.max[1]].map(f64::to_bits));
+    }
     let seen = PointCloud {
         sources,
         ..Default::default()
@@ -453,22 +494,8 @@ impl Run {
                     continue;
                 }
             }
-            let mut o = opts.clone();
-            if let Some(cap) = opts.max_points {
-                o.max_points = Some(cap.saturating_sub(read));
-            }
-            let map = points::map_file(p)?;
-            let format = match o.format {
-                Some(format) => format,
-                None => points::detect_format(p, &map)?,
-            };
-            let got = if format == points::Format::Xyz {
-                let c = points::read_bytes(p, &map, &o, &NoProgress)?;
-                f(i, &c)?;
-                c.len() as u64
-            } else {
-                points::for_each_decoded(p, &map, &o, READ_BATCH, &mut batch, |c, _| f(i, c))?.1
-            };
+            let cap = opts.max_points.map(|c| c.saturating_sub(read));
+            let got = each_batch(p, &opts, cap, &mut batch, |c| f(i, c))?;
             if known && got != self.plan.input_points[i] {
                 return Err(Error::Usage(format!(
                     "{}: gives {got} points where the plan counted {}: plan again",
@@ -660,23 +687,127 @@ impl Windows {
     }
 }
 
+/// A window's noise removal as a `keep` result holds it: the voxel height steps, one keep
+/// flag per point the window owns (in input order, packed eight to a byte), the number and
+/// bounds of its kept points, and how many of its flags belong to each input (`prepare`
+/// skips the flags of the inputs it does not read).
+struct WindowKeep {
+    q: u64,
+    owned: usize,
+    packed: Vec<u8>,
+    kept: usize,
+    bounds: Bounds,
+    per_input: Vec<u64>,
+}
+
+impl WindowKeep {
+    /// A window with no points (or noise removal off).
+    fn empty(run: &Run, q: u32) -> WindowKeep {
+        WindowKeep {
+            q: q as u64,
+            owned: 0,
+            packed: Vec::new(),
+            kept: 0,
+            bounds: Bounds::EMPTY,
+            per_input: vec![0; run.inputs.len()],
+        }
+    }
+
+    /// From the keep flags of a window's gathered points (own and halo: only own points
+    /// can be kept) and which of them it owns.
+    fn of(q: u32, keep: &[bool], owned: &[bool], xyz: &[Vec<f64>; 3], per: Vec<u64>) -> Self {
+        let (bounds, kept) = crate::terrain::bounds_of(&xyz[0], &xyz[1], &xyz[2], Some(keep));
+        let mut packed = Vec::new();
+        let mut n = 0usize;
+        for (&k, _) in keep.iter().zip(owned).filter(|(_, &o)| o) {
+            if n.is_multiple_of(8) {
+                packed.push(0u8);
+            }
+            if k {
+                packed[n / 8] |= 1 << (n % 8);
+            }
+            n += 1;
+        }
+        WindowKeep {
+            q: q as u64,
+            owned: n,
+            packed,
+            kept,
+            bounds,
+            per_input: per,
+        }
+    }
+
+    fn put(&self, w: &mut Writer) {
+        w.u64(self.q);
+        w.u64(self.owned as u64);
+        w.bytes(&self.packed);
+        w.u64(self.kept as u64);
+        for v in self.bounds.min.iter().chain(&self.bounds.max) {
+            w.f64(*v);
+        }
+        w.u64s(self.per_input.iter().copied());
+    }
+
+    /// Read back (and checked against the run's points and inputs).
+    fn get(r: &mut Reader, run: &Run) -> Result<WindowKeep> {
+        let q = r.u64()?;
+        let owned = r.usize(run.plan.points, "owned points")?;
+        let packed = r.bytes()?;
+        if packed.len() != owned.div_ceil(8) {
+            return Err(r.invalid("keep flags do not match the number of owned points"));
+        }
+        let kept = r.usize(owned, "kept points")?;
+        let mut b = [0.0; 6];
+        for v in &mut b {
+            *v = r.f64()?;
+        }
+        let per_input = r.u64s()?;
+        if per_input.len() != run.inputs.len() || per_input.iter().sum::<u64>() != owned as u64 {
+            return Err(r.invalid("the flags per input do not match the inputs"));
+        }
+        Ok(WindowKeep {
+            q,
+            owned,
+            packed,
+            kept,
+            bounds: Bounds {
+                min: [b[0], b[1], b[2]],
+                max: [b[3], b[4], b[5]],
+            },
+            per_input,
+        })
+    }
+}
+
 /// The result of `count`: noise removal's (failing, failing but coarse-passing, voxels)
-/// per voxel height over the window's own points.
+/// per voxel height over the window's own points (none when `voxel_height` is given), then
+/// the window filtered at voxel height steps 1 as a `keep` result holds it.
+///
+/// The filter at q = 1 is the answer unless more than the automatic height's budget fails
+/// at that height over the whole survey (most surveys: `keep` then copies it and reads no
+/// point); the counts are taken from the same sorted points for the other case, since a job
+/// cannot wait for the other windows' counts to know whether it is needed.
 fn job_count(run: &Run, k: usize) -> Result<Writer> {
     let mut w = Writer::default();
     let win = Windows::of(run)?;
     let own = win.as_ref().and_then(|w| w.own(run.place(k)));
     let (Some(win), Some(own)) = (win, own) else {
         w.u64s(std::iter::empty());
+        WindowKeep::empty(run, 1).put(&mut w);
         return Ok(w);
     };
-    let (xyz, _, _) = win.gather(run, &own)?;
-    let counts = match win.input(run, &xyz, &own) {
-        Some(input) if !xyz[0].is_empty() => denoise::shard_counts(&input)?,
-        _ => Vec::new(),
+    let (xyz, owned, per) = win.gather(run, &own)?;
+    let (counts, keep) = match win.input(run, &xyz, &own) {
+        Some(input) if !xyz[0].is_empty() => {
+            let (c, d) = denoise::shard_counts_and_denoise(&input)?;
+            (c, WindowKeep::of(1, &d.keep, &owned, &xyz, per))
+        }
+        _ => (Vec::new(), WindowKeep::empty(run, 1)),
     };
     let flat: Vec<u64> = counts.iter().flatten().map(|&c| c as u64).collect();
     w.u64s(flat.into_iter());
+    keep.put(&mut w);
     Ok(w)
 }
 
@@ -692,7 +823,7 @@ fn chosen_steps(run: &Run) -> Result<u32> {
         if c.len() % 3 != 0 {
             return Err(r.invalid("counts are not whole triples"));
         }
-        r.end()?;
+        // The window's filter at q = 1 follows (read by its own `keep` job).
         let c: Vec<[usize; 3]> = c
             .chunks_exact(3)
             .map(|t| [t[0] as usize, t[1] as usize, t[2] as usize])
@@ -709,47 +840,42 @@ fn chosen_steps(run: &Run) -> Result<u32> {
     Ok(denoise::choose_steps(params, &sums, run.plan.points))
 }
 
-/// The result of `keep`: the voxel height steps, one keep flag per point the window owns
-/// (in input order, packed eight to a byte), the number and bounds of its kept points.
+/// The result of `keep`: the window's noise removal at the chosen voxel height
+/// ([`WindowKeep`]). At q = 1 it is the one its `count` job wrote; otherwise the window's
+/// points are read and filtered again at q.
 fn job_keep(run: &Run, k: usize) -> Result<Writer> {
     let q = chosen_steps(run)?;
     let mut w = Writer::default();
-    w.u64(q as u64);
+    if q == 1 {
+        let mut r = run.open_result(Phase::Count, k)?;
+        r.u64s()?;
+        let keep = WindowKeep::get(&mut r, run)?;
+        r.end()?;
+        if keep.q != 1 {
+            return Err(r.invalid(format!("a filter at voxel height steps {}", keep.q)));
+        }
+        keep.put(&mut w);
+        return Ok(w);
+    }
     let win = Windows::of(run)?;
     let own = win.as_ref().and_then(|w| w.own(run.place(k)));
-    let mut per_input = vec![0u64; run.inputs.len()];
-    let (flags, kept, bounds) = match (win, own) {
+    let keep = match (win, own) {
         (Some(win), Some(own)) => {
             let (xyz, owned, per) = win.gather(run, &own)?;
-            per_input = per;
-            let keep = match win.input(run, &xyz, &own) {
-                Some(input) if !xyz[0].is_empty() => denoise::shard_denoise(&input, q)?.keep,
-                _ => Vec::new(),
-            };
-            let (b, n) = crate::terrain::bounds_of(&xyz[0], &xyz[1], &xyz[2], Some(&keep));
-            let flags: Vec<bool> = keep
-                .iter()
-                .zip(&owned)
-                .filter(|(_, &o)| o)
-                .map(|(&k, _)| k)
-                .collect();
-            (flags, n, b)
+            match win.input(run, &xyz, &own) {
+                Some(input) if !xyz[0].is_empty() => {
+                    let keep = denoise::shard_denoise(&input, q)?.keep;
+                    WindowKeep::of(q, &keep, &owned, &xyz, per)
+                }
+                _ => WindowKeep {
+                    per_input: per,
+                    ..WindowKeep::empty(run, q)
+                },
+            }
         }
-        _ => (Vec::new(), 0, Bounds::EMPTY),
+        _ => WindowKeep::empty(run, q),
     };
-    w.u64(flags.len() as u64);
-    let mut packed = vec![0u8; flags.len().div_ceil(8)];
-    for (i, _) in flags.iter().enumerate().filter(|(_, &f)| f) {
-        packed[i / 8] |= 1 << (i % 8);
-    }
-    w.bytes(&packed);
-    w.u64(kept as u64);
-    for v in bounds.min.iter().chain(&bounds.max) {
-        w.f64(*v);
-    }
-    // How many of its flags belong to each input: `prepare` skips the flags of the inputs
-    // it does not read.
-    w.u64s(per_input.into_iter());
+    keep.put(&mut w);
     Ok(w)
 }
 
@@ -777,29 +903,13 @@ fn kept(run: &Run, with_flags: bool) -> Result<Kept> {
     let (mut bounds, mut points) = (Bounds::EMPTY, 0usize);
     for k in 0..run.plan.jobs {
         let mut r = run.open_result(Phase::Keep, k)?;
-        r.u64()?;
-        let n = r.usize(run.plan.points, "owned points")?;
-        let packed = r.bytes()?;
-        if packed.len() != n.div_ceil(8) {
-            return Err(r.invalid("keep flags do not match the number of owned points"));
-        }
-        points += r.usize(n, "kept points")?;
-        let mut b = [0.0; 6];
-        for v in &mut b {
-            *v = r.f64()?;
-        }
-        let per = r.u64s()?;
-        if per.len() != run.inputs.len() || per.iter().sum::<u64>() != n as u64 {
-            return Err(r.invalid("the flags per input do not match the inputs"));
-        }
+        let wk = WindowKeep::get(&mut r, run)?;
         r.end()?;
-        per_input.push(per);
-        bounds = bounds.union(Bounds {
-            min: [b[0], b[1], b[2]],
-            max: [b[3], b[4], b[5]],
-        });
+        points += wk.kept;
+        per_input.push(wk.per_input);
+        bounds = bounds.union(wk.bounds);
         if with_flags {
-            flags.push((packed, n));
+            flags.push((wk.packed, wk.owned));
         }
     }
     Ok(Kept {
@@ -972,7 +1082,19 @@ fn job_prepare(run: &Run, k: usize) -> Result<Writer> {
     let p =
         prepare(&layout, &shard, &cells, [ci.start, cj.start], fill).map_err(|e| run.at_key(e))?;
     w.u64(1);
-    put_heightfield(&mut w, &p.local);
+    // The coarse cells first: every `finish` job reads them from every result, and only
+    // its own block's prepared region after them.
+    let coarse = p.coarse(&layout);
+    w.u64s(coarse.iter().map(|c| c.0 as u64));
+    w.f32s(coarse.iter().map(|c| c.1));
+    write_prepared(&mut w, &p);
+    Ok(w)
+}
+
+/// A prepared shard's region and fill pyramid, as [`read_prepared_from`] reads them back
+/// bit for bit.
+pub(crate) fn write_prepared(w: &mut Writer, p: &Prepared) {
+    put_heightfield(w, &p.local);
     w.u64(p.offset[0] as u64);
     w.u64(p.offset[1] as u64);
     w.u64(p.pyramid.len() as u64);
@@ -981,33 +1103,18 @@ fn job_prepare(run: &Run, k: usize) -> Result<Writer> {
         w.u64(*wd as u64);
         w.f32s(v.iter().copied());
     }
-    let coarse = p.coarse(&layout);
-    w.u64s(coarse.iter().map(|c| c.0 as u64));
-    w.f32s(coarse.iter().map(|c| c.1));
-    Ok(w)
 }
 
-/// A block's coarse cells: (index into the layout's coarse grid, value).
-type CoarseCells = Vec<(usize, f32)>;
-
-/// A `prepare` result read back: the prepared block and its coarse cells (None: no block).
-fn read_prepared(
-    run: &Run,
+/// A prepared shard written by [`write_prepared`], for `shard` of `layout` with the fill
+/// `fill` (every length checked against the layout and the bytes left).
+pub(crate) fn read_prepared_from(
+    r: &mut Reader,
     layout: &ShardLayout,
-    k: usize,
-) -> Result<Option<(Prepared, CoarseCells)>> {
-    let mut r = run.open_result(Phase::Prepare, k)?;
-    let shard = block_of(run, layout, k);
-    let present = r.usize(1, "block flag")? == 1;
-    let Some(shard) = shard.filter(|_| present) else {
-        if present {
-            return Err(r.invalid("a block where the layout has none"));
-        }
-        r.end()?;
-        return Ok(None);
-    };
+    shard: Shard,
+    fill: Option<crate::terrain::fill::FillParams>,
+) -> Result<Prepared> {
     let max_cells = layout.samples[0].max(layout.samples[1]);
-    let local = get_heightfield(&mut r, max_cells)?;
+    let local = get_heightfield(r, max_cells)?;
     let offset = [r.usize(max_cells, "offset")?, r.usize(max_cells, "offset")?];
     let levels = r.usize(64, "pyramid levels")?;
     let mut pyramid = Vec::with_capacity(levels);
@@ -1019,21 +1126,55 @@ fn read_prepared(
         }
         pyramid.push((v, h, wd));
     }
-    let idx = r.u64s()?;
-    let val = r.f32s()?;
-    if idx.len() != val.len() {
-        return Err(r.invalid("coarse cells and values differ in number"));
-    }
-    r.end()?;
-    let coarse = idx.into_iter().map(|i| i as usize).zip(val).collect();
-    let p = Prepared {
+    Ok(Prepared {
         shard,
         local,
         offset,
         pyramid,
-        fill: run.stages.fill.clone(),
+        fill,
+    })
+}
+
+/// A block's coarse cells: (index into the layout's coarse grid, value).
+type CoarseCells = Vec<(usize, f32)>;
+
+/// A `prepare` result opened and read up to its prepared region: the block (None: no
+/// block) and its coarse cells.
+fn open_prepared(
+    run: &Run,
+    layout: &ShardLayout,
+    k: usize,
+) -> Result<(Reader, Option<Shard>, CoarseCells)> {
+    let mut r = run.open_result(Phase::Prepare, k)?;
+    let shard = block_of(run, layout, k);
+    let present = r.usize(1, "block flag")? == 1;
+    match shard.filter(|_| present) {
+        Some(shard) => {
+            let idx = r.u64s()?;
+            let val = r.f32s()?;
+            if idx.len() != val.len() {
+                return Err(r.invalid("coarse cells and values differ in number"));
+            }
+            let coarse = idx.into_iter().map(|i| i as usize).zip(val).collect();
+            Ok((r, Some(shard), coarse))
+        }
+        None if present => Err(r.invalid("a block where the layout has none")),
+        None => {
+            r.end()?;
+            Ok((r, None, Vec::new()))
+        }
+    }
+}
+
+/// A `prepare` result read back: the prepared block (None: no block).
+fn read_prepared(run: &Run, layout: &ShardLayout, k: usize) -> Result<Option<Prepared>> {
+    let (mut r, shard, _) = open_prepared(run, layout, k)?;
+    let Some(shard) = shard else {
+        return Ok(None);
     };
-    Ok(Some((p, coarse)))
+    let p = read_prepared_from(&mut r, layout, shard, run.stages.fill.clone())?;
+    r.end()?;
+    Ok(Some(p))
 }
 
 /// The result of `finish`: the block's tiles, their d2 and vertical error as propagated
@@ -1046,14 +1187,12 @@ fn job_finish(run: &Run, k: usize) -> Result<Writer> {
     if is_smooth(fill) {
         let mut cells = Vec::new();
         for j in 0..run.plan.jobs {
-            if let Some((_, c)) = read_prepared(run, &layout, j)? {
-                cells.extend(c);
-            }
+            cells.extend(open_prepared(run, &layout, j)?.2);
         }
         coarse = complete_coarse(&layout, &cells)?;
     }
     let mut w = Writer::default();
-    let Some((p, _)) = read_prepared(run, &layout, k)? else {
+    let Some(p) = read_prepared(run, &layout, k)? else {
         // No tiles, no fill figures.
         w.u64(0);
         w.u64(0);

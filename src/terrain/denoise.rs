@@ -1408,6 +1408,30 @@ pub fn shard_denoise(input: &ShardInput, q: u32) -> Result<Denoised> {
     finish(st, dense, sparse, voxels, Some(&own), &mut Vec::new(), None)
 }
 
+/// [`shard_counts`] and [`shard_denoise`] at q = 1 from one setup of the shard's points
+/// (the sort by column is shared): what a shard job computes when it cannot wait for the
+/// other shards' counts. The counts are only taken with an automatic voxel height (they
+/// are empty when `voxel_height` is given, since q is then 1 whatever they say).
+pub fn shard_counts_and_denoise(input: &ShardInput) -> Result<(Vec<[usize; 3]>, Denoised)> {
+    let n = input.x.len();
+    let (st, own) = shard_setup(input)?;
+    let mut dense = vec![false; n];
+    let mut counts = Vec::new();
+    let (t, lat, s) = (&st.sorted, &st.lat, &st.settings);
+    if input.params.voxel_height.is_none() {
+        let mut coarse = vec![false; n];
+        count_pass(t, lat, s, MAX_HEIGHT_STEPS, None, &mut coarse, None);
+        for q in 1..=MAX_HEIGHT_STEPS {
+            let (f, l, v) = count_pass(t, lat, s, q, Some(&coarse), &mut dense, Some(&own));
+            counts.push([f, l, v]);
+        }
+    }
+    // Last, so that `dense` holds the flags at q = 1.
+    let (sparse, _, voxels) = count_pass(t, lat, s, 1, None, &mut dense, Some(&own));
+    let d = finish(st, dense, sparse, voxels, Some(&own), &mut Vec::new())?;
+    Ok((counts, d))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
