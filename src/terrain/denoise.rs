@@ -1428,7 +1428,7 @@ pub fn shard_counts_and_denoise(input: &ShardInput) -> Result<(Vec<[usize; 3]>, 
     }
     // Last, so that `dense` holds the flags at q = 1.
     let (sparse, _, voxels) = count_pass(t, lat, s, 1, None, &mut dense, Some(&own));
-    let d = finish(st, dense, sparse, voxels, Some(&own), &mut Vec::new())?;
+    let d = finish(st, dense, sparse, voxels, Some(&own), &mut Vec::new(), None)?;
     Ok((counts, d))
 }
 
