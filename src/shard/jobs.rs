@@ -972,15 +972,7 @@ fn job_prepare(run: &Run, k: usize) -> Result<Writer> {
     let p =
         prepare(&layout, &shard, &cells, [ci.start, cj.start], fill).map_err(|e| run.at_key(e))?;
     w.u64(1);
-    put_heightfield(&mut w, &p.local);
-    w.u64(p.offset[0] as u64);
-    w.u64(p.offset[1] as u64);
-    w.u64(p.pyramid.len() as u64);
-    for (v, h, wd) in &p.pyramid {
-        w.u64(*h as u64);
-        w.u64(*wd as u64);
-        w.f32s(v.iter().copied());
-    }
+    put_prepared(&mut w, &p);
     let coarse = p.coarse(&layout);
     w.u64s(coarse.iter().map(|c| c.0 as u64));
     w.f32s(coarse.iter().map(|c| c.1));
@@ -1006,8 +998,41 @@ fn read_prepared(
         r.end()?;
         return Ok(None);
     };
+    let p = get_prepared(&mut r, layout, shard, run.stages.fill.clone())?;
+    let idx = r.u64s()?;
+    let val = r.f32s()?;
+    if idx.len() != val.len() {
+        return Err(r.invalid("coarse cells and values differ in number"));
+    }
+    r.end()?;
+    let coarse = idx.into_iter().map(|i| i as usize).zip(val).collect();
+    Ok(Some((p, coarse)))
+}
+
+/// Writes prepared block `p` (its region's cells, their offset and the fill pyramid) as a
+/// `prepare` result holds it after its block flag; [`get_prepared`] reads it back. The
+/// streamed run spills its prepared shards in this form too (`super::prepared_spill`).
+pub(super) fn put_prepared(w: &mut Writer, p: &Prepared) {
+    put_heightfield(w, &p.local);
+    w.u64(p.offset[0] as u64);
+    w.u64(p.offset[1] as u64);
+    w.u64(p.pyramid.len() as u64);
+    for (v, h, wd) in &p.pyramid {
+        w.u64(*h as u64);
+        w.u64(*wd as u64);
+        w.f32s(v.iter().copied());
+    }
+}
+
+/// Reads back what [`put_prepared`] wrote, for `shard` of `layout` (its cells without a CRS).
+pub(super) fn get_prepared(
+    r: &mut Reader,
+    layout: &ShardLayout,
+    shard: Shard,
+    fill: Option<crate::terrain::fill::FillParams>,
+) -> Result<Prepared> {
     let max_cells = layout.samples[0].max(layout.samples[1]);
-    let local = get_heightfield(&mut r, max_cells)?;
+    let local = get_heightfield(r, max_cells)?;
     let offset = [r.usize(max_cells, "offset")?, r.usize(max_cells, "offset")?];
     let levels = r.usize(64, "pyramid levels")?;
     let mut pyramid = Vec::with_capacity(levels);
@@ -1019,21 +1044,13 @@ fn read_prepared(
         }
         pyramid.push((v, h, wd));
     }
-    let idx = r.u64s()?;
-    let val = r.f32s()?;
-    if idx.len() != val.len() {
-        return Err(r.invalid("coarse cells and values differ in number"));
-    }
-    r.end()?;
-    let coarse = idx.into_iter().map(|i| i as usize).zip(val).collect();
-    let p = Prepared {
+    Ok(Prepared {
         shard,
         local,
         offset,
         pyramid,
-        fill: run.stages.fill.clone(),
-    };
-    Ok(Some((p, coarse)))
+        fill,
+    })
 }
 
 /// The result of `finish`: the block's tiles, their d2 and vertical error as propagated
