@@ -206,9 +206,10 @@ fn stream_equals_memory_on_a_glob_of_tiles() {
 
 #[test]
 fn both_smooth_fill_paths_equal_memory() {
-    // Under 16 MiB the prepared grid shards do not fit: the first step computes only the
-    // coarse cells (own cells, no ring) and the second prepares each shard again. Under
-    // 64 MiB they fit and are kept between the steps. Both give the in-memory bytes.
+    // Under 16 MiB the prepared grid shards do not fit half the budget: each goes to its own
+    // temporary file after the first step and is read back for the second (every shard
+    // prepared once). Under 64 MiB they fit and are kept in memory between the steps. Both
+    // give the in-memory bytes, and no spilled shard is left behind.
     for (budget, kept) in [("16MiB", "false"), ("64MiB", "true")] {
         let dir = tempfile::tempdir().unwrap();
         tiles(dir.path(), "300000");
@@ -222,6 +223,11 @@ fn both_smooth_fill_paths_equal_memory() {
         let sum = summary(&r);
         let got = figure(&sum, "grid shards", "prepared shards kept");
         assert_eq!(got.as_deref(), Some(kept), "{budget}\n{}", r.context());
+        let spilled = figure(&sum, "grid shards", "prepared shards spilled");
+        let want = if kept == "true" { "false" } else { "true" };
+        assert_eq!(spilled.as_deref(), Some(want), "{budget}\n{}", r.context());
+        let bytes = figure(&sum, "grid shards", "prepared spill");
+        assert_eq!(bytes.is_some(), want == "true", "{budget}\n{}", r.context());
         let shards: usize = figure(&sum, "grid shards", "shards")
             .unwrap()
             .parse()
@@ -231,6 +237,7 @@ fn both_smooth_fill_paths_equal_memory() {
             &dir.path().join("out_memory"),
             &dir.path().join("out_stream"),
         );
+        no_stream_dir(dir.path(), &r);
     }
 }
 
@@ -348,6 +355,15 @@ fn a_directory_that_is_not_terratiles_is_refused_and_kept() {
 /// the temporary directory, or None where the run could not be interrupted in time.
 #[cfg(unix)]
 fn interrupted_stream(user_file: Option<&str>) -> Option<(tempfile::TempDir, PathBuf)> {
+    interrupted_stream_at("brick-", user_file)
+}
+
+/// [`interrupted_stream`], signalled once a temporary file whose name holds `at` exists.
+#[cfg(unix)]
+fn interrupted_stream_at(
+    at: &str,
+    user_file: Option<&str>,
+) -> Option<(tempfile::TempDir, PathBuf)> {
     let f = real("lidar/autzen_trim.las")?;
     let dir = tempfile::tempdir().unwrap();
     let p = pipeline(dir.path(), "stream", &[&f], "stream", "");
@@ -361,11 +377,8 @@ fn interrupted_stream(user_file: Option<&str>) -> Option<(tempfile::TempDir, Pat
         .unwrap();
     let tmp = dir.path().join(".out_stream.stream");
     let t = std::time::Instant::now();
-    // Signalled once the bricks are being written.
-    while !walk(&tmp)
-        .iter()
-        .any(|p| p.to_string_lossy().contains("brick-"))
-    {
+    // Signalled once the bricks (or the files named by `at`) are being written.
+    while !walk(&tmp).iter().any(|p| p.to_string_lossy().contains(at)) {
         if t.elapsed().as_secs() > 60 || child.try_wait().unwrap().is_some() {
             break;
         }
@@ -393,6 +406,17 @@ fn interrupted_stream(user_file: Option<&str>) -> Option<(tempfile::TempDir, Pat
 #[test]
 fn sigint_removes_the_temporary_files() {
     let Some((_dir, tmp)) = interrupted_stream(None) else {
+        return;
+    };
+    assert!(!tmp.exists(), "temporary directory left after SIGINT");
+}
+
+/// Interrupted while the grid shards are prepared (16 MiB: they do not fit, so each goes
+/// to its own `prepared-I.bin`), the run removes those files with the others.
+#[cfg(unix)]
+#[test]
+fn sigint_removes_the_spilled_prepared_shards() {
+    let Some((_dir, tmp)) = interrupted_stream_at("prepared-", None) else {
         return;
     };
     assert!(!tmp.exists(), "temporary directory left after SIGINT");

@@ -33,6 +33,7 @@ pub mod bricks;
 pub mod direct;
 pub mod jobs;
 pub mod points;
+pub mod prepared_spill;
 pub mod scale_bench;
 pub mod spill;
 pub mod store;
@@ -186,14 +187,6 @@ impl Shard {
         let halo = fill.map_or(0, fill_halo);
         region.start.saturating_sub(halo)..(region.end + halo).min(l.samples[a])
     }
-
-    /// The cells [`prepare_coarse`] reads along axis `a`: its own cells widened by the fill's
-    /// halo (no ring: a coarse cell is the pyramid of its own block alone).
-    pub fn coarse_input(&self, l: &ShardLayout, a: usize, fill: &FillParams) -> Range<usize> {
-        let own = self.owned(l, a);
-        let halo = fill_halo(fill);
-        own.start.saturating_sub(halo)..(own.end + halo).min(l.samples[a])
-    }
 }
 
 /// The interpolation's halo in cells: `radius` rounded down, as `fill` reads it.
@@ -270,28 +263,6 @@ pub fn prepare(
         shard.region(layout, 1, smooth),
     ];
     prepare_region(layout, shard, input, offset, fill, region)
-}
-
-/// The smooth fill's coarse cells of a shard ([`Prepared::coarse`]) without the ring that
-/// [`prepare`] computes for the pull down: each coarse cell is the pyramid of the shard's own
-/// 2^k block alone (blocks are aligned to the pyramid), so its own cells, interpolated, are
-/// enough. `input` holds (at least) the cells [`Shard::coarse_input`] names, its cell (0, 0)
-/// being global cell `offset`. A driver that cannot keep the prepared shards between the two
-/// steps runs this first and [`prepare`] (with the ring) for the second step: the first
-/// step then reads about the shard's own cells instead of its region with the ring.
-pub fn prepare_coarse(
-    layout: &ShardLayout,
-    shard: &Shard,
-    input: &Heightfield,
-    offset: [usize; 2],
-    fill: &FillParams,
-) -> Result<Vec<(usize, f32)>> {
-    if fill.fallback != Fallback::Smooth {
-        return Ok(Vec::new());
-    }
-    let region = [shard.owned(layout, 0), shard.owned(layout, 1)];
-    let p = prepare_region(layout, shard, input, offset, Some(fill), region)?;
-    Ok(p.coarse(layout))
 }
 
 /// [`prepare`] over the cells `region` (its start aligned to 2^k along both axes).

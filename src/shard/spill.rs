@@ -24,7 +24,12 @@ fn path_of(dir: &Path, i: usize) -> PathBuf {
 
 /// True for the names of the files this module writes.
 pub fn is_spill_name(name: &str) -> bool {
-    name.strip_prefix("tiles-")
+    is_numbered(name, "tiles-")
+}
+
+/// True for `name` = `prefix`, a decimal shard index, `.bin`: a per-shard temporary file.
+pub(super) fn is_numbered(name: &str, prefix: &str) -> bool {
+    name.strip_prefix(prefix)
         .and_then(|r| r.strip_suffix(".bin"))
         .is_some_and(|r| !r.is_empty() && r.bytes().all(|c| c.is_ascii_digit()))
 }

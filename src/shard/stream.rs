@@ -27,7 +27,8 @@
 
 use super::bricks::{self, BrickLattice, BrickPoints, BrickWriter, SourceTransform};
 use super::direct::{self, FileBox, Files};
-use super::{complete_coarse, finish_with, merge, prepare, ShardLayout, ShardOutput};
+use super::{complete_coarse, finish_with, merge, prepare, prepared_spill};
+use super::{ShardLayout, ShardOutput};
 use crate::config::LoadedPipeline;
 use crate::error::{Error, Result};
 use crate::fsutil::write_bytes_atomic;
@@ -360,6 +361,7 @@ fn is_ours(name: &str) -> bool {
         || window("counts-")
         || window("keep-")
         || super::spill::is_spill_name(name)
+        || super::prepared_spill::is_prepared_name(name)
 }
 
 impl TempDir {
@@ -928,7 +930,7 @@ fn grid_pass(
     sizing: &Sizing,
     mut spill: Option<&mut super::spill::Spilled>,
     progress: &dyn Progress,
-) -> Result<(ShardLayout, super::Merged, bool)> {
+) -> Result<(ShardLayout, super::Merged, bool, Option<u64>)> {
     let cfg = &pipeline.config;
     let fill = cfg.fill.enabled.then_some(&cfg.fill);
     let step = cfg.tiles.tile_size() - 1;
@@ -984,64 +986,48 @@ fn grid_pass(
         let cells = cells_of(ci, cj)?;
         prepare(&layout, &shard, &cells, offset, fill)
     };
-    // The coarse cells alone: the shard's own cells and the fill's halo, no ring.
-    let coarse_of = |i: usize, f: &crate::terrain::fill::FillParams| -> Result<Vec<(usize, f32)>> {
-        let shard = layout.shard(i);
-        let (ci, cj) = (
-            shard.coarse_input(&layout, 0, f),
-            shard.coarse_input(&layout, 1, f),
-        );
-        let offset = [ci.start, cj.start];
-        let cells = cells_of(ci, cj)?;
-        super::prepare_coarse(&layout, &shard, &cells, offset, f)
-    };
     let smooth = fill.is_some_and(|f| f.fallback == Fallback::Smooth);
     let n = layout.count();
     let all: Vec<usize> = (0..n).collect();
-    // With the smooth fill every shard's coarse cells come first; the prepared shards are
-    // kept for the second step when they fit the budget, else the first step computes only
-    // the coarse cells (own cells, no ring) and the second prepares each shard with its ring.
+    // With the smooth fill every shard's coarse cells come first; the prepared shards wait
+    // for the second step in memory when they fit the budget, else each in its own
+    // temporary file (`prepared_spill`): either way every shard is prepared once.
     let keep_prepared = {
         let [w, h] = layout.samples;
         let ring = (b + 2) * (b + 2);
         (w * h) as u64 * PREPARED_BYTES_PER_CELL * ring as u64 / (b * b) as u64 <= sizing.budget / 2
     };
     let mut kept: Vec<Option<super::Prepared>> = (0..n).map(|_| None).collect();
-    let coarse = match fill {
-        Some(f) if smooth && !keep_prepared => {
-            // Prepared again in the second step: the first computes the coarse cells only.
-            progress.start("grid shards: coarse level", n as u64);
-            let mut cells = Vec::new();
-            for chunk in all.chunks(sizing.parallel) {
-                let got: Vec<Vec<(usize, f32)>> = chunk
-                    .par_iter()
-                    .map(|&i| coarse_of(i, f))
-                    .collect::<Result<_>>()?;
-                cells.extend(got.into_iter().flatten());
-                progress.advance(chunk.len() as u64);
+    let spilled = std::sync::atomic::AtomicU64::new(0);
+    let coarse = if smooth {
+        progress.start("grid shards: coarse level", n as u64);
+        let mut cells = Vec::new();
+        for chunk in all.chunks(sizing.parallel) {
+            let got = chunk
+                .par_iter()
+                .map(|&i| {
+                    let p = prepared_of(i)?;
+                    let c = p.coarse(&layout);
+                    if keep_prepared {
+                        return Ok((c, Some(p)));
+                    }
+                    let bytes = prepared_spill::put(dir, &p)?;
+                    spilled.fetch_add(bytes, std::sync::atomic::Ordering::Relaxed);
+                    Ok((c, None))
+                })
+                .collect::<Result<Vec<_>>>()?;
+            for ((c, p), &i) in got.into_iter().zip(chunk) {
+                cells.extend(c);
+                kept[i] = p;
             }
-            progress.finish();
-            complete_coarse(&layout, &cells)?
+            progress.advance(chunk.len() as u64);
         }
-        _ if smooth => {
-            progress.start("grid shards: coarse level", n as u64);
-            let mut cells = Vec::new();
-            for chunk in all.chunks(sizing.parallel) {
-                let got: Vec<super::Prepared> = chunk
-                    .par_iter()
-                    .map(|&i| prepared_of(i))
-                    .collect::<Result<_>>()?;
-                for (p, &i) in got.into_iter().zip(chunk) {
-                    cells.extend(p.coarse(&layout));
-                    kept[i] = Some(p);
-                }
-                progress.advance(chunk.len() as u64);
-            }
-            progress.finish();
-            complete_coarse(&layout, &cells)?
-        }
-        _ => Vec::new(),
+        progress.finish();
+        complete_coarse(&layout, &cells)?
+    } else {
+        Vec::new()
     };
+    let spill_prepared = smooth && !keep_prepared;
     progress.start("grid shards", n as u64);
     let mut outputs: Vec<ShardOutput> = Vec::with_capacity(n);
     for chunk in all.chunks(sizing.parallel) {
@@ -1052,6 +1038,9 @@ fn grid_pass(
             .map(|(&i, p)| {
                 let p = match p {
                     Some(p) => p,
+                    None if spill_prepared => {
+                        prepared_spill::take(dir, &layout, i, fill, crs.as_ref())?
+                    }
                     None => prepared_of(i)?,
                 };
                 // The extraction builds its own vertical error from the merged tiles.
@@ -1069,7 +1058,8 @@ fn grid_pass(
     }
     progress.finish();
     let merged = merge(&layout, &geo, &cfg.tiles, &cfg.quadtree, outputs)?;
-    Ok((layout, merged, smooth && keep_prepared))
+    let spilled = spill_prepared.then(|| spilled.into_inner());
+    Ok((layout, merged, smooth && keep_prepared, spilled))
 }
 
 fn fig(k: &str, v: impl ToString) -> (String, String) {
@@ -1274,7 +1264,7 @@ fn stream_passes(
     // With only tile-by-tile outputs, the finished tiles leave memory shard by shard.
     let mut spilled =
         crate::output::writes_tile_by_tile(&cfg.output).then(super::spill::Spilled::default);
-    let (layout, merged, kept_prepared) = grid_pass(
+    let (layout, merged, kept_prepared, spilled_prepared) = grid_pass(
         pipeline,
         dir,
         &bk,
@@ -1295,7 +1285,11 @@ fn stream_passes(
             format!("{}×{}", layout.block[0], layout.block[1]),
         ),
         fig("prepared shards kept", kept_prepared),
+        fig("prepared shards spilled", spilled_prepared.is_some()),
     ];
+    if let Some(b) = spilled_prepared {
+        figures.push(fig("prepared spill", crate::memory::human(b)));
+    }
     if let Some(f) = &merged.fill {
         figures.extend(fill_figures(f));
     }
@@ -1383,6 +1377,7 @@ mod tests {
             "counts-3-0000001.bin",
             "keep-3-0000001.bin",
             "tiles-12.bin",
+            "prepared-7.bin",
         ] {
             assert!(is_ours(n), "{n}");
         }

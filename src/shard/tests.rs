@@ -526,47 +526,73 @@ mod from_points {
 }
 
 #[test]
-fn coarse_cells_without_the_ring_are_the_prepared_ones() {
-    // `prepare_coarse` reads a shard's own cells and the fill's halo only; its coarse cells
-    // are those `prepare` gives with the ring, bit for bit, on voids across tile borders,
-    // grids that end inside a block and radii of 1 to 8 cells.
+fn a_spilled_prepared_shard_reads_back_bit_for_bit() {
+    // The streamed run's prepared shards go to disk between the smooth fill's two steps
+    // when they do not fit the budget (`prepared_spill`); what comes back is what went out,
+    // every bit of the cells, the pyramid and the offset, for every shard of the layout.
     let (tp, _) = params(65);
-    for (seed, cols, rows) in [(3, 64 * 4 + 1, 64 * 3 + 1), (4, 64 * 5 + 9, 64 * 2 + 30)] {
-        let hf = voids_on_borders(seed, cols, rows, 64, 20);
-        for radius in [1.0, 3.0, 8.0] {
-            let fill = FillParams {
-                radius,
-                ..FillParams::default()
-            };
-            for block in [[1, 1], [2, 1], [3, 2]] {
-                let layout = ShardLayout::new([cols, rows], &tp, block).unwrap();
-                for i in 0..layout.count() {
-                    let shard = layout.shard(i);
-                    let (ci, cj) = (
-                        shard.input(&layout, 0, Some(&fill)),
-                        shard.input(&layout, 1, Some(&fill)),
-                    );
-                    let inp = crop(&hf, ci.clone(), cj.clone());
-                    let p = prepare(&layout, &shard, &inp, [ci.start, cj.start], Some(&fill));
-                    let want = p.unwrap().coarse(&layout);
-                    let (ci, cj) = (
-                        shard.coarse_input(&layout, 0, &fill),
-                        shard.coarse_input(&layout, 1, &fill),
-                    );
-                    let inp = crop(&hf, ci.clone(), cj.clone());
-                    let got =
-                        prepare_coarse(&layout, &shard, &inp, [ci.start, cj.start], &fill).unwrap();
-                    let bits = |v: &[(usize, f32)]| -> Vec<(usize, u32)> {
-                        v.iter().map(|&(k, x)| (k, x.to_bits())).collect()
-                    };
-                    assert!(!want.is_empty());
-                    assert_eq!(
-                        bits(&got),
-                        bits(&want),
-                        "seed {seed} r {radius} {block:?} {i}"
-                    );
-                }
+    let hf = voids_on_borders(5, 64 * 3 + 9, 64 * 2 + 1, 64, 13);
+    let dir = tempfile::tempdir().unwrap();
+    let fill = FillParams::default();
+    let bits = |v: &[f32]| -> Vec<u32> { v.iter().map(|x| x.to_bits()).collect() };
+    for block in [[1, 1], [2, 1], [4, 3]] {
+        let layout = ShardLayout::new([hf.cols(), hf.rows()], &tp, block).unwrap();
+        for i in 0..layout.count() {
+            let shard = layout.shard(i);
+            let (ci, cj) = (
+                shard.input(&layout, 0, Some(&fill)),
+                shard.input(&layout, 1, Some(&fill)),
+            );
+            let inp = crop(&hf, ci.clone(), cj.clone());
+            let p = prepare(&layout, &shard, &inp, [ci.start, cj.start], Some(&fill)).unwrap();
+            assert!(prepared_spill::put(dir.path(), &p).unwrap() > 0);
+            let q = prepared_spill::take(dir.path(), &layout, i, Some(&fill), None).unwrap();
+            let (a, b) = (&p.local, &q.local);
+            assert_eq!(
+                bits(a.heights.as_slice().unwrap()),
+                bits(b.heights.as_slice().unwrap())
+            );
+            assert_eq!((&a.counts, &a.state), (&b.counts, &b.state));
+            assert_eq!(
+                (a.corner, a.cell_size, a.z_offset),
+                (b.corner, b.cell_size, b.z_offset)
+            );
+            assert_eq!((&p.shard, p.offset), (&q.shard, q.offset));
+            assert_eq!(p.pyramid.len(), q.pyramid.len());
+            for ((v, h, w), (u, g, x)) in p.pyramid.iter().zip(&q.pyramid) {
+                assert_eq!((bits(v), h, w), (bits(u), g, x));
             }
+            let coarse = |p: &Prepared| -> Vec<(usize, u32)> {
+                p.coarse(&layout)
+                    .iter()
+                    .map(|&(k, v)| (k, v.to_bits()))
+                    .collect()
+            };
+            assert_eq!(coarse(&p), coarse(&q));
         }
     }
+    // Each file is removed as it is read back.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    // A file damaged on disk is refused with its name and offset, never read as cells.
+    let layout = ShardLayout::new([hf.cols(), hf.rows()], &tp, [2, 2]).unwrap();
+    let shard = layout.shard(0);
+    let (ci, cj) = (
+        shard.input(&layout, 0, Some(&fill)),
+        shard.input(&layout, 1, Some(&fill)),
+    );
+    let inp = crop(&hf, ci.clone(), cj.clone());
+    let p = prepare(&layout, &shard, &inp, [ci.start, cj.start], Some(&fill)).unwrap();
+    prepared_spill::put(dir.path(), &p).unwrap();
+    let f = dir.path().join("prepared-0.bin");
+    let mut b = std::fs::read(&f).unwrap();
+    let last = b.len() - 1;
+    b[last] ^= 0x40;
+    std::fs::write(&f, &b).unwrap();
+    let e = prepared_spill::take(dir.path(), &layout, 0, Some(&fill), None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("prepared-0.bin") && e.contains("checksum"),
+        "{e}"
+    );
 }
