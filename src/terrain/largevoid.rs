@@ -17,7 +17,7 @@
 //! held fixed: smooth in every direction, inside the range of the heights around the void (no
 //! spikes, no plateaus), a plane reproduced exactly.
 
-use super::fill::{mark_fallback, FillReport};
+use super::fill::FillReport;
 use super::heightfield::{CellState, Heightfield};
 use super::voidfill;
 use rayon::prelude::*;
@@ -92,48 +92,97 @@ pub(crate) fn enclosed(state: &[CellState], cols: usize, r: usize) -> Vec<bool> 
     out
 }
 
+/// Largest `radius` (in cells) for which [`membrane_large_voids`] tests each cell by
+/// [`enclosed_at`]; above it the whole-grid passes of [`enclosed`] (linear in the cells for
+/// any radius) are cheaper than scans of up to 4 × `radius` cells.
+const SCAN_MAX: usize = 32;
+
+/// [`enclosed`] at the one cell (`j`, `i`): the cells along each side, nearest first, the
+/// scan stopped at the first measured one and the test at the first side without one. Most
+/// empty cells between measured ones find a measured neighbour at once, and a cell deep in a
+/// void fails on its first side, so this reads far fewer cells than the whole-grid passes of
+/// [`enclosed`] (and writes none) for the radii it is used for ([`SCAN_MAX`]).
+fn enclosed_at(state: &[CellState], cols: usize, j: usize, i: usize, r: usize) -> bool {
+    let rows = state.len() / cols;
+    let k = j * cols + i;
+    let m = |k: usize| state[k] == CellState::Measured;
+    m(k) || ((1..=r.min(i)).any(|d| m(k - d))
+        && (1..=r.min(cols - 1 - i)).any(|d| m(k + d))
+        && (1..=r.min(j)).any(|d| m(k - d * cols))
+        && (1..=r.min(rows - 1 - j)).any(|d| m(k + d * cols)))
+}
+
 /// After the axis fill (holes it could not reach left `Empty`): every empty cell and every
 /// interpolated cell that is not [`enclosed`] becomes the membrane surface of the rest.
 /// `report` is the axis fill's; it is updated to what this did.
 pub(crate) fn membrane_large_voids(hf: &mut Heightfield, r: usize, report: &mut FillReport) {
     let (cols, rows) = (hf.cols(), hf.rows());
-    let Some(state) = hf.state.as_slice() else {
+    if cols == 0 || rows == 0 {
+        return;
+    }
+    let (Some(h), Some(s)) = (hf.heights.as_slice_mut(), hf.state.as_slice()) else {
         return;
     };
-    let inside = enclosed(state, cols, r);
-    let (Some(h), Some(s)) = (hf.heights.as_slice_mut(), hf.state.as_slice_mut()) else {
-        return;
-    };
-    let demoted: usize = h
-        .par_chunks_mut(1 << 14)
-        .zip(s.par_chunks_mut(1 << 14))
-        .zip(inside.par_chunks(1 << 14))
-        .map(|((h, s), inside)| {
-            let mut n = 0;
-            for k in 0..h.len() {
+    let whole = (r > SCAN_MAX).then(|| enclosed(s, cols, r));
+    // One pass: the cells to solve for become NaN (the states stay until the second pass, as
+    // the tests read them), and the range of the cells that stay, for the tolerance.
+    let (demoted, lo, hi) = h
+        .par_chunks_mut(BAND * cols)
+        .enumerate()
+        .map(|(b, hb)| {
+            let (mut n, mut lo, mut hi) = (0usize, f32::INFINITY, f32::NEG_INFINITY);
+            for (k, v) in (b * BAND * cols..).zip(hb.iter_mut()) {
                 match s[k] {
-                    CellState::Interpolated if !inside[k] => {
-                        s[k] = CellState::Empty;
-                        h[k] = f32::NAN;
+                    CellState::Interpolated
+                        if !match &whole {
+                            Some(w) => w[k],
+                            None => enclosed_at(s, cols, k / cols, k % cols, r),
+                        } =>
+                    {
+                        *v = f32::NAN;
                         n += 1;
                     }
-                    CellState::Empty => h[k] = f32::NAN,
+                    CellState::Empty => *v = f32::NAN,
+                    _ if v.is_finite() => (lo, hi) = (lo.min(*v), hi.max(*v)),
                     _ => {}
                 }
             }
-            n
+            (n, lo, hi)
         })
-        .sum();
-    drop(inside);
-    let tol = voidfill::default_tolerance(h);
+        .reduce(
+            || (0, f32::INFINITY, f32::NEG_INFINITY),
+            |a, b| (a.0 + b.0, a.1.min(b.1), a.2.max(b.2)),
+        );
+    drop(whole);
+    let unknown = report.empty + demoted;
+    // The membrane fills every cell it solves for unless no cell is known (then it leaves
+    // them all NaN, `Empty`): the states are set before it runs, in one pass.
+    let solved = unknown > 0 && unknown < h.len();
+    let to = if solved {
+        CellState::Fallback
+    } else {
+        CellState::Empty
+    };
+    if let Some(s) = hf.state.as_slice_mut() {
+        s.par_chunks_mut(1 << 14)
+            .zip(h.par_chunks(1 << 14))
+            .for_each(|(s, h)| {
+                for (s, h) in s.iter_mut().zip(h) {
+                    if *s != CellState::Measured && h.is_nan() {
+                        *s = to;
+                    }
+                }
+            });
+    }
+    let tol = voidfill::tolerance_of_range(lo, hi);
     let filled = voidfill::membrane_fill(h, cols, rows, tol);
-    mark_fallback(hf);
+    debug_assert_eq!(filled, if solved { unknown } else { 0 });
     report.interpolated -= demoted;
-    if filled > 0 {
-        report.fallback += report.empty + demoted;
+    if solved {
+        report.fallback += unknown;
         report.empty = 0;
     } else {
-        report.empty += demoted;
+        report.empty = unknown;
     }
 }
 
@@ -224,6 +273,28 @@ mod tests {
                 enclosed_slow(&state, cols, r),
                 "{cols}×{rows} r {r}"
             );
+        }
+    }
+
+    #[test]
+    fn enclosed_at_equals_the_slow_scan() {
+        let mut rng = crate::rng::SplitMix64::new(9);
+        for (cols, rows, p, r) in [(13, 40, 0.2, 3), (40, 9, 0.05, 8), (31, 30, 0.5, 1)] {
+            let state: Vec<CellState> = (0..cols * rows)
+                .map(|_| match rng.below(3) {
+                    0 if rng.unit() < 3.0 * p => CellState::Measured,
+                    0 | 1 => CellState::Empty,
+                    _ => CellState::Interpolated,
+                })
+                .collect();
+            let slow = enclosed_slow(&state, cols, r);
+            for (k, want) in slow.iter().enumerate() {
+                assert_eq!(
+                    enclosed_at(&state, cols, k / cols, k % cols, r),
+                    *want,
+                    "{cols}×{rows} r {r} cell {k}"
+                );
+            }
         }
     }
 

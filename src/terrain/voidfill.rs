@@ -96,6 +96,11 @@ pub fn default_tolerance(z: &[f32]) -> f32 {
             || (f32::INFINITY, f32::NEG_INFINITY),
             |x, y| (x.0.min(y.0), x.1.max(y.1)),
         );
+    tolerance_of_range(lo, hi)
+}
+
+/// [`default_tolerance`] of heights whose finite ones span `lo..=hi` (`lo > hi`: none).
+pub fn tolerance_of_range(lo: f32, hi: f32) -> f32 {
     if lo > hi {
         return 1e-6;
     }
@@ -417,23 +422,38 @@ fn gs_fine(f: &mut Fine, backward: bool) -> f32 {
     }
     let c = f.cols;
     let len = f.x.len();
+    let (x, nb) = (&mut f.x, &f.nb);
     let mut change = 0.0f32;
-    let mut step = |k: usize| {
-        let n = f.nb[k];
-        if n != 0 {
-            let x = &mut f.x;
-            let v = (x[k - 1] + x[k + 1] + x[k - c] + x[k + c]) * INV[n as usize];
-            change = change.max((v - x[k]).abs());
-            x[k] = v;
-        }
-    };
+    // The neighbour the sweep has just updated (left going forward, right going backward)
+    // is carried in a register and added last: the chain from one cell's result to the next
+    // is then one addition and one multiplication (the sweep is bound by it), where reading
+    // it back from memory first and adding it first made it a store, a load, three
+    // additions and a multiplication.
     if backward {
+        let mut prev = x[len - c];
         for k in (c..len - c).rev() {
-            step(k);
+            let n = nb[k];
+            if n != 0 {
+                let v = (x[k - 1] + x[k - c] + x[k + c] + prev) * INV[n as usize];
+                change = change.max((v - x[k]).abs());
+                x[k] = v;
+                prev = v;
+            } else {
+                prev = x[k];
+            }
         }
     } else {
+        let mut prev = x[c - 1];
         for k in c..len - c {
-            step(k);
+            let n = nb[k];
+            if n != 0 {
+                let v = (x[k + 1] + x[k - c] + x[k + c] + prev) * INV[n as usize];
+                change = change.max((v - x[k]).abs());
+                x[k] = v;
+                prev = v;
+            } else {
+                prev = x[k];
+            }
         }
     }
     change
@@ -655,6 +675,10 @@ fn galerkin_with(
                     }
                 }
             }
+            // No active fine cell under it (the box around a round void): R A P is zero.
+            if a.as_flattened().iter().all(|v| *v == 0.0) {
+                continue;
+            }
             st[k] = rap(&a);
             if st[k][4] > 0.0 {
                 kind[k] = EDGE;
@@ -737,24 +761,41 @@ fn gs_coarse(l: &mut Coarse, backward: bool) -> f32 {
     let c = l.cols;
     let len = l.x.len();
     let (kind, st, b, x, si) = (&l.kind, &l.st, &l.b, &mut l.x, l.interior);
+    let inv_si = 1.0 / si[4];
     let mut change = 0.0f32;
-    let mut step = |k: usize| {
-        let v = match kind[k] {
-            INACTIVE => return,
-            INTERIOR => stencil_residual(&si, x, b[k], k, c, false) / si[4],
-            _ => stencil_residual(&st[k], x, b[k], k, c, false) / st[k][4],
-        };
-        change = change.max((v - x[k]).abs());
-        x[k] = v;
-    };
+    // As in `gs_fine`, the neighbour just updated (stencil entry `p`) is carried in a
+    // register and enters last, and the centre weight's inverse does not depend on the
+    // heights: the chain from one cell to the next is one multiply-subtract and one
+    // multiplication.
+    macro_rules! sweep {
+        ($range:expr, $p:expr, $prev:expr) => {{
+            let mut prev = x[$prev];
+            for k in $range {
+                let (s, inv) = match kind[k] {
+                    INACTIVE => {
+                        prev = x[k];
+                        continue;
+                    }
+                    INTERIOR => (&si, inv_si),
+                    _ => (&st[k], 1.0 / st[k][4]),
+                };
+                let mut r = b[k];
+                for (o, w) in s.iter().enumerate() {
+                    if o != 4 && o != $p {
+                        r -= w * x[k + o % 3 + (o / 3) * c - 1 - c];
+                    }
+                }
+                let v = (r - s[$p] * prev) * inv;
+                change = change.max((v - x[k]).abs());
+                x[k] = v;
+                prev = v;
+            }
+        }};
+    }
     if backward {
-        for k in (c + 1..len - c - 1).rev() {
-            step(k);
-        }
+        sweep!((c + 1..len - c - 1).rev(), 5, len - c - 1);
     } else {
-        for k in c + 1..len - c - 1 {
-            step(k);
-        }
+        sweep!(c + 1..len - c - 1, 3, c);
     }
     change
 }
