@@ -663,6 +663,19 @@ struct ClassifyArgs {
     /// Elevation scalar, metres per unit slope (default 1.25).
     #[arg(long, value_name = "M")]
     scalar: Option<f64>,
+    /// Empty cells within this many point spacings take the nearest height before the
+    /// openings (default 1; 0: off).
+    #[arg(long, value_name = "SPACINGS")]
+    gap_fill: Option<f64>,
+    /// Radius of the crest test, point spacings (default 1.5; 0: off).
+    #[arg(long, value_name = "SPACINGS")]
+    support_radius: Option<f64>,
+    /// Height tolerance of a supporting ground cell, metres (default 0.3).
+    #[arg(long, value_name = "M")]
+    support_tolerance: Option<f64>,
+    /// Tolerance added per metre of distance to the supporting cell (default 0.2).
+    #[arg(long)]
+    support_slope: Option<f64>,
 }
 
 fn classify(a: ClassifyArgs, progress: &dyn Progress) -> Result<()> {
@@ -674,6 +687,10 @@ fn classify(a: ClassifyArgs, progress: &dyn Progress) -> Result<()> {
         sure_slope: a.sure_slope,
         threshold: a.threshold,
         scalar: a.scalar,
+        gap_fill: a.gap_fill,
+        support_radius: a.support_radius,
+        support_tolerance: a.support_tolerance,
+        support_slope: a.support_slope,
         ..Default::default()
     };
     if let Some(o) = &a.output {

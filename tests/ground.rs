@@ -279,6 +279,45 @@ fn classify_cli() {
             .input_error(&["slope"])
             .left_nothing("x.las");
     }
+    for (key, s) in [
+        ("gap_fill", "--gap-fill=-1"),
+        ("support_radius", "--support-radius=NaN"),
+        ("support_tolerance", "--support-tolerance=-0.1"),
+        ("support_slope", "--support-slope=inf"),
+    ] {
+        common::terratile(d, &["classify", las, "x.las", s])
+            .input_error(&[key])
+            .left_nothing("x.las");
+    }
+    // The refinement keys take effect on a sparse survey with crests (samp61; the dense
+    // fixture has neither gaps nor crests for them to give back).
+    if let Some(p) = isprs("samp61") {
+        let p = p.to_string_lossy().into_owned();
+        let count = |extra: &[&str]| -> u64 {
+            let mut args = vec!["classify", &p, "--json"];
+            args.extend_from_slice(extra);
+            let r = common::terratile(d, &args);
+            r.ok();
+            let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+            v["ground"].as_u64().unwrap()
+        };
+        let default = count(&[]);
+        assert_ne!(
+            count(&["--gap-fill=0"]),
+            default,
+            "gap_fill changes nothing"
+        );
+        assert_ne!(
+            count(&["--support-radius=0"]),
+            default,
+            "support_radius changes nothing"
+        );
+        assert_ne!(
+            count(&["--support-tolerance=5"]),
+            default,
+            "support_tolerance changes nothing"
+        );
+    }
     common::terratile(d, &["classify", "out.las", "--score"]).ok();
     std::fs::write(d.join("flat.xyz"), "0 0 1\n1 0 1\n0 1 1\n").unwrap();
     common::terratile(d, &["classify", "flat.xyz", "--score"]).input_error(&["no class 2"]);

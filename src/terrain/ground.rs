@@ -104,6 +104,17 @@ pub struct GroundParams {
     /// Elevation scalar of the final test: metres of tolerance added per unit of the
     /// terrain slope at the point (default 1.25 m).
     pub scalar: Option<f64>,
+    /// Empty cells within this many point spacings of a point take the nearest point's
+    /// height before the openings (default 1; 0 turns the gap fill off).
+    pub gap_fill: Option<f64>,
+    /// Radius of the crest test in point spacings (or cells, when a cell is wider): an
+    /// object cell is ground again when ground cells this near reach its height in two
+    /// opposite directions (default 1.5; 0 turns the test off).
+    pub support_radius: Option<f64>,
+    /// Height tolerance of a supporting ground cell in metres (default 0.3 m) …
+    pub support_tolerance: Option<f64>,
+    /// … plus this many metres per metre of distance to it (default 0.2).
+    pub support_slope: Option<f64>,
 }
 
 impl Default for GroundParams {
@@ -120,6 +131,10 @@ impl Default for GroundParams {
             sure_slope: None,
             threshold: None,
             scalar: None,
+            gap_fill: None,
+            support_radius: None,
+            support_tolerance: None,
+            support_slope: None,
         }
     }
 }
@@ -155,6 +170,14 @@ pub struct GroundSettings {
     pub threshold: f64,
     /// Elevation scalar, metres per unit slope.
     pub scalar: f64,
+    /// Reach of the gap fill, point spacings.
+    pub gap_fill: f64,
+    /// Radius of the crest test, point spacings.
+    pub support_radius: f64,
+    /// Height tolerance of a supporting cell, metres.
+    pub support_tolerance: f64,
+    /// Added tolerance per metre of distance, metres per metre.
+    pub support_slope: f64,
 }
 
 /// The result of [`classify`].
@@ -182,6 +205,18 @@ fn positive(name: &'static str, v: Option<f64>) -> Result<()> {
     }
 }
 
+fn non_negative(name: &'static str, v: Option<f64>) -> Result<()> {
+    match v {
+        Some(v) if !(v >= 0.0 && v.is_finite()) => Err(Error::param(
+            "ground",
+            name,
+            v,
+            "must be a finite number ≥ 0",
+        )),
+        _ => Ok(()),
+    }
+}
+
 impl GroundParams {
     /// Checks the values a user can get wrong, before any data is read.
     pub fn validate(&self) -> Result<()> {
@@ -190,6 +225,14 @@ impl GroundParams {
         positive("slope", self.slope)?;
         positive("sure_slope", self.sure_slope)?;
         positive("threshold", self.threshold)?;
+        for (name, v) in [
+            ("gap_fill", self.gap_fill),
+            ("support_radius", self.support_radius),
+            ("support_tolerance", self.support_tolerance),
+            ("support_slope", self.support_slope),
+        ] {
+            non_negative(name, v)?;
+        }
         match self.scalar {
             Some(v) if !(v >= 0.0 && v.is_finite()) => Err(Error::param(
                 "ground",
@@ -327,7 +370,11 @@ pub fn classify(
         .collect();
     // The gaps between points (up to one spacing) take the nearest height: see
     // `ground_refine`.
-    refine::nearest_fill(&mut base, cols, rows, refine::fill_reach(spacing_m, cell_m));
+    let gap_fill = params.gap_fill.unwrap_or(refine::DEFAULT_GAP_FILL);
+    if gap_fill > 0.0 {
+        let reach = refine::fill_reach(gap_fill * spacing_m, cell_m);
+        refine::nearest_fill(&mut base, cols, rows, reach);
+    }
     let window_m = params.window.unwrap_or(DEFAULT_WINDOW);
     let radius = ((window_m / cell_m).ceil() as usize).max(1);
     let slope = params.slope.unwrap_or(DEFAULT_SLOPE);
@@ -341,8 +388,25 @@ pub fn classify(
     // Crests, rims and embankments the openings cut are ground again where ground holds them
     // up on two opposite sides: see `ground_refine`.
     let live: Vec<bool> = empty.par_iter().zip(&low).map(|(e, l)| !e && !l).collect();
-    let support_m = refine::SUPPORT_RADIUS * spacing_m.max(cell_m);
-    refine::readmit_supported(&mut object, &live, &zmin, cols, rows, cell_m, support_m);
+    let support = refine::Support {
+        radius: params
+            .support_radius
+            .unwrap_or(refine::DEFAULT_SUPPORT_RADIUS),
+        tolerance: params
+            .support_tolerance
+            .unwrap_or(refine::DEFAULT_SUPPORT_TOLERANCE),
+        slope: params
+            .support_slope
+            .unwrap_or(refine::DEFAULT_SUPPORT_SLOPE),
+    };
+    if support.radius > 0.0 {
+        let radius_m = support.radius * spacing_m.max(cell_m);
+        let in_metres = refine::Support {
+            radius: radius_m,
+            ..support
+        };
+        refine::readmit_supported(&mut object, &live, &zmin, cols, rows, cell_m, in_metres);
+    }
     drop(live);
     // 4. Provisional DEM.
     let mut dem: Vec<f32> = (0..zmin.len())
@@ -413,6 +477,10 @@ pub fn classify(
             sure_slope,
             threshold,
             scalar,
+            gap_fill,
+            support_radius: support.radius,
+            support_tolerance: support.tolerance,
+            support_slope: support.slope,
         },
         grid: [cols, rows],
     })

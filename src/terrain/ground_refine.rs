@@ -89,18 +89,32 @@ pub(crate) fn nearest_fill(z: &mut [f32], cols: usize, rows: usize, reach: usize
 
 /// Sectors of the direction test of [`readmit_supported`].
 const SECTORS: usize = 8;
-/// Radius of the neighbourhood of [`readmit_supported`], in point spacings (or cells, when
-/// a cell is wider than the spacing).
-pub(crate) const SUPPORT_RADIUS: f64 = 1.5;
-/// Height tolerance of a supporting ground cell: this many metres …
-pub(crate) const SUPPORT_TOLERANCE: f32 = 0.3;
+/// Default reach of [`nearest_fill`], in point spacings (`[ground] gap_fill`).
+pub(crate) const DEFAULT_GAP_FILL: f64 = 1.0;
+/// Default radius of the neighbourhood of [`readmit_supported`], in point spacings (or
+/// cells, when a cell is wider than the spacing; `[ground] support_radius`).
+pub(crate) const DEFAULT_SUPPORT_RADIUS: f64 = 1.5;
+/// Default height tolerance of a supporting ground cell: this many metres …
+pub(crate) const DEFAULT_SUPPORT_TOLERANCE: f64 = 0.3;
 /// … plus this many metres per metre of distance (the crest may fall along its line).
-pub(crate) const SUPPORT_SLOPE: f32 = 0.2;
+pub(crate) const DEFAULT_SUPPORT_SLOPE: f64 = 0.2;
+
+/// The crest test's parameters: radius (in point spacings as configured; in metres when
+/// given to [`readmit_supported`]), tolerance in metres plus `slope` metres per metre of
+/// distance.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Support {
+    pub radius: f64,
+    pub tolerance: f64,
+    pub slope: f64,
+}
 /// Rounds of [`readmit_supported`] at most (on the ISPRS samples it settles in fewer).
 const MAX_ROUNDS: usize = 32;
 
-/// The neighbourhood of [`readmit_supported`]: (di, dj, distance in metres, sector).
-fn support_offsets(radius_m: f64, cell_m: f64) -> Vec<(isize, isize, f32, usize)> {
+/// The neighbourhood of [`readmit_supported`]: (di, dj, height tolerance at that distance in
+/// metres, sector).
+fn support_offsets(radius_m: f64, cell_m: f64, s: Support) -> Vec<(isize, isize, f32, usize)> {
+    let (tolerance, slope) = (s.tolerance as f32, s.slope as f32);
     let r = ((radius_m / cell_m).ceil() as isize).max(1);
     let mut offs = Vec::new();
     for dj in -r..=r {
@@ -111,7 +125,7 @@ fn support_offsets(radius_m: f64, cell_m: f64) -> Vec<(isize, isize, f32, usize)
             }
             let a = (dj as f64).atan2(di as f64) + std::f64::consts::PI;
             let s = ((a / std::f64::consts::TAU * SECTORS as f64) as usize) % SECTORS;
-            offs.push((di, dj, d as f32, s));
+            offs.push((di, dj, tolerance + slope * d as f32, s));
         }
     }
     offs
@@ -130,13 +144,13 @@ fn supported(
 ) -> bool {
     let (i, j) = ((k % cols) as isize, (k / cols) as isize);
     let mut sup = [false; SECTORS];
-    for &(di, dj, d, s) in offs {
+    for &(di, dj, tol, s) in offs {
         let (ii, jj) = (i + di, j + dj);
         if ii < 0 || jj < 0 || ii >= cols as isize || jj >= rows as isize {
             continue;
         }
         let m = jj as usize * cols + ii as usize;
-        if live[m] && !object[m] && z[m] >= z[k] - (SUPPORT_TOLERANCE + SUPPORT_SLOPE * d) {
+        if live[m] && !object[m] && z[m] >= z[k] - tol {
             sup[s] = true;
         }
     }
@@ -149,7 +163,7 @@ fn supported(
 /// Re-admits as ground the object cells held up by ground in two opposite directions (see
 /// the module notes). `live`: the cells that hold a point and are not low outliers (only
 /// they are judged or support); `z`: the minimum surface in metres; `radius_m` the
-/// neighbourhood's radius in metres. Rounds repeat while cells change; after the first,
+/// `s` the neighbourhood's radius in metres and the tolerances. Rounds repeat while cells change; after the first,
 /// only the object cells near a changed cell are judged again (the others see the same
 /// neighbourhood as before). Returns the cells re-admitted.
 pub(crate) fn readmit_supported(
@@ -159,9 +173,10 @@ pub(crate) fn readmit_supported(
     cols: usize,
     rows: usize,
     cell_m: f64,
-    radius_m: f64,
+    s: Support,
 ) -> usize {
-    let offs = support_offsets(radius_m, cell_m);
+    let radius_m = s.radius;
+    let offs = support_offsets(radius_m, cell_m, s);
     let r = ((radius_m / cell_m).ceil() as usize).max(1);
     let mut cand: Vec<usize> = (0..object.len())
         .into_par_iter()
@@ -208,6 +223,17 @@ pub(crate) fn readmit_supported(
 mod tests {
     use super::*;
     use crate::rng::SplitMix64;
+
+    const DEFAULTS: Support = Support {
+        radius: DEFAULT_SUPPORT_RADIUS,
+        tolerance: DEFAULT_SUPPORT_TOLERANCE,
+        slope: DEFAULT_SUPPORT_SLOPE,
+    };
+    /// The defaults with a radius of 2 m (2 cells of 1 m).
+    const RADIUS_2: Support = Support {
+        radius: 2.0,
+        ..DEFAULTS
+    };
 
     /// The slow twin of [`nearest_fill`]: for every unknown cell, a scan of all measured
     /// cells for the smallest Manhattan distance and the lowest height at it.
@@ -266,7 +292,7 @@ mod tests {
     /// The slow twin of [`readmit_supported`]: every object cell judged again in every
     /// round, until a round changes nothing.
     fn readmit_slow(object: &mut [bool], live: &[bool], z: &[f32], cols: usize, rows: usize) {
-        let offs = support_offsets(2.0, 1.0);
+        let offs = support_offsets(2.0, 1.0, DEFAULTS);
         loop {
             let flips: Vec<usize> = (0..object.len())
                 .filter(|&k| {
@@ -293,7 +319,7 @@ mod tests {
                 let live: Vec<bool> = (0..cols * rows).map(|_| rng.unit() < 0.8).collect();
                 let object: Vec<bool> = (0..cols * rows).map(|_| rng.unit() < 0.5).collect();
                 let (mut fast, mut slow) = (object.clone(), object);
-                readmit_supported(&mut fast, &live, &z, cols, rows, 1.0, 2.0);
+                readmit_supported(&mut fast, &live, &z, cols, rows, 1.0, RADIUS_2);
                 readmit_slow(&mut slow, &live, &z, cols, rows);
                 assert_eq!(fast, slow, "{cols}×{rows}");
             }
@@ -333,7 +359,7 @@ mod tests {
             }
         }
         let live = vec![true; cols * rows];
-        readmit_supported(&mut object, &live, &z, cols, rows, 1.0, 2.0);
+        readmit_supported(&mut object, &live, &z, cols, rows, 1.0, RADIUS_2);
         assert!(
             (5..55).all(|i| !object[10 * cols + i]),
             "a crest cell stayed"
