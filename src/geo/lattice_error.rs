@@ -62,16 +62,16 @@ pub fn square_height(
 }
 
 /// Largest |L − G| along the lattice edge from `p0` (height `h0`) to `p1` (height `h1`), G
-/// being `grid` (the bilinear surface, continuous, bilinear on each unit cell). `cuts` is
-/// scratch space.
-fn edge_error(
+/// being `grid` (the bilinear surface, continuous, bilinear on each unit cell), and the
+/// fraction of the edge where it is taken. `cuts` is scratch space.
+pub(crate) fn edge_error(
     p0: [f64; 2],
     p1: [f64; 2],
     h0: f64,
     h1: f64,
     grid: &impl Fn([f64; 2]) -> f64,
     cuts: &mut Vec<f64>,
-) -> f64 {
+) -> (f64, f64) {
     cuts.clear();
     cuts.push(0.0);
     for k in 0..2 {
@@ -92,23 +92,29 @@ fn edge_error(
         let p = [p0[0] + t * (p1[0] - p0[0]), p0[1] + t * (p1[1] - p0[1])];
         h0 + t * (h1 - h0) - grid(p)
     };
-    let mut worst = 0.0f64;
+    let mut worst = (0.0f64, 0.0f64);
+    let mut take = |err: f64, t: f64| {
+        if err.abs() > worst.0 {
+            worst = (err.abs(), t);
+        }
+    };
     let mut ea = e(cuts[0]);
-    worst = worst.max(ea.abs());
+    take(ea, cuts[0]);
     for w in cuts.windows(2) {
         let (ta, tb) = (w[0], w[1]);
         let eb = e(tb);
-        worst = worst.max(eb.abs());
+        take(eb, tb);
         if tb > ta {
             // On (ta, tb) e is a quadratic q(s) = em + beta·s + alpha·s², s ∈ [−1, 1].
-            let em = e(0.5 * (ta + tb));
+            let tm = 0.5 * (ta + tb);
+            let em = e(tm);
             let beta = 0.5 * (eb - ea);
             let alpha = 0.5 * (ea + eb) - em;
-            worst = worst.max(em.abs());
+            take(em, tm);
             if alpha != 0.0 {
                 let s = -beta / (2.0 * alpha);
                 if s.abs() < 1.0 {
-                    worst = worst.max((em - beta * beta / (4.0 * alpha)).abs());
+                    take(em - beta * beta / (4.0 * alpha), tm + s * 0.5 * (tb - ta));
                 }
             }
         }
@@ -132,7 +138,7 @@ pub fn square_errors(lat: &Lattice<'_>, grid: impl Fn([f64; 2]) -> f64) -> Vec<f
     };
     let edge = |a: (usize, usize), b: (usize, usize), cuts: &mut Vec<f64>| {
         let (ka, kb) = (a.1 * w + a.0, b.1 * w + b.0);
-        edge_error(lat.at[ka], lat.at[kb], lat.h[ka], lat.h[kb], &grid, cuts)
+        edge_error(lat.at[ka], lat.at[kb], lat.h[ka], lat.h[kb], &grid, cuts).0
     };
     for j in 0..=n {
         for i in 0..=n {

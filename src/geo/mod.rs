@@ -12,6 +12,7 @@
 //! alternative; it has no EPSG table and no WKT reader, so every CRS would be ours to spell.
 
 pub mod lattice_error;
+pub mod tin;
 pub mod tms;
 
 use crate::points::Crs;
