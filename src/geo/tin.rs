@@ -9,7 +9,7 @@
 //! farthest from G is inserted into a Delaunay triangulation (`spade`) until every triangle is
 //! within the tolerance of G everywhere.
 //!
-//! "Everywhere" is exact, by the argument of `lattice_error`: on each grid cell a triangle's
+//! "Everywhere" is exact, here: on each grid cell a triangle's
 //! plane minus G is linear minus bilinear, harmonic, so its extremes over (triangle ∩ cell) lie
 //! on that piece's boundary: at grid nodes inside the triangle, or on the triangle's edges at
 //! their crossings with grid lines or at the vertex of the quadratic between two crossings.
@@ -28,7 +28,6 @@
 //! Hand-written: spade builds the Delaunay triangulation, but no crate approximates a
 //! bilinear grid by a TIN within an exact bound on a region that is not grid-aligned.
 
-use crate::geo::lattice_error::edge_error;
 use spade::handles::{FixedFaceHandle, FixedVertexHandle, InnerTag};
 use spade::{DelaunayTriangulation, Point2, Triangulation};
 use std::cmp::Ordering;
@@ -44,6 +43,78 @@ pub trait Surface {
     fn at(&self, p: [f64; 2]) -> f64;
     /// Height (metres) of grid node (i, j) (clamped to the grid).
     fn node(&self, i: i64, j: i64) -> f64;
+    /// Columns and rows of the grid.
+    fn size(&self) -> [usize; 2];
+    /// Whether `p` is over the grid (the closed rectangle of its nodes). The triangulations
+    /// are held to the tolerance there only: past the border the continued surface is an
+    /// extrusion of the border's profile, which a Delaunay triangulation would follow only
+    /// with a vertex at nearly every node, for heights no one measured.
+    fn inside(&self, p: [f64; 2]) -> bool {
+        let [c, r] = self.size();
+        (0.0..=(c - 1) as f64).contains(&p[0]) && (0.0..=(r - 1) as f64).contains(&p[1])
+    }
+}
+
+/// Largest |L − G| over the grid along the segment from `p0` (height `h0`) to `p1` (height
+/// `h1`), L linear between the ends' heights and G the surface `s` (continuous, bilinear on
+/// each unit cell), and the fraction of the segment where it is taken. `cuts` is scratch
+/// space.
+fn edge_error<S: Surface>(
+    s: &S,
+    p0: [f64; 2],
+    p1: [f64; 2],
+    h0: f64,
+    h1: f64,
+    cuts: &mut Vec<f64>,
+) -> (f64, f64) {
+    cuts.clear();
+    cuts.push(0.0);
+    for k in 0..2 {
+        let (a, b) = (p0[k], p1[k]);
+        if a != b {
+            // Integer lines strictly between a and b.
+            let (lo, hi) = (a.min(b), a.max(b));
+            let mut c = lo.floor() + 1.0;
+            while c < hi {
+                cuts.push((c - a) / (b - a));
+                c += 1.0;
+            }
+        }
+    }
+    cuts.push(1.0);
+    cuts.sort_unstable_by(f64::total_cmp);
+    let point = |t: f64| [p0[0] + t * (p1[0] - p0[0]), p0[1] + t * (p1[1] - p0[1])];
+    let e = |t: f64| h0 + t * (h1 - h0) - s.at(point(t));
+    let mut worst = (0.0f64, 0.0f64);
+    let mut take = |err: f64, t: f64| {
+        if err.abs() > worst.0 {
+            worst = (err.abs(), t);
+        }
+    };
+    let mut ea = e(cuts[0]);
+    for w in cuts.windows(2) {
+        let (ta, tb) = (w[0], w[1]);
+        let eb = e(tb);
+        // The grid's border lines are among the cuts: a piece is over the grid or not.
+        let tm = 0.5 * (ta + tb);
+        if s.inside(point(tm)) {
+            take(ea, ta);
+            take(eb, tb);
+            // On (ta, tb) e is a quadratic q(s) = em + beta·s + alpha·s², s ∈ [−1, 1].
+            let em = e(tm);
+            let beta = 0.5 * (eb - ea);
+            let alpha = 0.5 * (ea + eb) - em;
+            take(em, tm);
+            if alpha != 0.0 {
+                let x = -beta / (2.0 * alpha);
+                if x.abs() < 1.0 {
+                    take(em - beta * beta / (4.0 * alpha), tm + x * 0.5 * (tb - ta));
+                }
+            }
+        }
+        ea = eb;
+    }
+    worst
 }
 
 /// A vertex of a tile's side: its quantized position along the side (0..=Q from the side's
@@ -58,22 +129,20 @@ pub struct SideVertex {
     pub h: f64,
 }
 
-/// The vertices of the side from grid position `a` to `b` (a tile side; `a` its south or
-/// west end): both ends and as few quantized points between them as keep the piecewise-linear
-/// side within `tolerance` of the surface along it, sorted along the side.
-pub fn side_vertices<S: Surface>(
-    s: &S,
-    a: [f64; 2],
-    b: [f64; 2],
-    tolerance: f64,
-) -> Vec<SideVertex> {
+/// The vertices of a tile's side through the grid positions `line` (its `M + 1` exactly
+/// projected points from its south or west end, the side linear between them): both ends and
+/// as few quantized points between them as keep the piecewise-linear side within `tolerance`
+/// of the surface along it, sorted along the side.
+pub fn side_vertices<S: Surface>(s: &S, line: &[[f64; 2]], tolerance: f64) -> Vec<SideVertex> {
     let at = |k: u16| {
-        let f = f64::from(k) / f64::from(Q);
-        // The far corner exactly: it is the first corner of the next side.
+        let f = f64::from(k) / f64::from(Q) * M as f64;
+        let a = (f as usize).min(M - 1);
+        let t = f - a as f64;
+        // The far end exactly: it is the first corner of the next side.
         let p = if k == Q {
-            b
+            line[M]
         } else {
-            [a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])]
+            [0, 1].map(|c| line[a][c] + t * (line[a + 1][c] - line[a][c]))
         };
         SideVertex { k, p, h: s.at(p) }
     };
@@ -82,7 +151,7 @@ pub fn side_vertices<S: Surface>(
     // Pieces still to measure, the next one along the side on top.
     let mut todo = vec![(at(0), at(Q))];
     while let Some((v0, v1)) = todo.pop() {
-        let (err, t) = edge_error(v0.p, v1.p, v0.h, v1.h, &|p| s.at(p), &mut cuts);
+        let (err, t) = edge_error(s, v0.p, v1.p, v0.h, v1.h, &mut cuts);
         if err > tolerance && v1.k - v0.k >= 2 {
             let k = (f64::from(v0.k) + t * f64::from(v1.k - v0.k)).round() as u16;
             let k = k.clamp(v0.k + 1, v1.k - 1);
@@ -110,49 +179,63 @@ pub struct TileTin {
     pub triangles: Vec<[u32; 3]>,
 }
 
-/// A tile's map from (u, v) ∈ [0, 1]² to grid coordinates: bilinear between its corners'
-/// grid positions (south-west, south-east, north-west, north-east).
+/// Pieces per side of a tile's map: the tile's points projected exactly on an `M` × `M`
+/// grid of pieces, bilinear within each. Over a piece of a tile of tens of metres the
+/// projection's curvature (L²/8R) leaves a few micrometres.
+pub const M: usize = 4;
+
+/// A tile's map from (u, v) ∈ [0, 1]² to grid coordinates: bilinear on each of `M` × `M`
+/// pieces between exactly projected points.
 #[derive(Debug, Clone, Copy)]
 pub struct TileMap {
-    c00: [f64; 2],
-    e: [f64; 2],
-    f: [f64; 2],
-    g: [f64; 2],
+    /// Grid positions of the points (a, b), a, b ∈ 0..=M, at `b * (M + 1) + a` (row-major
+    /// from the south-west).
+    pts: [[f64; 2]; (M + 1) * (M + 1)],
 }
 
 impl TileMap {
-    /// The map of a tile with corners `[sw, se, nw, ne]` in grid coordinates.
-    pub fn new([c00, c10, c01, c11]: [[f64; 2]; 4]) -> TileMap {
-        let d = |a: [f64; 2], b: [f64; 2]| [b[0] - a[0], b[1] - a[1]];
-        TileMap {
-            c00,
-            e: d(c00, c10),
-            f: d(c00, c01),
-            g: [
-                c11[0] - c10[0] - c01[0] + c00[0],
-                c11[1] - c10[1] - c01[1] + c00[1],
-            ],
-        }
+    /// The map through the grid positions `pts` (see the field).
+    pub fn new(pts: [[f64; 2]; (M + 1) * (M + 1)]) -> TileMap {
+        TileMap { pts }
+    }
+
+    /// The piece holding (u, v) (the border pieces continue past the tile), the fractions
+    /// within it and its corners.
+    fn piece(&self, u: f64, v: f64) -> ([f64; 2], [[f64; 2]; 4]) {
+        let m = M as f64;
+        let a = ((u * m).floor().max(0.0) as usize).min(M - 1);
+        let b = ((v * m).floor().max(0.0) as usize).min(M - 1);
+        let p = |a: usize, b: usize| self.pts[b * (M + 1) + a];
+        (
+            [u * m - a as f64, v * m - b as f64],
+            [p(a, b), p(a + 1, b), p(a, b + 1), p(a + 1, b + 1)],
+        )
     }
 
     /// Grid position of (u, v).
     pub fn grid(&self, u: f64, v: f64) -> [f64; 2] {
-        [0, 1].map(|k| self.c00[k] + u * self.e[k] + v * self.f[k] + u * v * self.g[k])
+        let ([fu, fv], [c00, c10, c01, c11]) = self.piece(u, v);
+        [0, 1].map(|k| {
+            (c00[k] * (1.0 - fu) + c10[k] * fu) * (1.0 - fv)
+                + (c01[k] * (1.0 - fu) + c11[k] * fu) * fv
+        })
     }
 
     /// Derivatives of the grid position by u and by v at (u, v).
     pub fn jacobian(&self, u: f64, v: f64) -> [[f64; 2]; 2] {
+        let ([fu, fv], [c00, c10, c01, c11]) = self.piece(u, v);
+        let m = M as f64;
         [
-            [0, 1].map(|k| self.e[k] + v * self.g[k]),
-            [0, 1].map(|k| self.f[k] + u * self.g[k]),
+            [0, 1].map(|k| m * ((c10[k] - c00[k]) * (1.0 - fv) + (c11[k] - c01[k]) * fv)),
+            [0, 1].map(|k| m * ((c01[k] - c00[k]) * (1.0 - fu) + (c11[k] - c10[k]) * fu)),
         ]
     }
 
-    /// (u, v) of grid position `p` (Newton's method from the affine guess; the map is within
-    /// a hair of affine over a tile).
+    /// (u, v) of grid position `p` (Newton's method; the map is within a hair of affine over
+    /// a tile).
     pub fn inverse(&self, p: [f64; 2]) -> [f64; 2] {
-        let mut uv = [0.0, 0.0];
-        for _ in 0..4 {
+        let mut uv = [0.5, 0.5];
+        for _ in 0..6 {
             let q = self.grid(uv[0], uv[1]);
             let [ju, jv] = self.jacobian(uv[0], uv[1]);
             let det = ju[0] * jv[1] - ju[1] * jv[0];
@@ -210,12 +293,12 @@ fn worst_in_triangle<S: Surface>(
     cuts: &mut Vec<f64>,
 ) -> (f64, [f64; 2]) {
     let mut worst = (0.0f64, p[0]);
-    for k in 0..3 {
-        if border[k] {
+    for (k, &on_border) in border.iter().enumerate() {
+        if on_border {
             continue;
         }
         let (a, b) = (k, (k + 1) % 3);
-        let (e, t) = edge_error(p[a], p[b], h[a], h[b], &|q| s.at(q), cuts);
+        let (e, t) = edge_error(s, p[a], p[b], h[a], h[b], cuts);
         if e > worst.0 {
             worst = (
                 e,
@@ -239,12 +322,15 @@ fn worst_in_triangle<S: Surface>(
     let cx = (g1 * d2[1] - g2 * d1[1]) / det;
     let cy = (d1[0] * g2 - d2[0] * g1) / det;
     let plane = |x: f64, y: f64| h[0] + cx * (x - p[0][0]) + cy * (y - p[0][1]);
-    let y0 = p.iter().map(|q| q[1]).fold(f64::INFINITY, f64::min).ceil() as i64;
-    let y1 = p
+    // Only the nodes over the grid.
+    let [cols, rows] = s.size().map(|n| n as i64 - 1);
+    let y0 = (p.iter().map(|q| q[1]).fold(f64::INFINITY, f64::min).ceil() as i64).max(0);
+    let y1 = (p
         .iter()
         .map(|q| q[1])
         .fold(f64::NEG_INFINITY, f64::max)
-        .floor() as i64;
+        .floor() as i64)
+        .min(rows);
     for j in y0..=y1 {
         let y = j as f64;
         // The triangle's extent along the row: where its edges cross it.
@@ -265,7 +351,7 @@ fn worst_in_triangle<S: Surface>(
         if xl > xr {
             continue;
         }
-        for i in xl.ceil() as i64..=xr.floor() as i64 {
+        for i in (xl.ceil() as i64).max(0)..=(xr.floor() as i64).min(cols) {
             let x = i as f64;
             let e = (plane(x, y) - s.node(i, j)).abs();
             if e > worst.0 {
@@ -274,6 +360,33 @@ fn worst_in_triangle<S: Surface>(
         }
     }
     worst
+}
+
+/// The quantized position to insert for face `k` (vertex indices into `out`) whose worst
+/// point is at `at` (in quantized units): `at` rounded when that lies in the closed face and
+/// is none of its corners nor on the tile's border, else `at` moved towards the face's centroid until it does (a worst
+/// point on or near an edge may round to the other side, where inserting it would leave the
+/// face as it is); None for a face too small to hold any other quantized position.
+fn inside_face(out: &TileTin, k: [usize; 3], at: [f64; 2]) -> Option<[u16; 2]> {
+    let c = k.map(|k| out.uv[k].map(i64::from));
+    let centroid = [0, 1].map(|d| c.iter().map(|p| p[d] as f64).sum::<f64>() / 3.0);
+    let holds = |p: [i64; 2]| {
+        (0..3).all(|e| {
+            let (a, b) = (c[e], c[(e + 1) % 3]);
+            (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]) >= 0
+        }) && !c.contains(&p)
+            // Never on the tile's border, which carries its sides' vertices only.
+            && p.iter().all(|&v| (1..i64::from(Q)).contains(&v))
+    };
+    let mut t = 1.0;
+    for _ in 0..24 {
+        let p = [0, 1].map(|d| (centroid[d] + t * (at[d] - centroid[d])).round() as i64);
+        if holds(p) {
+            return Some(p.map(|v| v as u16));
+        }
+        t *= 0.5;
+    }
+    None
 }
 
 /// The tile with grid map `map`, sides `[south, east, west, north]` (each from
@@ -364,11 +477,12 @@ pub fn triangulate<S: Surface>(
             continue;
         }
         let [u, v] = map.inverse(c.at);
-        let quant = |t: f64| (t * q).round().clamp(1.0, q - 1.0) as u16;
-        let uv = [quant(u), quant(v)];
+        let Some(uv) = inside_face(&out, c.vertices.map(|v| v.index()), [u * q, v * q]) else {
+            // No quantized position inside the face but its corners: nothing finer to add.
+            continue;
+        };
         let p = map.grid(f64::from(uv[0]) / q, f64::from(uv[1]) / q);
         let Some(new) = add(&mut tri, &mut out, uv, p, s.at(p), Some(c.vertices[0])) else {
-            // The point quantizes onto a vertex already there: nothing finer to add here.
             continue;
         };
         let faces: Vec<FixedFaceHandle<InnerTag>> = tri
@@ -409,6 +523,9 @@ mod tests {
             };
             wall + 0.05 * i as f64 + 0.01 * ((i * 7 + j * 13) % 5) as f64
         }
+        fn size(&self) -> [usize; 2] {
+            [41, 41]
+        }
     }
 
     /// The slow twin of the exact bound: the TIN against the surface at a dense sampling of
@@ -434,15 +551,36 @@ mod tests {
         worst
     }
 
-    fn tile(corners: [[f64; 2]; 4], tol: f64) -> (TileMap, TileTin, [Vec<SideVertex>; 4]) {
-        let [sw, se, nw, ne] = corners;
-        let sides = [
-            side_vertices(&Block, sw, se, tol),
-            side_vertices(&Block, se, ne, tol),
-            side_vertices(&Block, sw, nw, tol),
-            side_vertices(&Block, nw, ne, tol),
+    /// A tile's map points bilinear between `[sw, se, nw, ne]`, and its sides' lines
+    /// (south, east, west, north).
+    fn map_of(corners: [[f64; 2]; 4]) -> (TileMap, [Vec<[f64; 2]>; 4]) {
+        let [c00, c10, c01, c11] = corners;
+        let m = M as f64;
+        let pt = |a: usize, b: usize| {
+            let (u, v) = (a as f64 / m, b as f64 / m);
+            [0, 1].map(|k| {
+                (c00[k] * (1.0 - u) + c10[k] * u) * (1.0 - v)
+                    + (c01[k] * (1.0 - u) + c11[k] * u) * v
+            })
+        };
+        let mut pts = [[0.0; 2]; (M + 1) * (M + 1)];
+        for b in 0..=M {
+            for a in 0..=M {
+                pts[b * (M + 1) + a] = pt(a, b);
+            }
+        }
+        let lines = [
+            (0..=M).map(|a| pt(a, 0)).collect(),
+            (0..=M).map(|b| pt(M, b)).collect(),
+            (0..=M).map(|b| pt(0, b)).collect(),
+            (0..=M).map(|a| pt(a, M)).collect(),
         ];
-        let map = TileMap::new(corners);
+        (TileMap::new(pts), lines)
+    }
+
+    fn tile(corners: [[f64; 2]; 4], tol: f64) -> (TileMap, TileTin, [Vec<SideVertex>; 4]) {
+        let (map, lines) = map_of(corners);
+        let sides = lines.map(|l| side_vertices(&Block, &l, tol));
         let tin = triangulate(
             &Block,
             &map,
@@ -522,15 +660,15 @@ mod tests {
             fn node(&self, i: i64, j: i64) -> f64 {
                 self.at([i as f64, j as f64])
             }
+            fn size(&self) -> [usize; 2] {
+                [100, 100]
+            }
         }
-        let c = [[0.0, 0.0], [20.0, 1.0], [-1.0, 20.0], [19.0, 21.0]];
-        let sides: Vec<Vec<SideVertex>> = [(0, 1), (1, 3), (0, 2), (2, 3)]
-            .iter()
-            .map(|&(a, b)| side_vertices(&Plane, c[a], c[b], 0.01))
-            .collect();
+        let (map, lines) = map_of([[0.0, 0.0], [20.0, 1.0], [-1.0, 20.0], [19.0, 21.0]]);
+        let sides = lines.map(|l| side_vertices(&Plane, &l, 0.01));
         let tin = triangulate(
             &Plane,
-            &TileMap::new(c),
+            &map,
             [&sides[0], &sides[1], &sides[2], &sides[3]],
             1.0,
             0.01,
