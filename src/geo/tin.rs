@@ -9,7 +9,7 @@
 //! farthest from G is inserted into a Delaunay triangulation (`spade`) until every triangle is
 //! within the tolerance of G everywhere.
 //!
-//! "Everywhere" is exact, here: on each grid cell a triangle's
+//! "Everywhere" is exact: on each grid cell a triangle's
 //! plane minus G is linear minus bilinear, harmonic, so its extremes over (triangle ∩ cell) lie
 //! on that piece's boundary: at grid nodes inside the triangle, or on the triangle's edges at
 //! their crossings with grid lines or at the vertex of the quadratic between two crossings.
@@ -18,8 +18,8 @@
 //! millimetre), and the worst of them is the point inserted.
 //!
 //! Crack-free edges: the vertices on a tile's side depend on that side alone. Each side of
-//! every tile of the level is computed once, from its two corners (projected once per level),
-//! as a 1-D simplification of G along it: the side's vertices are taken among its quantized
+//! every tile of the level is computed once, from its `M + 1` points (projected once per
+//! level), as a 1-D simplification of G along it: the side's vertices are taken among its quantized
 //! positions (1/32767 of the side), split recursively at the point of the exact largest
 //! deviation until each piece is within the tolerance. Both neighbours take that one list, so
 //! their shared edge vertices are the same positions and the same heights, and the side's
