@@ -70,8 +70,9 @@ fn cpu_seconds() -> Option<f64> {
 }
 
 /// The Cesium tileset of the same grid (issue 17's figure: autzen_full's quantized-mesh
-/// tileset in at most 2 s on 2 cores): `geo::tms::tileset` (every level's lattice, heights,
-/// error tree, meshes, normals) and `output::qmesh::encode_tile` of every tile (quantisation
+/// tileset in at most 2 s on 2 cores): `geo::tms::tileset` (the coarser levels' lattices,
+/// heights, error trees, meshes and normals; the most detailed level's adaptive
+/// triangulations of the grid) and `output::qmesh::encode_tile` of every tile (quantisation
 /// and gzip), in memory: the files' creation is the file system's (measured apart in the
 /// README).
 fn quantized_mesh(c: &mut Criterion) {

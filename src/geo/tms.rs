@@ -9,17 +9,11 @@
 //! borders then makes neighbouring tiles of a level split their shared edges alike: shared
 //! edge vertices are identical, no cracks, no T-junctions (see `terrain::extract`).
 //!
-//! With partial levels asked for (`tileset_to`), the level matching the grid's spacing and
-//! the partial levels below it hold the grid's own bilinear surface, not only the lattice's heights: their error trees add to each node the
-//! lattice's distance from the grid over the node (`lattice_error`), so a fan the extractor
-//! keeps is within the tolerance of the grid everywhere, and where the lattice itself is
-//! farther than the tolerance from the grid (at walls and steep edges the geographic lattice,
-//! turned against the grid, cuts corners) the tile's quadrant gets a child tile one level
-//! down, whose lattice is twice as fine, down to [`MAX_PARTIAL_LEVEL`]. The partial levels'
-//! tiles are triangulated one by one with every border node split (all 65 lattice points on
-//! each edge), so neighbours there share their edge vertices without reconciling; a tile
-//! next to a missing neighbour meets its parent's level, which Cesium's skirts close as
-//! between any two levels.
+//! The level matching the grid's spacing is different: a lattice turned against the grid and
+//! not passing through its samples cuts corners at walls, so there each tile is an adaptive
+//! triangulation of the grid's own bilinear surface (`tin`: vertices on that surface, every
+//! triangle within the tolerance of it everywhere, each tile side simplified once for both
+//! tiles that share it, so their edge vertices are identical).
 //!
 //! Heights: each lattice sample is projected into the input's CRS (proj4rs) and sampled
 //! bilinearly from the filled grid; outside the survey the grid's edge is continued
@@ -35,7 +29,7 @@
 //! they are bit-identical in both tiles.
 
 use crate::error::{Error, Result};
-use crate::geo::{lattice_error, ToWgs84};
+use crate::geo::{tin, ToWgs84};
 use crate::terrain::extract::{self, Criterion, ExtractParams, Refiner, TileTriangulation};
 use crate::terrain::quadtree::{self, NodeValues, Quadtree};
 use crate::terrain::{Tile, TileSet};
@@ -51,9 +45,6 @@ pub const LATTICE: usize = 8;
 pub const LATTICE_MAX_DEGREES: f64 = 0.01;
 /// The finest level terratile writes in full (tiles of 180/2^22 degrees, ≈ 4.8 m).
 pub const MAX_LEVEL: u32 = 22;
-/// The finest partial level (tiles of 180/2^24 degrees, ≈ 1.2 m north–south, lattice steps
-/// of ≈ 19 mm).
-pub const MAX_PARTIAL_LEVEL: u32 = 24;
 /// WGS 84 semi-major axis and flattening.
 const WGS84_A: f64 = 6_378_137.0;
 const WGS84_F: f64 = 1.0 / 298.257_223_563;
@@ -76,29 +67,16 @@ pub struct TerrainTile {
     pub zxy: [u32; 3],
     /// [west, south, east, north], degrees.
     pub bounds: [f64; 4],
-    /// Vertex positions as lattice indices (0..=64) east and north within the tile, in the
-    /// order of their first use by `triangles` (what high-water-mark coding needs).
-    pub ij: Vec<[u16; 2]>,
+    /// Vertex positions quantized east and north within the tile (0..=32767, quantized-mesh's
+    /// u and v), in the order of their first use by `triangles` (what high-water-mark coding
+    /// needs).
+    pub uv: Vec<[u16; 2]>,
     /// Vertex heights, metres.
     pub heights: Vec<f64>,
     /// Unit vertex normals in the Earth-centred, Earth-fixed frame.
     pub normals: Vec<[f32; 3]>,
     /// Triangles, counter-clockwise seen from above.
     pub triangles: Vec<[u32; 3]>,
-}
-
-impl TerrainTile {
-    /// The heap bytes of a tile on a full lattice (65 × 65 vertices, two triangles a square):
-    /// the most any tile holds.
-    pub const MAX_HEAP_BYTES: u64 = 65 * 65 * (4 + 8 + 12) + 2 * 64 * 64 * 12;
-
-    /// The heap bytes this tile holds.
-    pub fn heap_bytes(&self) -> u64 {
-        (self.ij.capacity() * 4
-            + self.heights.capacity() * 8
-            + self.normals.capacity() * 12
-            + self.triangles.capacity() * 12) as u64
-    }
 }
 
 /// The whole tileset: per level the tiles it has, and every tile.
@@ -242,9 +220,8 @@ impl Source<'_> {
 }
 
 /// Heights of tile (z, x, y)'s lattice with a one-sample apron: `(n + 3)²` values, index
-/// `(j + 1) * (n + 3) + (i + 1)` for lattice (i, j), i, j in −1..=n+1; and the fractional
-/// grid coordinates the lattice points (0..=n, without the apron) were sampled at.
-fn tile_heights(src: &Source<'_>, z: u32, x: u32, y: u32) -> (Vec<f64>, Vec<[f64; 2]>) {
+/// `(j + 1) * (n + 3) + (i + 1)` for lattice (i, j), i, j in −1..=n+1.
+fn tile_heights(src: &Source<'_>, z: u32, x: u32, y: u32) -> Vec<f64> {
     let n = TILE_INTERVALS;
     let w = n + 3;
     let step = tile_degrees(z) / n as f64;
@@ -258,12 +235,8 @@ fn tile_heights(src: &Source<'_>, z: u32, x: u32, y: u32) -> (Vec<f64>, Vec<[f64
         ]
     };
     let mut out = vec![0.0; w * w];
-    let mut at = vec![[0.0; 2]; (n + 1) * (n + 1)];
     let mut put = |i: isize, j: isize, ij: [f64; 2]| {
         out[(j + 1) as usize * w + (i + 1) as usize] = src.height(ij);
-        if (0..=n as isize).contains(&i) && (0..=n as isize).contains(&j) {
-            at[j as usize * (n + 1) + i as usize] = ij;
-        }
     };
     if tile_degrees(z) <= LATTICE_MAX_DEGREES {
         let m = n / LATTICE + 1;
@@ -306,7 +279,7 @@ fn tile_heights(src: &Source<'_>, z: u32, x: u32, y: u32) -> (Vec<f64>, Vec<[f64
             }
         }
     }
-    (out, at)
+    out
 }
 
 /// A tile's lattice lines on the ellipsoid, for its vertex normals: per column the sine and
@@ -355,52 +328,43 @@ impl Frame {
         let [sp, cp, east, north] = self.lat[j];
         let dx = (at(1, 0) - at(-1, 0)) / (2.0 * self.step * east);
         let dy = (at(0, 1) - at(0, -1)) / (2.0 * self.step * north);
-        let len = (dx * dx + dy * dy + 1.0).sqrt();
-        let (ne, nn, nu) = (-dx / len, -dy / len, 1.0 / len);
-        [
-            (-sl * ne - sp * cl * nn + cp * cl * nu) as f32,
-            (cl * ne - sp * sl * nn + cp * sl * nu) as f32,
-            (cp * nn + sp * nu) as f32,
-        ]
+        ecef_normal((sl, cl), (sp, cp), dx, dy)
     }
 }
 
-/// A level's (or one tile's) lattice as a tile set (degrees, metres), each tile's apron
-/// heights and, when asked, each lattice square's distance from the grid's bilinear surface
-/// ([`lattice_error::square_errors`]; empty otherwise).
+/// The unit normal in the Earth-fixed frame of a surface with slopes `dx` (east) and `dy`
+/// (north) at the longitude and latitude whose sines and cosines are given.
+fn ecef_normal((sl, cl): (f64, f64), (sp, cp): (f64, f64), dx: f64, dy: f64) -> [f32; 3] {
+    let len = (dx * dx + dy * dy + 1.0).sqrt();
+    let (ne, nn, nu) = (-dx / len, -dy / len, 1.0 / len);
+    [
+        (-sl * ne - sp * cl * nn + cp * cl * nu) as f32,
+        (cl * ne - sp * sl * nn + cp * sl * nu) as f32,
+        (cp * nn + sp * nu) as f32,
+    ]
+}
+
+/// A level's lattice as a tile set (degrees, metres) and each tile's apron heights.
 struct LevelSet {
     set: TileSet,
     aprons: Vec<Vec<f64>>,
-    squares: Vec<Vec<f32>>,
 }
 
-/// The tiles of range `r` as a [`LevelSet`]; `squares`: whether to measure the lattice
-/// squares against the grid.
-fn level_set(src: &Source<'_>, r: &TileRange, squares: bool) -> LevelSet {
+/// The tiles of range `r` as a [`LevelSet`].
+fn level_set(src: &Source<'_>, r: &TileRange) -> LevelSet {
     let n = TILE_INTERVALS;
     let grid = [
         (r.x[1] - r.x[0] + 1) as usize,
         (r.y[1] - r.y[0] + 1) as usize,
     ];
     let step = tile_degrees(r.z) / n as f64;
-    let (aprons, squares): (Vec<Vec<f64>>, Vec<Vec<f32>>) = (0..grid[0] * grid[1])
+    let aprons: Vec<Vec<f64>> = (0..grid[0] * grid[1])
         .into_par_iter()
         .map(|k| {
             let (col, row) = (k % grid[0], k / grid[0]);
-            let (apron, at) = tile_heights(src, r.z, r.x[0] + col as u32, r.y[0] + row as u32);
-            let sq = if squares {
-                let w = n + 3;
-                let h: Vec<f64> = (0..(n + 1) * (n + 1))
-                    .map(|q| apron[(q / (n + 1) + 1) * w + q % (n + 1) + 1])
-                    .collect();
-                let lattice = lattice_error::Lattice { n, at: &at, h: &h };
-                lattice_error::square_errors(&lattice, |p| src.height(p))
-            } else {
-                Vec::new()
-            };
-            (apron, sq)
+            tile_heights(src, r.z, r.x[0] + col as u32, r.y[0] + row as u32)
         })
-        .unzip();
+        .collect();
     let tiles = aprons
         .iter()
         .enumerate()
@@ -439,86 +403,15 @@ fn level_set(src: &Source<'_>, r: &TileRange, squares: bool) -> LevelSet {
         crs: None,
         tiles,
     };
-    LevelSet {
-        set,
-        aprons,
-        squares,
-    }
+    LevelSet { set, aprons }
 }
 
-/// The vertical error tree of `ls` against the grid's own bilinear surface: each node's
-/// bound on its fan's distance from the lattice heights (`quadtree::vertical_error`) plus the
-/// largest distance of the lattice's finest triangulation from the grid over the node's
-/// squares, propagated and reconciled again. A node's fan minus that triangulation is linear
-/// on the finest triangles (every fan triangle is a union of them) and bounded at their
-/// corners by the first term, so the sum bounds the fan's distance from the grid everywhere
-/// in the node. With `closed_borders` every node touching the tile's border is always split,
-/// so the tile's edges carry every lattice point: identical to any neighbour's without
-/// reconciling with it (the partial levels, whose tiles are triangulated one by one).
-fn grid_error_tree(ls: &LevelSet, closed_borders: bool) -> Result<Vec<NodeValues>> {
-    let mut err = quadtree::vertical_error(&ls.set);
-    for (m, sq) in err.iter_mut().zip(&ls.squares) {
-        let size = m.size();
-        let mut pyramid = sq.clone();
-        let mut side = size - 1;
-        let mut levels = Vec::new();
-        for level in 1..=(size - 1).trailing_zeros() {
-            let half = side / 2;
-            pyramid = (0..half * half)
-                .map(|k| {
-                    let (a, b) = (2 * (k % half), 2 * (k / half));
-                    let at = |da: usize, db: usize| pyramid[(b + db) * side + a + da];
-                    at(0, 0).max(at(1, 0)).max(at(0, 1)).max(at(1, 1))
-                })
-                .collect();
-            side = half;
-            levels.push(
-                m.level(level)
-                    .iter()
-                    .zip(&pyramid)
-                    .enumerate()
-                    .map(|(k, (&v, &e))| {
-                        let (a, b) = (k % side, k / side);
-                        let border = a == 0 || b == 0 || a + 1 == side || b + 1 == side;
-                        if closed_borders && border {
-                            f32::MAX
-                        } else {
-                            v + e
-                        }
-                    })
-                    .collect(),
-            );
-        }
-        *m = NodeValues::from_levels(size, levels)
-            .ok_or_else(|| Error::Internal("node levels of a lattice tile".into()))?;
-    }
-    quadtree::merge(ls.set.grid, 1.0, &mut err);
-    Ok(err)
+/// Quantized u or v of lattice index `k` (0..=64): exact at both edges.
+pub fn lattice_uv(k: u16) -> u16 {
+    (f64::from(k) * f64::from(tin::Q) / TILE_INTERVALS as f64).round() as u16
 }
 
-/// The quadrants of tile `t` of `ls` (bit 0 south-west, 1 south-east, 2 north-west, 3
-/// north-east, Cesium's child order) where a finest fan (half edge 1, which the extractor
-/// cannot split) may lie farther than `tolerance` from the grid's bilinear surface under the
-/// error tree of [`grid_error_tree`]. A finest node whose value there is within the tolerance
-/// has its fan within it; one whose value exceeds it makes its parent and the neighbours of
-/// its parent that it borders split (the tree holds each node at least at the children of
-/// its own and of its neighbours that border it), so all four of its edge midpoints exist
-/// and its fan is the lattice's finest triangulation there: its distance from the grid is
-/// the lattice's alone, its squares' largest.
-fn rough_quadrants(ls: &LevelSet, t: usize, tolerance: f64) -> u8 {
-    let n = TILE_INTERVALS;
-    let sq = &ls.squares[t];
-    let mut mask = 0u8;
-    for (k, &e) in sq.iter().enumerate() {
-        let (i, j) = (k % n, k / n);
-        if f64::from(e) > tolerance {
-            mask |= 1u8 << (usize::from(i >= n / 2) + 2 * usize::from(j >= n / 2));
-        }
-    }
-    mask
-}
-
-/// One triangulated tile as the encoder wants it: vertices renumbered by first use.
+/// One triangulated lattice tile as the encoder wants it: vertices renumbered by first use.
 fn terrain_tile(
     r: &TileRange,
     set: &TileSet,
@@ -533,7 +426,7 @@ fn terrain_tile(
     let mut out = TerrainTile {
         zxy: [r.z, x, y],
         bounds,
-        ij: Vec::new(),
+        uv: Vec::new(),
         heights: Vec::new(),
         normals: Vec::new(),
         triangles: Vec::with_capacity(tri.triangles.len()),
@@ -542,10 +435,10 @@ fn terrain_tile(
         out.triangles.push(f.map(|v| {
             let slot = &mut remap[v as usize];
             if *slot == u32::MAX {
-                *slot = out.ij.len() as u32;
+                *slot = out.uv.len() as u32;
                 // No padding in these sets: every vertex is a lattice sample.
                 let [i, j] = tri.uv[v as usize].map(|c| c as usize);
-                out.ij.push([i as u16, j as u16]);
+                out.uv.push([lattice_uv(i as u16), lattice_uv(j as u16)]);
                 out.heights.push(f64::from(tri.z[v as usize]));
                 out.normals.push(frame.normal(apron, i, j));
             }
@@ -555,19 +448,168 @@ fn terrain_tile(
     out
 }
 
-/// The tileset of `set` from level 0 down to the level matching its spacing, every mesh
-/// within `tolerance_m` metres (vertically) of its level's lattice heights, without partial
-/// levels (see [`tileset_to`]).
-pub fn tileset(set: &TileSet, tolerance_m: f64) -> Result<Tileset> {
-    tileset_to(set, tolerance_m, 0)
+/// The grid's surface for the adaptive triangulations: `Source`'s bilinear heights.
+impl tin::Surface for Source<'_> {
+    fn at(&self, p: [f64; 2]) -> f64 {
+        self.height(p)
+    }
+
+    fn node(&self, i: i64, j: i64) -> f64 {
+        let (rows, cols) = self.grid.dim();
+        let i = i.clamp(0, cols as i64 - 1) as usize;
+        let j = j.clamp(0, rows as i64 - 1) as usize;
+        (self.set.z_offset + f64::from(self.grid[[j, i]])) * self.unit
+    }
+
+    fn size(&self) -> [usize; 2] {
+        let (rows, cols) = self.grid.dim();
+        [cols, rows]
+    }
 }
 
-/// [`tileset`] with partial levels down to at most level `max_level`. When it is not below
-/// the level matching the grid there are none, and that level's meshes are within the
-/// tolerance of its lattice's heights only (the cheaper tileset: no lattice squares measured
-/// against the grid).
-pub fn tileset_to(set: &TileSet, tolerance_m: f64, max_level: u32) -> Result<Tileset> {
-    let max_level = max_level.min(MAX_PARTIAL_LEVEL);
+/// The tiles of range `r` (the grid's level) as adaptive triangulations of the grid's own
+/// bilinear surface ([`tin`]), each within `tolerance` metres of it everywhere. The level's
+/// points every 1/`tin::M` of a tile are projected once, and each side shared by two tiles is
+/// simplified once, so both take the same edge vertices.
+fn tin_level(src: &Source<'_>, r: &TileRange, tolerance: f64) -> Vec<TerrainTile> {
+    let nx = (r.x[1] - r.x[0] + 1) as usize;
+    let ny = (r.y[1] - r.y[0] + 1) as usize;
+    let m = tin::M;
+    let step = tile_degrees(r.z) / m as f64;
+    // The level's points every 1/M of a tile, projected once (the tiles' maps and sides): a
+    // point outside the projection (never the case this close to a survey) falls back to the
+    // grid's centre rather than failing the whole tileset.
+    let centre = [(src.grid.dim().1 / 2) as f64, (src.grid.dim().0 / 2) as f64];
+    let (px, py) = (nx * m + 1, ny * m + 1);
+    let points: Vec<[f64; 2]> = (0..px * py)
+        .into_par_iter()
+        .map(|k| {
+            let (a, b) = (k % px, k / px);
+            let lon = -180.0 + (r.x[0] as usize * m + a) as f64 * step;
+            let lat = -90.0 + (r.y[0] as usize * m + b) as f64 * step;
+            src.grid_ij(lon, lat).unwrap_or(centre)
+        })
+        .collect();
+    let point = |a: usize, b: usize| points[b * px + a];
+    // The sides running east (row b, column a at b·nx + a), then those running north
+    // (column a, row b at nx·(ny + 1) + a·ny + b), each simplified once for both its tiles.
+    let east_runs = nx * (ny + 1);
+    let sides: Vec<Vec<tin::SideVertex>> = (0..east_runs + (nx + 1) * ny)
+        .into_par_iter()
+        .map(|k| {
+            let line: Vec<[f64; 2]> = if k < east_runs {
+                let (a, b) = (k % nx, k / nx);
+                (0..=m).map(|i| point(a * m + i, b * m)).collect()
+            } else {
+                let (a, b) = ((k - east_runs) / ny, (k - east_runs) % ny);
+                (0..=m).map(|j| point(a * m, b * m + j)).collect()
+            };
+            tin::side_vertices(src, &line, tolerance)
+        })
+        .collect();
+    let east_run = |a: usize, b: usize| &sides[b * nx + a][..];
+    let north_run = |a: usize, b: usize| &sides[east_runs + a * ny + b][..];
+    (0..nx * ny)
+        .into_par_iter()
+        .map(|k| {
+            let (a, b) = (k % nx, k / nx);
+            let (x, y) = (r.x[0] + a as u32, r.y[0] + b as u32);
+            let bounds = tile_bounds(r.z, x, y);
+            let mut pts = [[0.0; 2]; (tin::M + 1) * (tin::M + 1)];
+            for (q, p) in pts.iter_mut().enumerate() {
+                *p = point(a * m + q % (m + 1), b * m + q / (m + 1));
+            }
+            let map = tin::TileMap::new(pts);
+            // The tile's area in grid cells bounds the vertices the grid's samples can need;
+            // the guard sits well above it.
+            let c = [pts[0], pts[m], pts[m * (m + 1)], pts[(m + 1) * (m + 1) - 1]];
+            let cross = |p: [f64; 2], q: [f64; 2], o: [f64; 2]| {
+                ((p[0] - o[0]) * (q[1] - o[1]) - (p[1] - o[1]) * (q[0] - o[0])).abs()
+            };
+            let cells = 0.5 * (cross(c[1], c[2], c[0]) + cross(c[1], c[2], c[3]));
+            let max_vertices = 4 * cells as usize + 4096;
+            let aspect = (0.5 * (bounds[1] + bounds[3])).to_radians().cos();
+            let t = tin::triangulate(
+                src,
+                &map,
+                [
+                    east_run(a, b),
+                    north_run(a + 1, b),
+                    north_run(a, b),
+                    east_run(a, b + 1),
+                ],
+                aspect,
+                tolerance,
+                max_vertices,
+            );
+            tin_tile(src, [r.z, x, y], bounds, &map, &t)
+        })
+        .collect()
+}
+
+/// One adaptive triangulation as the encoder wants it: vertices renumbered by first use, each
+/// normal from the grid's surface around the vertex (its gradient over ±½ cell, taken to east
+/// and north through the tile's map).
+fn tin_tile(
+    src: &Source<'_>,
+    zxy: [u32; 3],
+    bounds: [f64; 4],
+    map: &tin::TileMap,
+    t: &tin::TileTin,
+) -> TerrainTile {
+    let q = f64::from(tin::Q);
+    let span = tile_degrees(zxy[0]).to_radians();
+    let e2 = WGS84_F * (2.0 - WGS84_F);
+    let normal = |k: usize| {
+        let [u, v] = t.uv[k].map(|c| f64::from(c) / q);
+        let lon = bounds[0] + u * (bounds[2] - bounds[0]);
+        let lat = bounds[1] + v * (bounds[3] - bounds[1]);
+        let (sp, cp) = lat.to_radians().sin_cos();
+        let s2 = 1.0 - e2 * sp * sp;
+        let east = WGS84_A / s2.sqrt() * cp.max(1e-9) * span;
+        let north = WGS84_A * (1.0 - e2) / (s2 * s2.sqrt()) * span;
+        let p = t.p[k];
+        let gx = src.height([p[0] + 0.5, p[1]]) - src.height([p[0] - 0.5, p[1]]);
+        let gy = src.height([p[0], p[1] + 0.5]) - src.height([p[0], p[1] - 0.5]);
+        let [ju, jv] = map.jacobian(u, v);
+        let dx = (gx * ju[0] + gy * ju[1]) / east;
+        let dy = (gx * jv[0] + gy * jv[1]) / north;
+        ecef_normal(lon.to_radians().sin_cos(), (sp, cp), dx, dy)
+    };
+    let mut remap = vec![u32::MAX; t.uv.len()];
+    let mut out = TerrainTile {
+        zxy,
+        bounds,
+        uv: Vec::new(),
+        heights: Vec::new(),
+        normals: Vec::new(),
+        triangles: Vec::with_capacity(t.triangles.len()),
+    };
+    for f in &t.triangles {
+        out.triangles.push(f.map(|v| {
+            let slot = &mut remap[v as usize];
+            if *slot == u32::MAX {
+                *slot = out.uv.len() as u32;
+                let k = v as usize;
+                out.uv.push(t.uv[k]);
+                // As f32, the encoder's header precision: the decoded extremes are then the
+                // header's min and max exactly.
+                out.heights.push(f64::from(t.h[k] as f32));
+                out.normals.push(normal(k));
+            }
+            *slot
+        }));
+    }
+    out
+}
+
+/// The tileset of `set` from level 0 down to the level matching its spacing. The coarser
+/// levels' meshes are within `tolerance_m` metres (vertically) of their lattice's heights;
+/// the most detailed level's, adaptive triangulations of the grid's own samples, within it
+/// of the grid's bilinear surface everywhere (when its tiles are at most
+/// [`LATTICE_MAX_DEGREES`] wide, as for any grid of cells finer than about 15 m; coarser
+/// grids keep the lattice there too).
+pub fn tileset(set: &TileSet, tolerance_m: f64) -> Result<Tileset> {
     let to_wgs84 = check(set)?;
     let bounds = survey_bounds(set, &to_wgs84)
         .ok_or_else(|| Error::Internal("survey bounds after check".into()))?;
@@ -586,90 +628,22 @@ pub fn tileset_to(set: &TileSet, tolerance_m: f64, max_level: u32) -> Result<Til
     }
     .validate()?;
     let finest = finest_level(cell_m);
-    // With partial levels, the grid's level and those below it hold the grid's own surface:
-    // where a tile's finest fans may not, its quadrants get children one level down, whose
-    // finer lattice follows the grid more closely.
-    let partial = max_level > finest;
     let mut levels = Vec::new();
     let mut tiles = Vec::new();
-    let mut rough = Vec::new();
     for z in 0..=finest {
         let r = tile_range(z, bounds);
-        let ls = level_set(&src, &r, partial && z == finest);
-        let err = if partial && z == finest {
-            grid_error_tree(&ls, false)?
+        if z == finest && tile_degrees(z) <= LATTICE_MAX_DEGREES {
+            tiles.par_extend(tin_level(&src, &r, tolerance_m));
         } else {
-            quadtree::vertical_error(&ls.set)
-        };
-        let meshes = triangulate(&ls, &err, tolerance_m)?;
-        tiles.par_extend(
-            meshes
-                .par_iter()
-                .map(|tri| terrain_tile(&r, &ls.set, tri, &ls.aprons[tri.tile])),
-        );
-        if partial && z == finest {
-            rough = (0..ls.set.tiles.len())
-                .into_par_iter()
-                .map(|t| {
-                    let tile = &ls.set.tiles[t];
-                    let xy = [r.x[0] + tile.col as u32, r.y[0] + tile.row as u32];
-                    (xy, rough_quadrants(&ls, t, tolerance_m))
-                })
-                .collect();
+            let ls = level_set(&src, &r);
+            let meshes = triangulate(&ls, &quadtree::vertical_error(&ls.set), tolerance_m)?;
+            tiles.par_extend(
+                meshes
+                    .par_iter()
+                    .map(|tri| terrain_tile(&r, &ls.set, tri, &ls.aprons[tri.tile])),
+            );
         }
         levels.push(vec![r]);
-    }
-    // The partial levels: the children of the rough quadrants, each tile triangulated on its
-    // own with closed borders, rows from the south, columns from the west.
-    for z in finest + 1..=max_level.max(finest) {
-        let mut wanted: Vec<[u32; 2]> = rough
-            .iter()
-            .flat_map(|&([x, y], mask)| {
-                (0..4u32)
-                    .filter(move |q| mask & (1 << q) != 0)
-                    .map(move |q| [2 * x + q % 2, 2 * y + q / 2])
-            })
-            .collect();
-        if wanted.is_empty() {
-            break;
-        }
-        wanted.sort_unstable_by_key(|&[x, y]| (y, x));
-        // Every tile made is held until the writer runs: a level is refused, naming the key,
-        // when its tiles at their largest (a full 65 × 65 lattice) would pass the budget.
-        let held: u64 = tiles.iter().map(TerrainTile::heap_bytes).sum();
-        let more = (wanted.len() as u64).saturating_mul(TerrainTile::MAX_HEAP_BYTES);
-        crate::memory::check_alloc(held.saturating_add(more), || {
-            format!(
-                "output.quantized_mesh_max_level = {max_level}: level {z} asks for {} more tiles",
-                wanted.len()
-            )
-        })?;
-        let made: Vec<(TerrainTile, ([u32; 2], u8))> = wanted
-            .par_iter()
-            .map(|&[x, y]| {
-                let r = TileRange {
-                    z,
-                    x: [x, x],
-                    y: [y, y],
-                };
-                let ls = level_set(&src, &r, true);
-                let err = grid_error_tree(&ls, true)?;
-                let tri = triangulate(&ls, &err, tolerance_m)?.remove(0);
-                let mask = if z < max_level {
-                    rough_quadrants(&ls, 0, tolerance_m)
-                } else {
-                    0
-                };
-                Ok((
-                    terrain_tile(&r, &ls.set, &tri, &ls.aprons[0]),
-                    ([x, y], mask),
-                ))
-            })
-            .collect::<Result<_>>()?;
-        let (made, next): (Vec<TerrainTile>, Vec<([u32; 2], u8)>) = made.into_iter().unzip();
-        tiles.extend(made);
-        levels.push(rectangles(z, &wanted));
-        rough = next;
     }
     Ok(Tileset {
         levels,
@@ -699,46 +673,6 @@ fn triangulate(
     extract::extract(&ls.set, &refiner)
 }
 
-/// Tiles `xy` of level `z` (sorted by row, then column) as rectangles: runs of columns per
-/// row, a run continued over the following rows where they have the same run.
-pub fn rectangles(z: u32, xy: &[[u32; 2]]) -> Vec<TileRange> {
-    let mut done: Vec<TileRange> = Vec::new();
-    let mut open: Vec<TileRange> = Vec::new();
-    let mut k = 0;
-    while k < xy.len() {
-        let y = xy[k][1];
-        let mut runs = Vec::new();
-        while k < xy.len() && xy[k][1] == y {
-            let x0 = xy[k][0];
-            while k + 1 < xy.len() && xy[k + 1] == [xy[k][0] + 1, y] {
-                k += 1;
-            }
-            runs.push([x0, xy[k][0]]);
-            k += 1;
-        }
-        let mut still = Vec::new();
-        for r in open.drain(..) {
-            if r.y[1] + 1 == y && runs.contains(&r.x) {
-                still.push(TileRange {
-                    y: [r.y[0], y],
-                    ..r
-                });
-            } else {
-                done.push(r);
-            }
-        }
-        for x in runs {
-            if !still.iter().any(|r| r.x == x) {
-                still.push(TileRange { z, x, y: [y, y] });
-            }
-        }
-        open = still;
-    }
-    done.extend(open);
-    done.sort_unstable_by_key(|r| (r.y[0], r.x[0]));
-    done
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -755,23 +689,6 @@ mod tests {
         assert_eq!(finest_level(1.0), 18);
         assert_eq!(finest_level(1.2), 17);
         assert_eq!(finest_level(1e9), 0);
-    }
-
-    #[test]
-    fn rectangles_cover_exactly_the_tiles() {
-        // Rows 3 and 4 share the run 5..=6, row 4 has another at 9; row 6 is apart.
-        let xy = [[5, 3], [6, 3], [5, 4], [6, 4], [9, 4], [5, 6]];
-        let r = rectangles(7, &xy);
-        let want = |x: [u32; 2], y: [u32; 2]| TileRange { z: 7, x, y };
-        assert_eq!(
-            r,
-            vec![
-                want([5, 6], [3, 4]),
-                want([9, 9], [4, 4]),
-                want([5, 5], [6, 6])
-            ]
-        );
-        assert!(rectangles(7, &[]).is_empty());
     }
 
     #[test]

@@ -7,7 +7,8 @@
 //! quantizes our tiles for it and completes the header from the actual vertices.
 
 use crate::error::{Error, Result};
-use crate::geo::tms::{TerrainTile, Tileset, TILE_INTERVALS};
+use crate::geo::tin::Q;
+use crate::geo::tms::{TerrainTile, Tileset};
 use quantized_mesh::coords::geodetic_to_ecef;
 use quantized_mesh::{
     EdgeIndices, EncodeOptions, QuantizedMeshEncoder, QuantizedMeshHeader, QuantizedVertices,
@@ -25,11 +26,6 @@ const QMAX: f64 = 32767.0;
 /// default) would take 21.5 MB, at about twice zlib's level-1 time (0.83 against 0.39 CPU-s,
 /// measured with Python's zlib on the same tiles).
 const GZIP_LEVEL: u32 = 1;
-
-/// Quantized u or v of lattice index `k` (0..=64): exact at both edges.
-fn quantize_lattice(k: u16) -> u16 {
-    (f64::from(k) * QMAX / TILE_INTERVALS as f64).round() as u16
-}
 
 /// The vertices' heights quantized between the tile's min and max, and those two.
 fn quantize_heights(h: &[f64]) -> (Vec<u16>, f32, f32) {
@@ -51,10 +47,10 @@ fn quantize_heights(h: &[f64]) -> (Vec<u16>, f32, f32) {
 
 /// Edge lists in Cesium's orders: west south→north, south east→west, east north→south,
 /// north west→east.
-fn edges(ij: &[[u16; 2]]) -> EdgeIndices {
-    let n = TILE_INTERVALS as u16;
+fn edges(uv: &[[u16; 2]]) -> EdgeIndices {
+    let n = Q;
     let pick = |on: &dyn Fn([u16; 2]) -> bool, key: &dyn Fn([u16; 2]) -> i32| {
-        let mut v: Vec<(i32, u32)> = ij
+        let mut v: Vec<(i32, u32)> = uv
             .iter()
             .enumerate()
             .filter(|(_, &p)| on(p))
@@ -75,13 +71,13 @@ fn edges(ij: &[[u16; 2]]) -> EdgeIndices {
 pub fn encode_tile(t: &TerrainTile) -> Vec<u8> {
     let (height, lo, hi) = quantize_heights(&t.heights);
     let vertices = QuantizedVertices {
-        u: t.ij.iter().map(|p| quantize_lattice(p[0])).collect(),
-        v: t.ij.iter().map(|p| quantize_lattice(p[1])).collect(),
+        u: t.uv.iter().map(|p| p[0]).collect(),
+        v: t.uv.iter().map(|p| p[1]).collect(),
         height,
     };
     let [w, s, e, n] = t.bounds;
     let lonlat = |k: usize| {
-        let [i, j] = t.ij[k].map(|c| f64::from(c) / TILE_INTERVALS as f64);
+        let [i, j] = t.uv[k].map(|c| f64::from(c) / QMAX);
         [w + (e - w) * i, s + (n - s) * j]
     };
     let bounds = TileBounds::new(w, s, e, n);
@@ -89,7 +85,7 @@ pub fn encode_tile(t: &TerrainTile) -> Vec<u8> {
         &bounds,
         lo,
         hi,
-        (0..t.ij.len()).map(|k| {
+        (0..t.uv.len()).map(|k| {
             let [lon, lat] = lonlat(k);
             [lon, lat, t.heights[k]]
         }),
@@ -97,14 +93,14 @@ pub fn encode_tile(t: &TerrainTile) -> Vec<u8> {
     // The crate's sphere holds the tile's corners and edge midpoints at min/max height; grow
     // it to hold every vertex as well (a tile's inside can bulge past them on coarse levels).
     let c = header.bounding_sphere_center;
-    for k in 0..t.ij.len() {
+    for k in 0..t.uv.len() {
         let [lon, lat] = lonlat(k);
         let p = geodetic_to_ecef(lon, lat, t.heights[k]);
         let d = ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt();
         header.bounding_sphere_radius = header.bounding_sphere_radius.max(d);
     }
     let indices = t.triangles.iter().flatten().copied().collect();
-    let edge_indices = edges(&t.ij);
+    let edge_indices = edges(&t.uv);
     QuantizedMeshEncoder::new(header, vertices, indices, edge_indices).encode_with_options(
         &EncodeOptions {
             include_normals: true,
@@ -136,8 +132,9 @@ pub fn layer_json(ts: &Tileset) -> serde_json::Value {
         "name": "terratile",
         "description": format!(
             "quantized-mesh tiles; heights in metres of the input's vertical datum; \
-             meshes within {0} m of each level's resampled heights, the most detailed tiles \
-             within {0} m of the grid's bilinear heights",
+             coarser levels within {0} m of their lattice's resampled heights, the most \
+             detailed level an adaptive triangulation within {0} m of the grid's bilinear \
+             heights",
             ts.tolerance_m
         ),
         "version": "1.0.0",
@@ -193,15 +190,16 @@ mod tests {
 
     #[test]
     fn lattice_quantizes_to_the_edges() {
-        assert_eq!(quantize_lattice(0), 0);
-        assert_eq!(quantize_lattice(64), 32767);
-        assert_eq!(quantize_lattice(32), 16384);
+        use crate::geo::tms::lattice_uv;
+        assert_eq!(lattice_uv(0), 0);
+        assert_eq!(lattice_uv(64), 32767);
+        assert_eq!(lattice_uv(32), 16384);
     }
 
     #[test]
     fn edge_orders_are_cesiums() {
-        let ij = [[0, 0], [64, 0], [64, 64], [0, 64], [0, 32], [32, 0]];
-        let e = edges(&ij);
+        let uv = [[0, 0], [Q, 0], [Q, Q], [0, Q], [0, 9], [5, 0]];
+        let e = edges(&uv);
         assert_eq!(e.west, vec![0, 4, 3]);
         assert_eq!(e.south, vec![1, 5, 0]);
         assert_eq!(e.east, vec![2, 1]);

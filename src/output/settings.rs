@@ -53,14 +53,6 @@ pub struct OutputConfig {
         skip_serializing_if = "is_default_qmesh_tolerance"
     )]
     pub quantized_mesh_tolerance: f64,
-    /// Deepest level of the tileset's partial levels, which go below the grid's resolution
-    /// where the lattice misses the grid's own surface by more than the tolerance (default 0:
-    /// none; at most 24).
-    #[serde(
-        default = "default_qmesh_max_level",
-        skip_serializing_if = "is_default_qmesh_max_level"
-    )]
-    pub quantized_mesh_max_level: u32,
     /// Longer side of the preview pictures in pixels (default 2048; small grids are
     /// enlarged at most 4×).
     #[serde(default = "default_preview_size")]
@@ -87,14 +79,6 @@ fn is_default_qmesh_tolerance(t: &f64) -> bool {
     *t == default_qmesh_tolerance()
 }
 
-fn default_qmesh_max_level() -> u32 {
-    0
-}
-
-fn is_default_qmesh_max_level(z: &u32) -> bool {
-    *z == default_qmesh_max_level()
-}
-
 fn default_preview_size() -> usize {
     2048
 }
@@ -115,7 +99,6 @@ impl Default for OutputConfig {
             geotiff_tiles: false,
             quantized_mesh: false,
             quantized_mesh_tolerance: default_qmesh_tolerance(),
-            quantized_mesh_max_level: default_qmesh_max_level(),
             preview_size: default_preview_size(),
         }
     }
@@ -139,15 +122,6 @@ impl OutputConfig {
                 "quantized_mesh_tolerance",
                 t,
                 "must be > 0 metres",
-            ));
-        }
-        let z = self.quantized_mesh_max_level;
-        if z > crate::geo::tms::MAX_PARTIAL_LEVEL {
-            return Err(Error::param(
-                "output",
-                "quantized_mesh_max_level",
-                z,
-                "must be at most 24",
             ));
         }
         Ok(())

@@ -614,11 +614,7 @@ pub fn product_stages(
     });
     if cfg.output.quantized_mesh {
         let t = Instant::now();
-        let ts = crate::geo::tms::tileset_to(
-            &set,
-            cfg.output.quantized_mesh_tolerance,
-            cfg.output.quantized_mesh_max_level,
-        )?;
+        let ts = crate::geo::tms::tileset(&set, cfg.output.quantized_mesh_tolerance)?;
         let written = crate::output::qmesh::write(dir, &ts)?;
         reports.push(StageReport {
             stage: "quantized-mesh".into(),
