@@ -610,6 +610,14 @@ fn tin_tile(
 /// [`LATTICE_MAX_DEGREES`] wide, as for any grid of cells finer than about 15 m; coarser
 /// grids keep the lattice there too).
 pub fn tileset(set: &TileSet, tolerance_m: f64) -> Result<Tileset> {
+    tileset_with(set, tolerance_m, true)
+}
+
+/// [`tileset`], or with `adaptive` false the lattice meshes on the most detailed level too
+/// (`[output] quantized_mesh_lattice`): within the tolerance of the lattice's resampled
+/// heights only, not of the grid's surface at walls, but far faster and smaller on surveys
+/// whose surface needs nearly every sample (tree cover at 0.5 m).
+pub fn tileset_with(set: &TileSet, tolerance_m: f64, adaptive: bool) -> Result<Tileset> {
     let to_wgs84 = check(set)?;
     let bounds = survey_bounds(set, &to_wgs84)
         .ok_or_else(|| Error::Internal("survey bounds after check".into()))?;
@@ -632,7 +640,7 @@ pub fn tileset(set: &TileSet, tolerance_m: f64) -> Result<Tileset> {
     let mut tiles = Vec::new();
     for z in 0..=finest {
         let r = tile_range(z, bounds);
-        if z == finest && tile_degrees(z) <= LATTICE_MAX_DEGREES {
+        if adaptive && z == finest && tile_degrees(z) <= LATTICE_MAX_DEGREES {
             tiles.par_extend(tin_level(&src, &r, tolerance_m));
         } else {
             let ls = level_set(&src, &r);

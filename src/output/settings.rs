@@ -53,6 +53,10 @@ pub struct OutputConfig {
         skip_serializing_if = "is_default_qmesh_tolerance"
     )]
     pub quantized_mesh_tolerance: f64,
+    /// Keep the lattice meshes on the tileset's most detailed level too (default false: an
+    /// adaptive triangulation within the tolerance of the grid's surface everywhere).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub quantized_mesh_lattice: bool,
     /// Longer side of the preview pictures in pixels (default 2048; small grids are
     /// enlarged at most 4×).
     #[serde(default = "default_preview_size")]
@@ -99,6 +103,7 @@ impl Default for OutputConfig {
             geotiff_tiles: false,
             quantized_mesh: false,
             quantized_mesh_tolerance: default_qmesh_tolerance(),
+            quantized_mesh_lattice: false,
             preview_size: default_preview_size(),
         }
     }

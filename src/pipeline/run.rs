@@ -614,7 +614,11 @@ pub fn product_stages(
     });
     if cfg.output.quantized_mesh {
         let t = Instant::now();
-        let ts = crate::geo::tms::tileset(&set, cfg.output.quantized_mesh_tolerance)?;
+        let ts = crate::geo::tms::tileset_with(
+            &set,
+            cfg.output.quantized_mesh_tolerance,
+            !cfg.output.quantized_mesh_lattice,
+        )?;
         let written = crate::output::qmesh::write(dir, &ts)?;
         reports.push(StageReport {
             stage: "quantized-mesh".into(),

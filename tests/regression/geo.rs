@@ -55,7 +55,6 @@ fn quantized_mesh_most_detailed_level_holds_the_grid_at_walls() {
     }
     let set = tiles::tile(&hf, &tiles::TileParams::default()).unwrap();
     let tolerance = 0.25;
-    let ts = terratile::geo::tms::tileset(&set, tolerance).unwrap();
     let to = terratile::geo::ToWgs84::new(&crs).unwrap();
     let grid = |lon: f64, lat: f64| {
         let [x, y] = to.inverse(lon, lat).unwrap();
@@ -70,45 +69,60 @@ fn quantized_mesh_most_detailed_level_holds_the_grid_at_walls() {
                 + (g(i0, j0 + 1) * (1.0 - di) + g(i0 + 1, j0 + 1) * di) * dj
         })
     };
-    let finest = ts.levels.len() as u32 - 1;
-    let mut rng = terratile::SplitMix64::new(7);
-    let (mut checked, mut worst) = (0, 0.0f64);
-    for t in ts.tiles.iter().filter(|t| t.zxy[0] == finest) {
-        let [w, so, e, n] = t.bounds;
-        for _ in 0..400 {
-            let (u, v) = (rng.range(0.0, 32767.0), rng.range(0.0, 32767.0));
-            let Some(want) = grid(w + (e - w) * u / 32767.0, so + (n - so) * v / 32767.0) else {
-                continue;
-            };
-            let mesh = t
-                .triangles
-                .iter()
-                .find_map(|f| {
-                    let p = f.map(|k| {
-                        let q = t.uv[k as usize];
-                        [f64::from(q[0]), f64::from(q[1]), t.heights[k as usize]]
-                    });
-                    let det = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1])
-                        - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
-                    let l1 = ((u - p[0][0]) * (p[2][1] - p[0][1])
-                        - (p[2][0] - p[0][0]) * (v - p[0][1]))
-                        / det;
-                    let l2 = ((p[1][0] - p[0][0]) * (v - p[0][1])
-                        - (u - p[0][0]) * (p[1][1] - p[0][1]))
-                        / det;
-                    let l0 = 1.0 - l1 - l2;
-                    (l0 >= -1e-9 && l1 >= -1e-9 && l2 >= -1e-9)
-                        .then(|| l0 * p[0][2] + l1 * p[1][2] + l2 * p[2][2])
-                })
-                .expect("the tile's triangles cover it");
-            worst = worst.max((mesh - want).abs());
-            checked += 1;
+    // The worst distance from the grid's surface at random points over the most detailed
+    // tiles, and how many points were checked.
+    let worst_of = |ts: &terratile::geo::tms::Tileset| {
+        let finest = ts.levels.len() as u32 - 1;
+        let mut rng = terratile::SplitMix64::new(7);
+        let (mut checked, mut worst) = (0, 0.0f64);
+        for t in ts.tiles.iter().filter(|t| t.zxy[0] == finest) {
+            let [w, so, e, n] = t.bounds;
+            for _ in 0..400 {
+                let (u, v) = (rng.range(0.0, 32767.0), rng.range(0.0, 32767.0));
+                let Some(want) = grid(w + (e - w) * u / 32767.0, so + (n - so) * v / 32767.0)
+                else {
+                    continue;
+                };
+                let mesh = t
+                    .triangles
+                    .iter()
+                    .find_map(|f| {
+                        let p = f.map(|k| {
+                            let q = t.uv[k as usize];
+                            [f64::from(q[0]), f64::from(q[1]), t.heights[k as usize]]
+                        });
+                        let det = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1])
+                            - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
+                        let l1 = ((u - p[0][0]) * (p[2][1] - p[0][1])
+                            - (p[2][0] - p[0][0]) * (v - p[0][1]))
+                            / det;
+                        let l2 = ((p[1][0] - p[0][0]) * (v - p[0][1])
+                            - (u - p[0][0]) * (p[1][1] - p[0][1]))
+                            / det;
+                        let l0 = 1.0 - l1 - l2;
+                        (l0 >= -1e-9 && l1 >= -1e-9 && l2 >= -1e-9)
+                            .then(|| l0 * p[0][2] + l1 * p[1][2] + l2 * p[2][2])
+                    })
+                    .expect("the tile's triangles cover it");
+                worst = worst.max((mesh - want).abs());
+                checked += 1;
+            }
         }
-    }
+        (checked, worst)
+    };
+    let (checked, worst) = worst_of(&terratile::geo::tms::tileset(&set, tolerance).unwrap());
     assert!(checked > 1000, "{checked} points over the grid");
     // 1 mm for the projection's curvature over a tile.
     assert!(
         worst <= tolerance + 1e-3,
         "{worst} m from the grid's surface"
+    );
+    // `quantized_mesh_lattice = true` keeps the lattice there: it is within the tolerance of
+    // the lattice's heights only, and cuts the block's corners.
+    let lattice = terratile::geo::tms::tileset_with(&set, tolerance, false).unwrap();
+    let (_, lattice_worst) = worst_of(&lattice);
+    assert!(
+        lattice_worst > tolerance,
+        "the lattice level is within {lattice_worst} m: the switch changes nothing"
     );
 }
