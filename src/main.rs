@@ -290,7 +290,7 @@ struct SimplifyArgs {
     /// QEM: weight the cost by saliency: none (default), mesh, image or hybrid.
     #[arg(long, value_enum)]
     saliency: Option<SaliencyArg>,
-    /// QEM with saliency: the least weight H, in (0, 1] (default 0.05).
+    /// QEM with saliency: the least weight H, in (0, 1] (default 0.02).
     #[arg(long, value_name = "H", allow_negative_numbers = true)]
     h_min: Option<f64>,
     /// QEM with saliency: how the weights enter: quadric (default; Lee et al.'s weighted

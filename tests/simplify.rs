@@ -795,13 +795,15 @@ fn qem_runs_as_an_asset_and_its_keys_are_checked() {
 /// (a step in the weight at the top share of the area) try other weightings;
 /// SALIENCY_MESHES=cow,spot picks meshes and SALIENCY_KINDS=hybrid the columns;
 /// SALIENCY_AREA_NORM (γ, [`area_normalised`]) tries weights divided by vertex area^γ and
-/// SALIENCY_CACHE=DIR keeps the maps between trials ([`cached_maps`]). The last column is each simplification's seconds (weights known), for the speed
+/// SALIENCY_CACHE=DIR keeps the maps between trials ([`cached_maps`]); SALIENCY_PHASES
+/// sets the two phases' share (0: one weighted run) and SALIENCY_MERGE=mean merges the
+/// weighted rows' quadrics by An's eq. 4.3. The last column is each simplification's seconds (weights known), for the speed
 /// ratio of weighted to plain QEM.
 #[test]
 #[ignore]
 fn saliency_table() {
     use terratile::simplify::qem::{self, WeightRule};
-    use terratile::simplify::saliency::{texture, Weighting};
+    use terratile::simplify::saliency::{phases, texture, Weighting};
     let env = |k: &str| std::env::var(k).ok().and_then(|s| s.parse::<f64>().ok());
     let d = Weighting::default();
     let w = Weighting {
@@ -813,6 +815,7 @@ fn saliency_table() {
         plateau: env("SALIENCY_PLATEAU").unwrap_or(d.plateau),
         top: env("SALIENCY_TOP").unwrap_or(d.top),
         gap: env("SALIENCY_GAP").unwrap_or(d.gap),
+        phases: env("SALIENCY_PHASES").unwrap_or(d.phases),
     };
     // SALIENCY_KINDS=hybrid: only plain and hybrid rows (quicker trials).
     let kinds = std::env::var("SALIENCY_KINDS").ok();
@@ -830,6 +833,12 @@ fn saliency_table() {
     // area)^γ, so that a finely tessellated salient feature (whose quadrics, area-weighted,
     // are small) is not collapsed first for its small triangles.
     let area_norm = env("SALIENCY_AREA_NORM").unwrap_or(0.0);
+    // SALIENCY_MERGE=mean: the weighted rows merge quadrics by the mean of An's eq. 4.3
+    // (plain QEM keeps the sum: the baseline does not move).
+    let merge = match std::env::var("SALIENCY_MERGE").as_deref() {
+        Ok("mean") => terratile::simplify::QuadricMerge::Mean,
+        _ => terratile::simplify::QuadricMerge::Sum,
+    };
     let only = std::env::var("SALIENCY_MESHES").ok();
     let wanted = |n: &str| {
         only.as_deref()
@@ -858,7 +867,7 @@ fn saliency_table() {
         let t = m.triangle_count() as u64;
         cases.push((name.into(), m, vec![t / 10, t / 50]));
     }
-    println!("{w:?} {rule} area_norm {area_norm}");
+    println!("{w:?} {rule} area_norm {area_norm} merge {merge}");
     println!("| mesh | triangles | weights | whole (%) | salient 20 % (%) | salient vs plain | whole vs plain | QEM s |");
     println!("|---|---|---|---|---|---|---|---|");
     for (name, m, targets) in cases {
@@ -868,7 +877,11 @@ fn saliency_table() {
         let salient = salient_fifth(&m, &hybrid);
         let diag = m.diagonal();
         let hp = HausdorffParams { samples: 0 };
-        let weights = |v: &[f64]| w.weights(&m, v).map(|h| area_normalised(&m, h, area_norm));
+        // Each map's weights and the weighting's salient vertices (for the two phases).
+        let weights = |v: &[f64]| {
+            w.weights(&m, v)
+                .map(|h| (area_normalised(&m, h, area_norm), w.salient(&m, v)))
+        };
         let (wh, wm, wi) = (
             weights(&hybrid),
             weights(&mesh_saliency),
@@ -888,13 +901,20 @@ fn saliency_table() {
                 }
                 let p = qem::QemParams {
                     triangles: target,
-                    weights: ws.map(|x| x.clone().into()),
+                    weights: ws.map(|x| x.0.clone().into()),
                     weight_rule: rule,
                     collapse_seams: name == "spot.obj",
+                    merge: if ws.is_some() { merge } else { p5k.merge },
                     ..p5k.clone()
                 };
                 let t = std::time::Instant::now();
-                let s = qem::simplify(&m, &p).unwrap().mesh;
+                // As `Weighting::simplify`: two phases for weights in the quadrics.
+                let s = match ws {
+                    Some((h, sal)) if w.phases > 0.0 && rule == WeightRule::Quadric => {
+                        phases::simplify(&m, &p, h, sal, w.phases).unwrap().mesh
+                    }
+                    _ => qem::simplify(&m, &p).unwrap().mesh,
+                };
                 let secs = t.elapsed().as_secs_f64();
                 let bvh = terratile::mesh::Bvh::new(&s);
                 let e =
@@ -1122,18 +1142,24 @@ fn cached_maps(name: &str, m: &TriMesh) -> [Vec<f64>; 3] {
     out
 }
 
-/// `h` times (mean vertex area / vertex area)^`gamma` (a third of each triangle's area at
-/// its corners; a vertex without area keeps its weight); `h` itself for `gamma` = 0.
-fn area_normalised(m: &TriMesh, h: Vec<f64>, gamma: f64) -> Vec<f64> {
-    if gamma == 0.0 {
-        return h;
-    }
+/// A third of each triangle's area at each of its corners.
+fn vertex_areas(m: &TriMesh) -> Vec<f64> {
     let mut a = vec![0.0f64; m.vertex_count()];
     for (f, t) in m.indices.iter().enumerate() {
         for &v in t {
             a[v as usize] += m.face_area(f) / 3.0;
         }
     }
+    a
+}
+
+/// `h` times (mean vertex area / vertex area)^`gamma` (a third of each triangle's area at
+/// its corners; a vertex without area keeps its weight); `h` itself for `gamma` = 0.
+fn area_normalised(m: &TriMesh, h: Vec<f64>, gamma: f64) -> Vec<f64> {
+    if gamma == 0.0 {
+        return h;
+    }
+    let a = vertex_areas(m);
     let mean = a.iter().sum::<f64>() / a.iter().filter(|&&x| x > 0.0).count().max(1) as f64;
     h.iter()
         .zip(&a)

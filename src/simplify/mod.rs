@@ -50,14 +50,23 @@ pub fn simplify(mesh: &mesh::TriMesh, params: &SimplifyParams) -> Result<Simplif
         collapse_seams: params.collapse_seams.unwrap_or(false),
         weight_rule: params.saliency_rule.unwrap_or(qem::WeightRule::Quadric),
     };
-    let mut p = p;
-    if let Some(kind) = params.saliency {
-        let views = params.views();
-        views.validate()?;
-        let h_min = params.saliency_h_min.unwrap_or(saliency::H_MIN);
-        p.weights = saliency::weights(mesh, kind, h_min, &views)?.map(Into::into);
-    }
-    let r = qem::simplify(mesh, &p)?;
+    let r = match params.saliency {
+        Some(kind) => {
+            let views = params.views();
+            views.validate()?;
+            let h_min = params.saliency_h_min.unwrap_or(saliency::H_MIN);
+            saliency::check_h_min(h_min)?;
+            let w = saliency::Weighting {
+                h_min,
+                ..saliency::Weighting::default()
+            };
+            match saliency::values(mesh, kind, &views)? {
+                Some(v) => w.simplify(mesh, &p, &v)?,
+                None => qem::simplify(mesh, &p)?,
+            }
+        }
+        None => qem::simplify(mesh, &p)?,
+    };
     let report = SimplifyReport {
         method: Method::Qem,
         representative: None,

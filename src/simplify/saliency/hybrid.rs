@@ -22,11 +22,12 @@
 //! from every direction, so C is empty there and matters for open, sheet-like meshes only.
 
 /// The weighting ([`super::Weighting`]) smooths any map, the hybrid included, by a Gaussian
-/// of σ = SMOOTH · ε (ε = 0.3 % of the diagonal, Lee's unit; 4 ε is the middle of Lee's
-/// scales): the classes make the raw hybrid jump between neighbouring vertices (a class-A
-/// vertex at 0.9 beside a class-E one at 0.3), detail finer than any simplified mesh can
-/// keep. Smoothed, it is the salience of a region. The hybrid itself ([`hybrid`]) stays raw.
-pub const SMOOTH: f64 = 4.0;
+/// of σ = SMOOTH · ε (ε = 0.3 % of the diagonal, Lee's unit; 3 ε is Lee's second scale):
+/// the classes make the raw hybrid jump between neighbouring vertices (a class-A vertex at
+/// 0.9 beside a class-E one at 0.3), detail finer than any simplified mesh can keep.
+/// Smoothed, it is the salience of a region. The hybrid itself ([`hybrid`]) stays raw.
+/// 3 ε with the two phases (one weighted run was best at 4 ε; README).
+pub const SMOOTH: f64 = 3.0;
 
 /// Class bounds: (A top share of curvature, B top share of mesh saliency, C top share of
 /// min image saliency, D bottom share of max image saliency).

@@ -7,6 +7,7 @@ pub mod hybrid;
 pub mod image;
 pub mod itti;
 pub mod mesh;
+pub mod phases;
 pub mod render;
 pub mod texture;
 
@@ -41,8 +42,9 @@ impl std::fmt::Display for Saliency {
 }
 
 /// The default lower end of the weights H ∈ [h_min, 1]: the least salient vertex's planes
-/// count a twentieth of the most salient one's.
-pub const H_MIN: f64 = 0.05;
+/// count a fiftieth of the most salient one's (with the two phases, [`phases`]; one
+/// weighted run was best at 0.05, README).
+pub const H_MIN: f64 = 0.02;
 
 /// Refuses h_min outside (0, 1].
 pub fn check_h_min(h_min: f64) -> Result<()> {
@@ -122,6 +124,9 @@ pub struct Weighting {
     /// With `top`: the weight just below the salient share (h_min at the bottom, geometric
     /// in the rank between; `gap` = h_min: every unsalient vertex at h_min).
     pub gap: f64,
+    /// The two-phase order ([`phases`]): the unsalient surface's share of the target after
+    /// phase 1 (0: one weighted run).
+    pub phases: f64,
 }
 
 impl Default for Weighting {
@@ -135,6 +140,7 @@ impl Default for Weighting {
             plateau: 0.0,
             top: 0.0,
             gap: 1.0,
+            phases: phases::SHARE,
         }
     }
 }
@@ -167,6 +173,49 @@ impl Weighting {
     }
 }
 
+impl Weighting {
+    /// The weighting's own salient fifth: the vertices whose [`weight_values`] rank in the
+    /// top fifth of the area (the share issue 12's evaluation calls salient), which
+    /// [`phases`] keeps through phase 1.
+    pub fn salient(&self, mesh: &TriMesh, values: &[f64]) -> Vec<bool> {
+        let v = weight_values(mesh, values, self);
+        hybrid::area_ranks(&v, &vertex_areas(mesh))
+            .iter()
+            .map(|&u| u >= 1.0 - SALIENT_SHARE)
+            .collect()
+    }
+
+    /// Simplifies `mesh` as `p` says (its `weights` ignored) with the weights of `values`:
+    /// plain QEM when they are the same everywhere, two phases ([`phases`]) when
+    /// `self.phases` > 0 and the weights go in the quadrics, else one weighted run.
+    pub fn simplify(
+        &self,
+        mesh: &TriMesh,
+        p: &crate::simplify::qem::QemParams,
+        values: &[f64],
+    ) -> Result<crate::simplify::qem::QemResult> {
+        use crate::simplify::qem;
+        let Some(h) = self.weights(mesh, values) else {
+            let plain = qem::QemParams {
+                weights: None,
+                ..p.clone()
+            };
+            return qem::simplify(mesh, &plain);
+        };
+        if self.phases > 0.0 && p.weight_rule == qem::WeightRule::Quadric {
+            return phases::simplify(mesh, p, &h, &self.salient(mesh, values), self.phases);
+        }
+        let one = qem::QemParams {
+            weights: Some(h.into()),
+            ..p.clone()
+        };
+        qem::simplify(mesh, &one)
+    }
+}
+
+/// The share of the area the weighting treats as salient in [`Weighting::salient`].
+pub const SALIENT_SHARE: f64 = 0.2;
+
 /// A third of the area of every triangle at each vertex (welded copies each count their own
 /// triangles; they share their value, so the ranks add them up).
 fn vertex_areas(mesh: &TriMesh) -> Vec<f64> {
@@ -194,6 +243,21 @@ pub fn weight_values(mesh: &TriMesh, values: &[f64], w: &Weighting) -> Vec<f64> 
     v
 }
 
+/// The per-vertex map of `kind` for `mesh` that the weights are made from (`None` for
+/// [`Saliency::None`]).
+pub fn values(
+    mesh: &TriMesh,
+    kind: Saliency,
+    views: &image::ViewParams,
+) -> Result<Option<Vec<f64>>> {
+    Ok(Some(match kind {
+        Saliency::None => return Ok(None),
+        Saliency::Mesh => mesh::mesh_saliency(mesh).saliency,
+        Saliency::Image => image::image_saliency(mesh, views)?.mean,
+        Saliency::Hybrid => maps(mesh, views)?.hybrid,
+    }))
+}
+
 /// The weights H ∈ [h_min, 1] of `kind` for `mesh` (`None`: plain QEM, also when the
 /// saliency is the same everywhere).
 pub fn weights(
@@ -203,17 +267,11 @@ pub fn weights(
     views: &image::ViewParams,
 ) -> Result<Option<Vec<f64>>> {
     check_h_min(h_min)?;
-    let values = match kind {
-        Saliency::None => return Ok(None),
-        Saliency::Mesh => mesh::mesh_saliency(mesh).saliency,
-        Saliency::Image => image::image_saliency(mesh, views)?.mean,
-        Saliency::Hybrid => maps(mesh, views)?.hybrid,
-    };
     let w = Weighting {
         h_min,
         ..Weighting::default()
     };
-    Ok(w.weights(mesh, &values))
+    Ok(values(mesh, kind, views)?.and_then(|v| w.weights(mesh, &v)))
 }
 pub mod pictures;
 
