@@ -40,11 +40,16 @@ fn image_saliency(c: &mut Criterion) {
 fn weighted_qem(c: &mut Criterion) {
     let Some(m) = load("bunny.obj") else { return };
     // The default weighting of the mesh saliency (the hybrid's image part would make the
-    // setup long; H's origin does not change the engine's work), in the default rule.
-    let w = saliency::Weighting::default().weights(&m, &saliency::mesh::mesh_saliency(&m).saliency);
+    // setup long; H's origin does not change the engine's work), in the default rule and
+    // the default two phases (H and the salient vertices known before).
+    let d = saliency::Weighting::default();
+    let values = saliency::mesh::mesh_saliency(&m).saliency;
+    let h = d
+        .weights(&m, &values)
+        .expect("bunny's mesh saliency varies");
+    let salient = d.salient(&m, &values);
     let plain = qem::QemParams::plain(m.triangle_count() as u64 / 10, qem::Placement::Optimal);
     let weighted = qem::QemParams {
-        weights: w.map(Into::into),
         weight_rule: qem::WeightRule::Quadric,
         ..plain.clone()
     };
@@ -54,7 +59,9 @@ fn weighted_qem(c: &mut Criterion) {
         b.iter(|| black_box(qem::simplify(&m, &plain).unwrap()))
     });
     g.bench_function("weighted", |b| {
-        b.iter(|| black_box(qem::simplify(&m, &weighted).unwrap()))
+        b.iter(|| {
+            black_box(saliency::phases::simplify(&m, &weighted, &h, &salient, d.phases).unwrap())
+        })
     });
     g.finish();
 }
