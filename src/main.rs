@@ -676,6 +676,24 @@ struct ClassifyArgs {
     /// Tolerance added per metre of distance to the supporting cell (default 0.2).
     #[arg(long)]
     support_slope: Option<f64>,
+    /// Reach of the openings past the grid's edge, share of the window (default 0).
+    #[arg(long)]
+    edge_reach: Option<f64>,
+    /// Radius of the last step's plane fit, point spacings (default 2.5; 0: off).
+    #[arg(long, value_name = "SPACINGS")]
+    plane_radius: Option<f64>,
+    /// Height above that plane that makes a point an object, metres (default 0.25).
+    #[arg(long, value_name = "M")]
+    plane_threshold: Option<f64>,
+    /// Tolerance added per metre of the plane's RMS misfit (default 2).
+    #[arg(long)]
+    plane_rms: Option<f64>,
+    /// Tolerance added per unit of the plane's slope, point spacings (default 0.15).
+    #[arg(long, value_name = "SPACINGS")]
+    plane_slope: Option<f64>,
+    /// Rounds of the plane step (default 2).
+    #[arg(long, value_name = "N")]
+    plane_rounds: Option<usize>,
 }
 
 fn classify(a: ClassifyArgs, progress: &dyn Progress) -> Result<()> {
@@ -691,6 +709,12 @@ fn classify(a: ClassifyArgs, progress: &dyn Progress) -> Result<()> {
         support_radius: a.support_radius,
         support_tolerance: a.support_tolerance,
         support_slope: a.support_slope,
+        edge_reach: a.edge_reach,
+        plane_radius: a.plane_radius,
+        plane_threshold: a.plane_threshold,
+        plane_rms: a.plane_rms,
+        plane_slope: a.plane_slope,
+        plane_rounds: a.plane_rounds,
         ..Default::default()
     };
     if let Some(o) = &a.output {

@@ -26,7 +26,10 @@
 //! 4. the provisional DEM: the minimum surface without the object, low and empty cells,
 //!    inpainted;
 //! 5. the final test: a point is ground when it lies within `threshold` +
-//!    `scalar` × (the DEM's slope at the point) of the DEM, interpolated bilinearly.
+//!    `scalar` × (the DEM's slope at the point) of the DEM, interpolated bilinearly;
+//! 6. ours: a ground point more than a small tolerance above the least-squares plane of
+//!    the ground points around it is an object after all (`ground_plane`: low vegetation
+//!    the wide final test lets through).
 //!
 //! Where this differs from the paper: the windows are squares (separable, so an erosion
 //! costs three comparisons a cell whatever its size; van Herk 1992, Gil & Werman 1993)
@@ -44,6 +47,7 @@
 //! Every length is given in metres and converted to the data's units with the CRS's
 //! metres-per-unit (Autzen is in international feet).
 
+use super::ground_plane as plane;
 use super::ground_refine as refine;
 use super::voidfill;
 use crate::error::{Error, Result};
@@ -115,6 +119,20 @@ pub struct GroundParams {
     pub support_tolerance: Option<f64>,
     /// … plus this many metres per metre of distance to it (default 0.2).
     pub support_slope: Option<f64>,
+    /// How far the openings' windows reach past the grid's edge, as a share of `window`
+    /// (default 0: not at all; 1: the outside is a gap like any other).
+    pub edge_reach: Option<f64>,
+    /// Radius of the last step's plane fit, point spacings (default 2.5; 0 turns the step
+    /// off): a ground point above the plane of its ground neighbours is an object.
+    pub plane_radius: Option<f64>,
+    /// Height above that plane beyond which a point is an object, metres (default 0.25) …
+    pub plane_threshold: Option<f64>,
+    /// … plus this many times the plane's RMS misfit (default 2) …
+    pub plane_rms: Option<f64>,
+    /// … plus this many point spacings per unit of the plane's slope (default 0.15).
+    pub plane_slope: Option<f64>,
+    /// Rounds of the plane step (default 2).
+    pub plane_rounds: Option<usize>,
 }
 
 impl Default for GroundParams {
@@ -135,6 +153,12 @@ impl Default for GroundParams {
             support_radius: None,
             support_tolerance: None,
             support_slope: None,
+            edge_reach: None,
+            plane_radius: None,
+            plane_threshold: None,
+            plane_rms: None,
+            plane_slope: None,
+            plane_rounds: None,
         }
     }
 }
@@ -152,6 +176,8 @@ pub const DEFAULT_WINDOW: f64 = 18.0;
 pub const DEFAULT_THRESHOLD: f64 = 0.5;
 /// Default elevation scalar, metres per unit slope.
 pub const DEFAULT_SCALAR: f64 = 1.25;
+/// Default reach of the openings past the grid's edge, share of `window`.
+pub const DEFAULT_EDGE_REACH: f64 = 0.0;
 /// Largest grid the stage builds (cells): a cell size this fine for the extent is refused.
 pub const MAX_CELLS: usize = 1 << 30;
 
@@ -178,6 +204,18 @@ pub struct GroundSettings {
     pub support_tolerance: f64,
     /// Added tolerance per metre of distance, metres per metre.
     pub support_slope: f64,
+    /// Reach of the windows past the grid's edge, share of `window`.
+    pub edge_reach: f64,
+    /// Radius of the plane step, point spacings (0: off).
+    pub plane_radius: f64,
+    /// Height above the plane that makes an object, metres …
+    pub plane_threshold: f64,
+    /// … plus this many times the plane's RMS misfit …
+    pub plane_rms: f64,
+    /// … plus this many point spacings per unit of its slope.
+    pub plane_slope: f64,
+    /// Rounds of the plane step.
+    pub plane_rounds: usize,
 }
 
 /// The result of [`classify`].
@@ -230,8 +268,22 @@ impl GroundParams {
             ("support_radius", self.support_radius),
             ("support_tolerance", self.support_tolerance),
             ("support_slope", self.support_slope),
+            ("plane_radius", self.plane_radius),
+            ("plane_threshold", self.plane_threshold),
+            ("plane_rms", self.plane_rms),
+            ("plane_slope", self.plane_slope),
         ] {
             non_negative(name, v)?;
+        }
+        if let Some(v) = self.edge_reach {
+            if !((0.0..=1.0).contains(&v)) {
+                return Err(Error::param(
+                    "ground",
+                    "edge_reach",
+                    v,
+                    "must be a number from 0 to 1",
+                ));
+            }
         }
         match self.scalar {
             Some(v) if !(v >= 0.0 && v.is_finite()) => Err(Error::param(
@@ -380,8 +432,16 @@ pub fn classify(
     let slope = params.slope.unwrap_or(DEFAULT_SLOPE);
     let sure_slope = params.sure_slope.unwrap_or(DEFAULT_SURE_SLOPE);
     // 3. Progressive opening, then hysteresis over the measured cells.
-    let (mut object, sure) =
-        progressive_object_mask(&base, cols, rows, radius, [slope, sure_slope], cell_m);
+    let edge_reach = params.edge_reach.unwrap_or(DEFAULT_EDGE_REACH);
+    let pad = ((edge_reach * radius as f64).round() as usize).min(radius);
+    let (mut object, sure) = progressive_object_mask(
+        &base,
+        [cols, rows],
+        radius,
+        pad,
+        [slope, sure_slope],
+        cell_m,
+    );
     if sure_slope > slope {
         hysteresis(&mut object, &sure, &empty, cols, rows);
     }
@@ -459,6 +519,26 @@ pub fn classify(
             count
         })
         .sum();
+    // 6. Points above the plane of their ground neighbours: see `ground_plane`.
+    let test = plane::PlaneTest {
+        radius: params.plane_radius.unwrap_or(plane::DEFAULT_RADIUS),
+        threshold: params.plane_threshold.unwrap_or(plane::DEFAULT_THRESHOLD),
+        rms: params.plane_rms.unwrap_or(plane::DEFAULT_RMS),
+        slope: params.plane_slope.unwrap_or(plane::DEFAULT_SLOPE),
+        rounds: params.plane_rounds.unwrap_or(plane::DEFAULT_ROUNDS),
+    };
+    let mut count = count;
+    if test.radius > 0.0 && test.rounds > 0 {
+        let cells = plane::Cells {
+            cols,
+            rows,
+            origin: grid.origin,
+            cell,
+            zref,
+            mpu,
+        };
+        count -= plane::drop_above_plane(x, y, z, &mut ground, &cells, spacing_m, cell_m, &test);
+    }
     if count == 0 {
         return Err(Error::param(
             "ground",
@@ -481,6 +561,12 @@ pub fn classify(
             support_radius: support.radius,
             support_tolerance: support.tolerance,
             support_slope: support.slope,
+            edge_reach,
+            plane_radius: test.radius,
+            plane_threshold: test.threshold,
+            plane_rms: test.rms,
+            plane_slope: test.slope,
+            plane_rounds: test.rounds,
         },
         grid: [cols, rows],
     })
@@ -551,7 +637,44 @@ fn inpaint(z: &mut [f32], cols: usize, rows: usize) {
 /// isolated point a spike of the membrane between points, and on a convex break (a quarry's
 /// rim, the crest of an embankment) the 3 × 3 opening cut those spikes like vegetation. The
 /// flags of unknown cells mean nothing (they are left out of the DEM and of the hysteresis).
+///
+/// The base is padded with `p` unknown cells on every side (`edge_reach`), so that the
+/// windows centred up to `p` cells past the grid's edge (holding only the cells inside it)
+/// take part in the opening as they would around a gap inside the survey. Clipped at the
+/// edge (`p` = 0), a slope rising to the edge loses its top row to the larger windows: the
+/// windows centred beyond the edge, the only ones whose minimum is the edge cell itself, are
+/// missing; padded, a building cut by the edge looks like a plateau to them.
 fn progressive_object_mask(
+    base: &[f32],
+    [cols, rows]: [usize; 2],
+    radius: usize,
+    p: usize,
+    slopes: [f64; 2],
+    cell_m: f64,
+) -> (Vec<bool>, Vec<bool>) {
+    if p == 0 {
+        return progressive_object_mask_clipped(base, cols, rows, radius, slopes, cell_m);
+    }
+    let (pc, pr) = (cols + 2 * p, rows + 2 * p);
+    let mut padded = vec![f32::INFINITY; pc * pr];
+    padded
+        .par_chunks_mut(pc)
+        .skip(p)
+        .zip(base.par_chunks(cols))
+        .for_each(|(out, row)| out[p..p + cols].copy_from_slice(row));
+    let (object, sure) = progressive_object_mask_clipped(&padded, pc, pr, radius, slopes, cell_m);
+    let crop = |m: Vec<bool>| -> Vec<bool> {
+        m.chunks(pc)
+            .skip(p)
+            .take(rows)
+            .flat_map(|row| row[p..p + cols].iter().copied())
+            .collect()
+    };
+    (crop(object), crop(sure))
+}
+
+/// [`progressive_object_mask`] with the windows clipped at the grid's edge.
+fn progressive_object_mask_clipped(
     base: &[f32],
     cols: usize,
     rows: usize,
@@ -967,19 +1090,45 @@ mod tests {
                 })
                 .collect();
             let (radius, slopes, cell) = (9, [0.15, 0.3], 1.0);
-            let (mut object, mut sure) = (vec![false; z.len()], vec![false; z.len()]);
-            let mut cur = z.clone();
-            for r in 1..=radius {
-                let next = open_slow(&cur, cols, rows, r);
-                for k in 0..z.len() {
-                    object[k] |= cur[k] - next[k] > (slopes[0] * r as f64 * cell) as f32;
-                    sure[k] |= cur[k] - next[k] > (slopes[1] * r as f64 * cell) as f32;
+            for pad in [0, 4, radius] {
+                // The grid inside `pad` unknown cells on every side (outside is a gap).
+                let (pc, pr) = (cols + 2 * pad, rows + 2 * pad);
+                let inside = |k: usize| {
+                    let (i, j) = (k % pc, k / pc);
+                    (pad..pad + cols).contains(&i) && (pad..pad + rows).contains(&j)
+                };
+                let mut cur = vec![f32::INFINITY; pc * pr];
+                for k in (0..pc * pr).filter(|&k| inside(k)) {
+                    cur[k] = z[(k / pc - pad) * cols + k % pc - pad];
                 }
-                cur = next;
+                let (mut object, mut sure) = (vec![false; pc * pr], vec![false; pc * pr]);
+                for r in 1..=radius {
+                    let next = open_slow(&cur, pc, pr, r);
+                    for k in 0..pc * pr {
+                        object[k] |= cur[k] - next[k] > (slopes[0] * r as f64 * cell) as f32;
+                        sure[k] |= cur[k] - next[k] > (slopes[1] * r as f64 * cell) as f32;
+                    }
+                    cur = next;
+                }
+                let crop = |m: Vec<bool>| -> Vec<bool> {
+                    (0..pc * pr).filter(|&k| inside(k)).map(|k| m[k]).collect()
+                };
+                let fast = progressive_object_mask(&z, [cols, rows], radius, pad, slopes, cell);
+                assert_eq!(fast, (crop(object), crop(sure)), "{cols}×{rows} pad {pad}");
             }
-            let fast = progressive_object_mask(&z, cols, rows, radius, slopes, cell);
-            assert_eq!(fast, (object, sure), "{cols}×{rows}");
         }
+    }
+
+    /// A plane rising to the grid's edge (steeper than the slope threshold) has no object
+    /// cell: the windows beyond the edge hold its top row.
+    #[test]
+    fn a_slope_up_to_the_edge_is_not_cut() {
+        let (cols, rows) = (40, 30);
+        let z: Vec<f32> = (0..cols * rows)
+            .map(|k| 0.6 * (k % cols) as f32 + 0.1 * (k / cols) as f32)
+            .collect();
+        let (object, sure) = progressive_object_mask(&z, [cols, rows], 12, 12, [0.2, 0.5], 1.0);
+        assert!(!object.iter().any(|o| *o) && !sure.iter().any(|s| *s));
     }
 
     /// Two regions of object cells: one holds a sure cell and stays, the other does not and

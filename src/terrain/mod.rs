@@ -9,6 +9,7 @@ pub mod denoise;
 pub mod extract;
 pub mod fill;
 pub mod ground;
+mod ground_plane;
 mod ground_refine;
 pub mod heightfield;
 pub mod largevoid;
