@@ -2,74 +2,77 @@
 
 const NONE: u32 = u32::MAX;
 
-/// Per vertex, a list of slots, each slot in at most one list: the first and last slot of
-/// each list and the slot after each, in three flat arrays. Appending a slot and moving a
-/// whole list to the end of another (a collapse of p into q) take O(1), with no
-/// allocation per vertex or per move; the lists keep the order a `Vec` per vertex would
-/// (appends at the end, a moved list after the receiving one's slots).
-pub(crate) struct SlotLists {
-    first: Vec<u32>,
-    last: Vec<u32>,
-    next: Vec<u32>,
+/// Per vertex, the slots that show it while vertices are merged one into another in a
+/// sequence known in advance (a collapse of p into q moves p's slots to the end of q's
+/// list, and p receives none afterwards), as one contiguous range of a single array.
+///
+/// Moving a whole list to the end of another keeps every list at every time contiguous in
+/// the final concatenation: p's list lands right after q's slots of the moment, and a later
+/// move of q carries both. So the lists are laid out once, by a counting sort (each
+/// vertex's own slots, ascending, then the lists merged into it in the order of the
+/// merges), and p's list when it is merged is a range read in memory order, where lists
+/// linked through the slots (as a `Vec` per vertex would keep them, the same order) are
+/// one scattered read per slot.
+pub(crate) struct MergeLists {
+    /// Per vertex: where its range starts.
+    start: Vec<u32>,
+    /// Per vertex: its list's length when it is merged (its final length for a vertex
+    /// never merged).
+    len: Vec<u32>,
+    slots: Vec<u32>,
 }
 
-impl SlotLists {
-    /// Empty lists for `vertices` vertices over `slots` slots.
-    pub(crate) fn new(vertices: usize, slots: usize) -> SlotLists {
-        SlotLists {
-            first: vec![NONE; vertices],
-            last: vec![NONE; vertices],
-            next: vec![NONE; slots],
+impl MergeLists {
+    /// `slot_vertex[s]` is the vertex slot `s` shows at first (`skip` for a slot in no
+    /// list, e.g. a restart); `merges` are the (p, q) in order, each p merged once and not
+    /// before any merge into it. Every vertex is below `vertices`.
+    pub(crate) fn new(
+        slot_vertex: &[u32],
+        skip: u32,
+        vertices: usize,
+        merges: &[(u32, u32)],
+    ) -> MergeLists {
+        let mut len = vec![0u32; vertices];
+        for &v in slot_vertex {
+            if v != skip {
+                len[v as usize] += 1;
+            }
         }
+        // Where each p lands in its q's list, relative to q's start.
+        let mut at = vec![NONE; vertices];
+        for &(p, q) in merges {
+            at[p as usize] = len[q as usize];
+            len[q as usize] += len[p as usize];
+        }
+        let mut start = vec![0u32; vertices];
+        let mut sum = 0u32;
+        for v in 0..vertices {
+            if at[v] == NONE {
+                start[v] = sum;
+                sum += len[v];
+            }
+        }
+        for &(p, q) in merges.iter().rev() {
+            start[p as usize] = start[q as usize] + at[p as usize];
+        }
+        // The own slots of each vertex at the head of its range, ascending.
+        at.copy_from_slice(&start);
+        let mut slots = vec![0u32; sum as usize];
+        for (s, &v) in slot_vertex.iter().enumerate() {
+            if v != skip {
+                let a = &mut at[v as usize];
+                slots[*a as usize] = s as u32;
+                *a += 1;
+            }
+        }
+        MergeLists { start, len, slots }
     }
 
-    /// Appends slot `s` (in no list) to `v`'s list.
+    /// The slots of `v`'s list when it is merged (at the end for a vertex never merged),
+    /// in the order the moves give them.
     #[inline]
-    pub(crate) fn push(&mut self, v: u32, s: u32) {
-        let v = v as usize;
-        self.next[s as usize] = NONE;
-        if self.first[v] == NONE {
-            self.first[v] = s;
-        } else {
-            self.next[self.last[v] as usize] = s;
-        }
-        self.last[v] = s;
-    }
-
-    /// Moves `p`'s slots to the end of `q`'s list (p ≠ q).
-    #[inline]
-    pub(crate) fn append(&mut self, p: u32, q: u32) {
-        let (p, q) = (p as usize, q as usize);
-        if self.first[p] == NONE {
-            return;
-        }
-        if self.first[q] == NONE {
-            self.first[q] = self.first[p];
-        } else {
-            self.next[self.last[q] as usize] = self.first[p];
-        }
-        self.last[q] = self.last[p];
-        self.first[p] = NONE;
-        self.last[p] = NONE;
-    }
-
-    /// Empties `v`'s list (its slots are then in no list).
-    #[inline]
-    pub(crate) fn clear(&mut self, v: u32) {
-        self.first[v as usize] = NONE;
-        self.last[v as usize] = NONE;
-    }
-
-    /// The slots of `v`'s list, in order.
-    #[inline]
-    pub(crate) fn iter(&self, v: u32) -> impl Iterator<Item = u32> + '_ {
-        let mut s = self.first[v as usize];
-        std::iter::from_fn(move || {
-            (s != NONE).then(|| {
-                let x = s;
-                s = self.next[x as usize];
-                x
-            })
-        })
+    pub(crate) fn get(&self, v: u32) -> &[u32] {
+        let s = self.start[v as usize] as usize;
+        &self.slots[s..s + self.len[v as usize] as usize]
     }
 }

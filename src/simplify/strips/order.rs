@@ -15,7 +15,7 @@
 //! splits, their records and the filter are the paper's, unchanged.
 
 use super::filter::rebuild_into;
-use super::lists::SlotLists;
+use super::lists::MergeLists;
 use super::stripify::{self, canonical, Join, StripParams};
 
 const NONE: u32 = u32::MAX;
@@ -31,22 +31,31 @@ fn distinct(t: [u32; 3]) -> bool {
     t[0] != t[1] && t[1] != t[2] && t[0] != t[2]
 }
 
-/// A doubly linked order of triangles.
-struct Order {
-    prev: Vec<u32>,
-    next: Vec<u32>,
+/// A triangle while the order is built: its corners at the current level, its neighbours
+/// in the order (a doubly linked list), and the last split that touched it. One record of
+/// 32 bytes, so that what a split reads of a triangle (corners, then links) comes in one
+/// cache line: these reads, scattered over the mesh, are most of the order's time.
+#[derive(Clone, Copy)]
+#[repr(C, align(32))]
+struct Tri {
+    c: [u32; 3],
+    prev: u32,
+    next: u32,
+    stamp: u32,
+}
+
+/// The triangles and the order.
+struct Level {
+    tri: Vec<Tri>,
     head: u32,
     tail: u32,
 }
 
-impl Order {
-    fn new(n: usize) -> Order {
-        Order {
-            prev: vec![NONE; n],
-            next: vec![NONE; n],
-            head: NONE,
-            tail: NONE,
-        }
+impl Level {
+    /// Corners of `t`.
+    #[inline]
+    fn corners(&self, t: u32) -> [u32; 3] {
+        self.tri[t as usize].c
     }
 
     /// Puts `t` right after `a` (at the front when `a` is NONE).
@@ -54,22 +63,25 @@ impl Order {
         let b = if a == NONE {
             self.head
         } else {
-            self.next[a as usize]
+            self.tri[a as usize].next
         };
-        self.prev[t as usize] = a;
-        self.next[t as usize] = b;
+        self.tri[t as usize].prev = a;
+        self.tri[t as usize].next = b;
         if a == NONE {
             self.head = t;
         } else {
-            self.next[a as usize] = t;
+            self.tri[a as usize].next = t;
         }
         if b == NONE {
             self.tail = t;
         } else {
-            self.prev[b as usize] = t;
+            self.tri[b as usize].prev = t;
         }
     }
 }
+
+/// How many splits ahead the coarse-to-fine pass reads the triangles a split touches.
+const AHEAD: usize = 4;
 
 /// The placed triangles around each vertex (those with distinct corners at the current
 /// level), each a list that behaves as a `Vec` (push, and removal by moving the last
@@ -78,73 +90,61 @@ impl Order {
 /// the rare case that it outgrows it (a vertex that stands for collapsed ones at a coarse
 /// level). No allocation per vertex.
 struct Fans {
-    start: Vec<u32>,
-    len: Vec<u32>,
-    room: Vec<u32>,
+    /// Per vertex: (start, length, room), together (one read).
+    head: Vec<[u32; 3]>,
     data: Vec<u32>,
 }
 
 impl Fans {
     fn new(tris: &[[u32; 3]], vertices: usize) -> Fans {
-        let mut room = vec![0u32; vertices];
+        let mut head = vec![[0u32; 3]; vertices];
         for &v in tris.iter().flatten() {
-            room[v as usize] += 1;
+            head[v as usize][2] += 1;
         }
-        let mut start = Vec::with_capacity(vertices);
         let mut sum = 0u32;
-        for &r in &room {
-            start.push(sum);
-            sum += r;
+        for h in &mut head {
+            h[0] = sum;
+            sum += h[2];
         }
         Fans {
-            start,
-            len: vec![0; vertices],
-            room,
+            head,
             data: vec![NONE; sum as usize],
         }
     }
 
     #[inline]
     fn get(&self, v: u32) -> &[u32] {
-        let s = self.start[v as usize] as usize;
-        &self.data[s..s + self.len[v as usize] as usize]
+        let [s, n, _] = self.head[v as usize];
+        &self.data[s as usize..(s + n) as usize]
     }
 
     #[inline]
     fn push(&mut self, v: u32, t: u32) {
-        let v = v as usize;
-        let (s, n) = (self.start[v] as usize, self.len[v] as usize);
-        if n as u32 == self.room[v] {
+        let [s, n, room] = self.head[v as usize];
+        let (mut s, n) = (s as usize, n as usize);
+        if n as u32 == room {
             let at = self.data.len();
             let room = (2 * n).max(4);
             self.data.extend_from_within(s..s + n);
             self.data.resize(at + room, NONE);
-            self.start[v] = at as u32;
-            self.room[v] = room as u32;
+            s = at;
+            self.head[v as usize] = [at as u32, n as u32, room as u32];
         }
-        let s = self.start[v] as usize;
         self.data[s + n] = t;
-        self.len[v] += 1;
+        self.head[v as usize][1] += 1;
     }
 
     /// Removes `t` from `v`'s list (the last entry takes its place), if it is there.
     #[inline]
     fn remove(&mut self, v: u32, t: u32) {
-        let v = v as usize;
-        let (s, n) = (self.start[v] as usize, self.len[v] as usize);
+        let [s, n, _] = self.head[v as usize];
+        let (s, n) = (s as usize, n as usize);
         let f = &mut self.data[s..s + n];
         if let Some(k) = f.iter().position(|&u| u == t) {
             f[k] = f[n - 1];
-            self.len[v] -= 1;
+            self.head[v as usize][1] -= 1;
         }
     }
-}
-
-/// The current corners of triangle `t`.
-#[inline]
-fn corners(cur: &[u32], t: u32) -> [u32; 3] {
-    let i = 3 * t as usize;
-    [cur[i], cur[i + 1], cur[i + 2]]
 }
 
 /// The full strip of `tris` (distinct corners, ids below `vertices`) in the coarse-to-fine
@@ -156,35 +156,35 @@ pub fn hierarchical(
     join: Join,
 ) -> Vec<u32> {
     let n = tris.len();
-    // The triangles as a list of corner slots, collapsed to the base mesh; per collapse,
-    // the slots it rewrote (what its split restores).
-    let mut cur: Vec<u32> = tris.iter().flatten().copied().collect();
-    // The slots that show each vertex (in lists); the slots each collapse rewrote, in the
-    // order of those lists, follow one another in `restore` (collapse i's from
-    // `restore_at[i]`).
-    let mut shows = SlotLists::new(vertices, cur.len());
-    for (s, &v) in cur.iter().enumerate() {
-        shows.push(v, s as u32);
+    let flat: Vec<u32> = tris.iter().flatten().copied().collect();
+    // The corner slots each collapse rewrote (what its split restores): the slots that
+    // showed the removed vertex then.
+    let restore = MergeLists::new(&flat, NONE, vertices, pairs);
+    // The triangles collapsed to the base mesh: each corner shows the vertex its own was
+    // collapsed into, transitively.
+    let mut root: Vec<u32> = (0..vertices as u32).collect();
+    for &(p, q) in pairs.iter().rev() {
+        root[p as usize] = root[q as usize];
     }
-    let mut restore: Vec<u32> = Vec::with_capacity(cur.len());
-    let mut restore_at: Vec<u32> = Vec::with_capacity(pairs.len() + 1);
-    restore_at.push(0);
-    for &(p, q) in pairs {
-        for s in shows.iter(p) {
-            cur[s as usize] = q;
-            restore.push(s);
-        }
-        shows.append(p, q);
-        restore_at.push(restore.len() as u32);
-    }
-    drop(shows);
-    let restore = |i: usize| &restore[restore_at[i] as usize..restore_at[i + 1] as usize];
+    drop(flat);
+    let mut lv = Level {
+        tri: tris
+            .iter()
+            .map(|t| Tri {
+                c: t.map(|v| root[v as usize]),
+                prev: NONE,
+                next: NONE,
+                stamp: NONE,
+            })
+            .collect(),
+        head: NONE,
+        tail: NONE,
+    };
+    drop(root);
 
     // The base mesh's triangles in the order of its own strip.
-    let base: Vec<u32> = (0..n as u32)
-        .filter(|&t| distinct(corners(&cur, t)))
-        .collect();
-    let base_tris: Vec<[u32; 3]> = base.iter().map(|&t| corners(&cur, t)).collect();
+    let base: Vec<u32> = (0..n as u32).filter(|&t| distinct(lv.corners(t))).collect();
+    let base_tris: Vec<[u32; 3]> = base.iter().map(|&t| lv.corners(t)).collect();
     let strip = stripify::stripify(
         &base_tris,
         &StripParams {
@@ -199,7 +199,6 @@ pub fn hierarchical(
         .collect();
     by_key.sort_unstable();
     let mut taken = vec![false; by_key.len()];
-    let mut order = Order::new(n);
     let mut fans = Fans::new(tris, vertices);
     stripify::each_triangle(&strip, |c| {
         let key = canonical(c);
@@ -210,31 +209,49 @@ pub fn hierarchical(
         debug_assert_eq!(by_key[i].0, key);
         taken[i] = true;
         let t = by_key[i].1;
-        order.insert_after(order.tail, t);
+        lv.insert_after(lv.tail, t);
         for v in c {
             fans.push(v, t);
         }
     });
 
     // The splits, coarse to fine.
-    let mut stamp = vec![NONE; n];
     let mut touched: Vec<(u32, bool)> = Vec::new();
     let mut fresh: Vec<u32> = Vec::new();
+    // The splits are known in advance but scattered over the mesh: what a split reads is
+    // read early (folded into `early`, which keeps the reads), in two stages, so that the
+    // cache misses of the few splits ahead overlap one another and the work in between
+    // instead of each stalling the split that needs it: `2 * AHEAD` splits ahead, the head
+    // of its restored slots and of the kept vertex's fan; `AHEAD` splits ahead, the
+    // triangles those list.
+    let mut early = 0u32;
     for (i, &(p, q)) in pairs.iter().enumerate().rev() {
-        touched.clear();
-        for &s in restore(i) {
-            let t = s / 3;
-            if stamp[t as usize] != i as u32 {
-                stamp[t as usize] = i as u32;
-                touched.push((t, distinct(corners(&cur, t))));
+        if let Some(&(r, k)) = i.checked_sub(2 * AHEAD).and_then(|j| pairs.get(j)) {
+            early ^= restore.get(r).first().copied().unwrap_or(0) ^ fans.head[k as usize][0];
+        }
+        if let Some(&(r, k)) = i.checked_sub(AHEAD).and_then(|j| pairs.get(j)) {
+            for &s in restore.get(r) {
+                early ^= lv.tri[(s / 3) as usize].stamp;
+            }
+            for &u in fans.get(k) {
+                early ^= lv.tri[u as usize].stamp;
             }
         }
-        for &s in restore(i) {
-            cur[s as usize] = p;
+        touched.clear();
+        // Each triangle the split touches, whether it had distinct corners before (read at
+        // its first slot, before any is rewritten), and p back in its slots.
+        for &s in restore.get(p) {
+            let t = s / 3;
+            let tri = &mut lv.tri[t as usize];
+            if tri.stamp != i as u32 {
+                tri.stamp = i as u32;
+                touched.push((t, distinct(tri.c)));
+            }
+            tri.c[(s % 3) as usize] = p;
         }
         fresh.clear();
         for &(t, was) in &touched {
-            let c = corners(&cur, t);
+            let c = lv.corners(t);
             if !distinct(c) {
                 continue;
             }
@@ -249,15 +266,16 @@ pub fn hierarchical(
             }
         }
         for &t in &fresh {
-            place(&mut order, &fans, &cur, t);
+            place(&mut lv, &fans, t);
         }
     }
 
+    std::hint::black_box(early);
     let mut seq: Vec<[u32; 3]> = Vec::with_capacity(n);
-    let mut t = order.head;
+    let mut t = lv.head;
     while t != NONE {
         seq.push(tris[t as usize]);
-        t = order.next[t as usize];
+        t = lv.tri[t as usize].next;
     }
     let mut out = Vec::with_capacity(2 * n);
     rebuild_into(&mut seq, join, 1, &mut out);
@@ -267,12 +285,13 @@ pub fn hierarchical(
 /// Inserts the new triangle `t` next to one of its neighbours (in the fans of its corners)
 /// where it joins the most: +1 per neighbour in the order it comes next to, −1 when it
 /// separates two that were joined. With no neighbour placed yet, at the end.
-fn place(order: &mut Order, fans: &Fans, cur: &[u32], t: u32) {
-    let c = corners(cur, t);
-    let joins =
-        |a: u32, b: u32| a != NONE && b != NONE && adjacent(corners(cur, a), corners(cur, b));
+fn place(lv: &mut Level, fans: &Fans, t: u32) {
+    let c = lv.corners(t);
+    let joins = |a: u32, b: u32| a != NONE && b != NONE && adjacent(lv.corners(a), lv.corners(b));
     let mut best: Option<(i32, u32)> = None;
-    for (k, v) in c.into_iter().enumerate() {
+    // A neighbour shares two corners with t, so it is in the fan of c[0] or of c[1]: the
+    // fan of c[2] adds none.
+    for (k, v) in c.into_iter().take(2).enumerate() {
         for &u in fans.get(v) {
             // Across an edge of t and placed (in the order). A neighbour is in the fans of
             // both corners it shares with t: it is weighed from the first (the second
@@ -280,16 +299,16 @@ fn place(order: &mut Order, fans: &Fans, cur: &[u32], t: u32) {
             if u == t {
                 continue;
             }
-            let cu = corners(cur, u);
+            let tu = lv.tri[u as usize];
+            let cu = tu.c;
             if !adjacent(c, cu) || c[..k].iter().any(|w| cu.contains(w)) {
                 continue;
             }
-            let placed = order.head == u || order.prev[u as usize] != NONE;
+            let placed = lv.head == u || tu.prev != NONE;
             if !placed {
                 continue;
             }
-            let after = order.next[u as usize];
-            let before = order.prev[u as usize];
+            let (before, after) = (tu.prev, tu.next);
             // After u, and before u (inserted after its predecessor).
             for (a, b) in [(u, after), (before, u)] {
                 let gain =
@@ -301,7 +320,7 @@ fn place(order: &mut Order, fans: &Fans, cur: &[u32], t: u32) {
         }
     }
     match best {
-        Some((_, a)) => order.insert_after(a, t),
-        None => order.insert_after(order.tail, t),
+        Some((_, a)) => lv.insert_after(a, t),
+        None => lv.insert_after(lv.tail, t),
     }
 }

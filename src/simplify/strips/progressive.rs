@@ -21,7 +21,7 @@
 //! restores one vertex and moves no other, as the record holds one position. The stream
 //! numbers vertices as it sends them: the base mesh's first, then one per split.
 
-use super::lists::SlotLists;
+use super::lists::MergeLists;
 use super::stripify::{self, StripParams, RESTART};
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
@@ -143,7 +143,8 @@ fn canonical_mesh(mesh: &TriMesh) -> TriMesh {
     // The key: the position and the attributes the mesh has, in a fixed array (the same
     // attributes for every vertex, so the unused tail is zero for all): no allocation per
     // vertex.
-    let mut first: FxHashMap<[u32; 12], u32> = FxHashMap::default();
+    let mut first: FxHashMap<[u32; 12], u32> =
+        FxHashMap::with_capacity_and_hasher(mesh.vertex_count(), Default::default());
     let mut id = vec![u32::MAX; mesh.vertex_count()];
     let mut out = TriMesh {
         normals: mesh.normals.as_ref().map(|_| Vec::new()),
@@ -207,15 +208,19 @@ fn push_attributes(out: &mut TriMesh, mesh: &TriMesh, v: usize) {
     }
 }
 
+/// How many collapses ahead [`Progressive::from_full`] reads the slots a collapse rewrites.
+const AHEAD: usize = 4;
+
 /// The strip state while collapses are replayed.
 struct Replay {
     /// As drawn.
     resolved: Vec<u32>,
     /// With E-PS references.
     slots: Vec<u32>,
-    /// Per vertex: the offsets that show it (Naive-PS) and that name it (E-PS).
-    shows: SlotLists,
-    names: SlotLists,
+    /// Per vertex: the offsets that show it when it is collapsed (Naive-PS). Those of
+    /// them that are not references name it (E-PS): a slot of the vertex collapsed turns
+    /// into a reference, or names the kept vertex, and moves to its list.
+    shows: MergeLists,
     /// Scratch for [`Replay::collapse`]: the offsets that name the vertex removed, and a
     /// state per offset.
     named: Vec<u32>,
@@ -223,26 +228,20 @@ struct Replay {
 }
 
 impl Replay {
-    fn new(strip: Vec<u32>, vertices: usize) -> Replay {
-        let mut shows = SlotLists::new(vertices, strip.len());
-        let mut names = SlotLists::new(vertices, strip.len());
-        for (o, &v) in strip.iter().enumerate() {
-            if v != RESTART {
-                shows.push(v, o as u32);
-                names.push(v, o as u32);
-            }
-        }
+    /// `collapses`: (removed, kept), in the order they will be replayed.
+    fn new(strip: Vec<u32>, vertices: usize, collapses: &[(u32, u32)]) -> Replay {
+        let shows = MergeLists::new(&strip, RESTART, vertices, collapses);
         Replay {
             slots: strip.clone(),
             resolved: strip,
-            names,
             shows,
             named: Vec::new(),
             state: Vec::new(),
         }
     }
 
-    /// Collapses `p` into `q`; returns the split that undoes it.
+    /// Collapses `p` into `q` (the next of the collapses given to [`Replay::new`]);
+    /// returns the split that undoes it.
     fn collapse(&mut self, p: u32, q: u32) -> Split {
         let len = self.resolved.len() as i64;
         // E-PS, against the strip before the collapse. A slot that names p becomes a
@@ -256,8 +255,13 @@ impl Replay {
         // one of them is next to q.
         let mut names = std::mem::take(&mut self.named);
         names.clear();
-        names.extend(self.names.iter(p));
-        self.names.clear(p);
+        let shows = self.shows.get(p);
+        names.extend(
+            shows
+                .iter()
+                .copied()
+                .filter(|&o| ref_offset(self.slots[o as usize]).is_none()),
+        );
         // Per slot of p: 0 undecided, 1 a reference, 2 settled to name q.
         let mut state = std::mem::take(&mut self.state);
         state.clear();
@@ -308,17 +312,15 @@ impl Replay {
         for (i, &o) in names.iter().enumerate() {
             if state[i] == 2 {
                 self.slots[o as usize] = q;
-                self.names.push(q, o);
             }
             encoded.push((o, self.slots[o as usize]));
         }
         self.state = state;
         self.named = names;
-        let mut naive: Vec<u32> = self.shows.iter(p).collect();
+        let mut naive: Vec<u32> = self.shows.get(p).to_vec();
         for &o in &naive {
             self.resolved[o as usize] = q;
         }
-        self.shows.append(p, q);
         naive.sort_unstable();
         encoded.sort_unstable();
         Split {
@@ -598,11 +600,25 @@ impl Progressive {
         splits: &[Split],
         triangles: usize,
     ) -> Progressive {
-        let mut replay = Replay::new(full, vertices.vertex_count());
-        let mut out: Vec<Split> = (0..splits.len())
+        let collapses: Vec<(u32, u32)> = (0..splits.len())
             .rev()
-            .map(|i| replay.collapse(base_vertices + i as u32, splits[i].kept))
+            .map(|i| (base_vertices + i as u32, splits[i].kept))
             .collect();
+        let mut replay = Replay::new(full, vertices.vertex_count(), &collapses);
+        // The slots of the collapse `AHEAD` places on are read early (folded into
+        // `early`, which keeps the reads): the collapses are scattered over the strip, and
+        // so their cache misses overlap the work in between instead of stalling each one.
+        let mut early = 0u32;
+        let mut out: Vec<Split> = Vec::with_capacity(collapses.len());
+        for (i, &(p, q)) in collapses.iter().enumerate() {
+            if let Some(&(r, _)) = collapses.get(i + AHEAD) {
+                for &o in replay.shows.get(r) {
+                    early ^= replay.slots[o as usize];
+                }
+            }
+            out.push(replay.collapse(p, q));
+        }
+        std::hint::black_box(early);
         out.reverse();
         Progressive {
             vertices,
