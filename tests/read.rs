@@ -412,3 +412,37 @@ fn bounds_measured_while_reading_are_the_clouds() {
         }
     }
 }
+
+/// The bounds `read_all_with_bounds` gathers file by file (what `terratile run` hands to its
+/// memory estimate, its read report and noise removal) are those of the whole cloud it
+/// returns: LAS and XYZ together, and with a cap that ends inside the second file and leaves
+/// the third empty.
+#[test]
+fn bounds_of_several_files_are_the_whole_clouds() {
+    let files = [
+        common::repo().join("fixtures/survey-0-0.las"),
+        common::repo().join("fixtures/survey-1-0.xyz"),
+        common::repo().join("fixtures/survey-0-0.las"),
+    ];
+    let first = points::read(&files[0], &ReadOptions::default(), &NoProgress)
+        .unwrap()
+        .len() as u64;
+    for cap in [None, Some(first + 7)] {
+        let opts = ReadOptions {
+            max_points: cap,
+            ..Default::default()
+        };
+        let (c, b) = points::read_all_with_bounds(&files, &opts, &NoProgress).unwrap();
+        let all = points::read_all(&files, &opts, &NoProgress).unwrap();
+        assert_eq!(c.len(), all.len(), "cap {cap:?}");
+        assert_eq!(cap.map_or(c.len() as u64, |_| first + 7), c.len() as u64);
+        let want = all.bounds();
+        for k in 0..3 {
+            assert!(
+                b.min[k].to_bits() == want.min[k].to_bits()
+                    && b.max[k].to_bits() == want.max[k].to_bits(),
+                "cap {cap:?}: axis {k}: {b:?} vs {want:?}"
+            );
+        }
+    }
+}

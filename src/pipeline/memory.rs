@@ -27,20 +27,25 @@ pub fn reset_peak_rss() -> bool {
 /// [`estimate_run`] for `pipeline` on the points it read (`cloud`): the voxel lattice noise
 /// removal will build and the grid resampling will make (over all the points' bounds, which
 /// holds the denoised points' bounds). A stage parameter that cannot work on these points is
-/// reported at its key.
-pub fn estimate_pipeline(pipeline: &LoadedPipeline, cloud: &PointCloud) -> Result<Estimate> {
+/// reported at its key. `bounds` are the tight bounds of all of `cloud`'s points (as the
+/// reader measured them).
+pub fn estimate_pipeline(
+    pipeline: &LoadedPipeline,
+    cloud: &PointCloud,
+    bounds: &crate::points::Bounds,
+) -> Result<Estimate> {
     let cfg = &pipeline.config;
     let n = cloud.len();
     let denoise = if cfg.denoise.enabled {
         let mpu = cloud.crs().map_or(1.0, |c| c.metres_per_unit());
         Some(
-            crate::terrain::denoise::lattice_size(cloud, &cfg.denoise, mpu)
+            crate::terrain::denoise::lattice_size(cloud, &cfg.denoise, mpu, Some(bounds))
                 .map_err(|e| pipeline.param_error(e))?,
         )
     } else {
         None
     };
-    let spec = crate::terrain::resample::GridSpec::new(&cfg.resample, &cloud.bounds(), n)
+    let spec = crate::terrain::resample::GridSpec::new(&cfg.resample, bounds, n)
         .map_err(|e| pipeline.param_error(e))?;
     let grid_key = if cfg.resample.size.is_some() {
         "resample.size"

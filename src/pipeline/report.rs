@@ -152,14 +152,15 @@ pub(super) fn fig(k: &str, v: String) -> (String, String) {
     (k.to_string(), v)
 }
 
-/// The run summary as the read leaves it: the inputs, the points, and the read's report.
+/// The run summary as the read leaves it: the inputs, the points (whose tight `bounds` the
+/// reader measured), and the read's report.
 pub(super) fn read_summary(
     pipeline: &LoadedPipeline,
     files: &[PathBuf],
     cloud: &PointCloud,
+    bounds: Bounds,
     read_s: f64,
 ) -> RunSummary {
-    let bounds = cloud.bounds();
     let mut inputs = cloud.sources.clone();
     for s in &mut inputs {
         s.path = normalize_lexically(&s.path);

@@ -66,8 +66,9 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
     let plan = Plan::new(pipeline)?;
     let cfg = &pipeline.config;
     let staged = plan.stage_output_dir()?;
-    let (cloud, mut summary) = read(&plan, progress)?;
-    let g = grid_stages(&cloud, cfg, progress).map_err(|e| pipeline.param_error(e))?;
+    let (cloud, bounds, mut summary) = read(&plan, progress)?;
+    let g = grid_stages_with_bounds(&cloud, Some(bounds), cfg, progress)
+        .map_err(|e| pipeline.param_error(e))?;
     let (keep, grid) = report_grid(pipeline, &cloud, g, &staged, &mut summary)?;
     // The tiles and their d2 are dropped here, before the baseline measures its memory.
     let TileStages { reports, files, .. } = tile_stages(cfg, &grid, staged.path(), progress)?;
@@ -95,22 +96,27 @@ pub fn run_with_context(pipeline: &LoadedPipeline, progress: &dyn Progress) -> R
 }
 
 /// The read: every input into one cloud, refused when empty or when the stages would need
-/// more memory than the budget; returns the cloud and the summary as the read leaves it.
-fn read(plan: &Plan<'_>, progress: &dyn Progress) -> Result<(PointCloud, RunSummary)> {
+/// more memory than the budget; returns the cloud, its tight bounds (measured by the
+/// readers as they decode, so that the estimate, the report and noise removal make no pass
+/// of their own over the columns) and the summary as the read leaves it.
+fn read(
+    plan: &Plan<'_>,
+    progress: &dyn Progress,
+) -> Result<(PointCloud, crate::points::Bounds, RunSummary)> {
     let pipeline = plan.pipeline;
     let opts = pipeline.config.input.read_options();
     let t = Instant::now();
-    let cloud = points::read_all(&plan.inputs, &opts, progress)?;
+    let (cloud, bounds) = points::read_all_with_bounds(&plan.inputs, &opts, progress)?;
     let read_s = t.elapsed().as_secs_f64();
     if cloud.is_empty() {
         return Err(empty_input(pipeline, &cloud));
     }
     // The memory the stages will need, before they allocate it.
-    estimate_pipeline(pipeline, &cloud)?
+    estimate_pipeline(pipeline, &cloud, &bounds)?
         .check(crate::memory::budget())
         .map_err(|e| pipeline.param_error(e))?;
-    let summary = read_summary(pipeline, &plan.inputs, &cloud, read_s);
-    Ok((cloud, summary))
+    let summary = read_summary(pipeline, &plan.inputs, &cloud, bounds, read_s);
+    Ok((cloud, bounds, summary))
 }
 
 /// What [`grid_stages`] leaves: each stage's result and its wall time.

@@ -497,15 +497,32 @@ pub fn read_all(
     opts: &ReadOptions,
     progress: &dyn Progress,
 ) -> Result<PointCloud> {
+    read_all_with_bounds(paths, opts, progress).map(|(cloud, _)| cloud)
+}
+
+/// [`read_all`], also returning the tight bounds of all the points read, as
+/// [`read_with_bounds`] measures them file by file ([`Bounds::EMPTY`] when none was read):
+/// the run's memory estimate, its read report and noise removal take them instead of each
+/// making its own pass over the columns.
+pub fn read_all_with_bounds(
+    paths: &[PathBuf],
+    opts: &ReadOptions,
+    progress: &dyn Progress,
+) -> Result<(PointCloud, Bounds)> {
     let mut cloud = PointCloud::default();
+    let mut bounds = Bounds::EMPTY;
     for p in paths {
         let mut o = opts.clone();
         if let Some(cap) = opts.max_points {
             o.max_points = Some(cap.saturating_sub(cloud.len() as u64));
         }
-        cloud.append(read(p, &o, progress)?);
+        let (c, b) = read_with_bounds(p, &o, progress)?;
+        if !c.is_empty() {
+            bounds = bounds.union(b);
+        }
+        cloud.append(c);
     }
-    Ok(cloud)
+    Ok((cloud, bounds))
 }
 
 impl PointCloud {

@@ -487,13 +487,18 @@ impl Lattice {
 
 /// The voxel columns and low-layer columns noise removal will use on `cloud` (after
 /// squeezing out empty space), for the memory estimate; errors as [`denoise`] would give.
+/// `bounds`, when given, must be the tight bounds of all of `cloud`'s points (as the reader
+/// measured them); otherwise they are measured here.
 pub fn lattice_size(
     cloud: &PointCloud,
     params: &DenoiseParams,
     metres_per_unit: f64,
+    bounds: Option<&Bounds>,
 ) -> Result<(u64, u64)> {
     let (x, y, z) = (&cloud.x, &cloud.y, &cloud.z);
-    let (bounds, _) = super::bounds_of(x, y, z, None);
+    let bounds = bounds
+        .copied()
+        .unwrap_or_else(|| super::bounds_of(x, y, z, None).0);
     let settings = params.resolve(&bounds, x.len(), metres_per_unit)?;
     let lat = Lattice::new(&bounds, &settings, x, y)?;
     let groups = lat.groups_x() as u64 * lat.ncy.div_ceil(lat.ratio) as u64;
