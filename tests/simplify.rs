@@ -680,6 +680,47 @@ fn qem_refuses_bad_parameters() {
     r.input_error(&["lock_border"]);
 }
 
+/// `--engine passes` and `--engine heap` both reach the target from the CLI, with the
+/// intersection check on; an unknown engine is a usage error.
+#[test]
+fn qem_engines_from_the_cli() {
+    let d = tempfile::tempdir().unwrap();
+    std::fs::write(d.path().join("m.obj"), grid_obj(12, "")).unwrap();
+    for engine in ["passes", "heap"] {
+        let out = format!("{engine}.obj");
+        let r = common::simplify(
+            d.path(),
+            "m.obj",
+            &out,
+            &[
+                "--method",
+                "qem",
+                "--triangles",
+                "40",
+                "--check-intersections",
+                "--engine",
+                engine,
+                "--no-error",
+            ],
+        );
+        r.ok();
+        let m = io::read(&d.path().join(&out)).unwrap();
+        assert!(
+            (38..=40).contains(&m.triangle_count()),
+            "{engine}: {}",
+            m.triangle_count()
+        );
+    }
+    let r = common::simplify(
+        d.path(),
+        "m.obj",
+        "x.obj",
+        &["--method", "qem", "--ratio", "0.5", "--engine", "queue"],
+    );
+    assert_eq!(r.code, 2, "{}", r.context());
+    r.left_nothing("x.obj");
+}
+
 #[test]
 fn qem_stops_with_a_warning_where_no_collapse_is_valid() {
     let d = tempfile::tempdir().unwrap();
