@@ -15,6 +15,7 @@ use common::{load, CpuTime};
 use std::hint::black_box;
 use terratile::mesh::hausdorff::{one_sided, HausdorffParams};
 use terratile::mesh::{Bvh, TriMesh};
+use terratile::simplify::qem::Engine;
 use terratile::simplify::{simplify, Method, Placement, SimplifyParams};
 
 fn bunny() -> Option<TriMesh> {
@@ -78,6 +79,19 @@ fn edge_collapse_in<M: Measurement>(c: &mut Criterion<M>, suffix: &str) {
         g.bench_function("terratile_qem_two_local_mappings", |b| {
             b.iter(|| black_box(run(&tlm)))
         });
+        // The same three with the pass engine (meshoptimizer's order; the default is the
+        // heap engine), in the same run.
+        for (what, p) in [
+            ("optimal", &params),
+            ("optimal_checked", &checked),
+            ("two_local_mappings", &tlm),
+        ] {
+            let mut passes = p.clone();
+            passes.engine = Some(Engine::Passes);
+            g.bench_function(format!("terratile_qem_{what}_passes"), |b| {
+                b.iter(|| black_box(run(&passes)))
+            });
+        }
         g.finish();
     }
 }

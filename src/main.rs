@@ -306,6 +306,10 @@ struct SimplifyArgs {
     /// QEM: accept no collapse with a larger error: model units, or `P%` of the bbox diagonal.
     #[arg(long, value_name = "E", allow_hyphen_values = true)]
     max_error: Option<String>,
+    /// QEM: order the collapses by a heap (default; the exact greedy order) or in passes
+    /// (as meshoptimizer: faster, a larger max error on some meshes).
+    #[arg(long, value_enum)]
+    engine: Option<EngineArg>,
     /// Keep this fraction of the triangles, in (0, 1].
     #[arg(long, value_name = "R", allow_negative_numbers = true)]
     ratio: Option<f64>,
@@ -371,6 +375,12 @@ enum PlacementArg {
     Optimal,
     Endpoint,
     TwoLocalMappings,
+}
+
+#[derive(ValueEnum, Debug, Clone, Copy)]
+enum EngineArg {
+    Passes,
+    Heap,
 }
 
 #[derive(ValueEnum, Debug, Clone, Copy)]
@@ -1137,6 +1147,10 @@ fn simplify(a: SimplifyArgs) -> Result<()> {
         }),
         saliency_views: a.views,
         saliency_view_size: a.view_size,
+        engine: a.engine.map(|e| match e {
+            EngineArg::Passes => terratile::simplify::qem::Engine::Passes,
+            EngineArg::Heap => terratile::simplify::qem::Engine::Heap,
+        }),
     };
     let mut params = params;
     if let Some(e) = &a.max_error {

@@ -480,6 +480,7 @@ fn qem_table() {
     let (mut mean_wins, mut max_ok, mut cases) = (0, 0, 0);
     let mut clean = 0;
     let (mut dist_mean_wins, mut dist_max_ok) = (0, 0);
+    let (mut pass_mean_wins, mut pass_max_ok) = (0, 0);
     let (mut tlm_sum, mut opt_sum) = (0.0, 0.0);
     for name in [
         "bunny.obj",
@@ -538,6 +539,14 @@ fn qem_table() {
                 }
             }
             clean += all_clean as usize;
+            // The pass engine (meshoptimizer's order), optimal placement, beside the
+            // default heap engine.
+            let mut p = SimplifyParams::triangles(Method::Qem, target as u64);
+            p.engine = Some(terratile::simplify::qem::Engine::Passes);
+            let t = std::time::Instant::now();
+            let s = simplify(&m, &p).unwrap();
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            let passes = row("qem optimal, pass engine", &s.mesh, ms);
             // The distance-ordered cost (engine API only), optimal placement.
             let q = terratile::simplify::qem::QemParams {
                 cost: terratile::simplify::qem::Cost::Distance,
@@ -576,6 +585,8 @@ fn qem_table() {
             // ours: optimal, endpoint, two local mappings; then the same with the check.
             tlm_sum += ours[2].1;
             opt_sum += ours[0].1;
+            pass_mean_wins += (passes.1 <= best.1) as usize;
+            pass_max_ok += (passes.0 <= 1.2 * best.0) as usize;
             mean_wins += (ours[0].1 <= best.1) as usize;
             max_ok += (ours[0].0 <= 1.2 * best.0) as usize;
             dist_mean_wins += (dist.1 <= best.1) as usize;
@@ -584,6 +595,9 @@ fn qem_table() {
     }
     println!(
         "\noptimal: Metro mean <= meshopt's best on {mean_wins}/{cases}; max <= 1.2 x meshopt's best on {max_ok}/{cases}"
+    );
+    println!(
+        "optimal, pass engine: Metro mean <= meshopt's best on {pass_mean_wins}/{cases}; max <= 1.2 x on {pass_max_ok}/{cases}"
     );
     println!(
         "with the intersection check, both placements: 0 fold-overs and no self-intersecting pair beyond the input's own count on {clean}/{cases}"
@@ -664,6 +678,47 @@ fn qem_refuses_bad_parameters() {
         &["--ratio", "0.5", "--lock-border"],
     );
     r.input_error(&["lock_border"]);
+}
+
+/// `--engine passes` and `--engine heap` both reach the target from the CLI, with the
+/// intersection check on; an unknown engine is a usage error.
+#[test]
+fn qem_engines_from_the_cli() {
+    let d = tempfile::tempdir().unwrap();
+    std::fs::write(d.path().join("m.obj"), grid_obj(12, "")).unwrap();
+    for engine in ["passes", "heap"] {
+        let out = format!("{engine}.obj");
+        let r = common::simplify(
+            d.path(),
+            "m.obj",
+            &out,
+            &[
+                "--method",
+                "qem",
+                "--triangles",
+                "40",
+                "--check-intersections",
+                "--engine",
+                engine,
+                "--no-error",
+            ],
+        );
+        r.ok();
+        let m = io::read(&d.path().join(&out)).unwrap();
+        assert!(
+            (38..=40).contains(&m.triangle_count()),
+            "{engine}: {}",
+            m.triangle_count()
+        );
+    }
+    let r = common::simplify(
+        d.path(),
+        "m.obj",
+        "x.obj",
+        &["--method", "qem", "--ratio", "0.5", "--engine", "queue"],
+    );
+    assert_eq!(r.code, 2, "{}", r.context());
+    r.left_nothing("x.obj");
 }
 
 #[test]

@@ -49,6 +49,7 @@ pub fn simplify(mesh: &mesh::TriMesh, params: &SimplifyParams) -> Result<Simplif
         pair_distance: params.pair_distance.unwrap_or(0.0),
         collapse_seams: params.collapse_seams.unwrap_or(false),
         weight_rule: params.saliency_rule.unwrap_or(qem::WeightRule::Quadric),
+        engine: params.engine.unwrap_or_default(),
     };
     let r = match params.saliency {
         Some(kind) => {

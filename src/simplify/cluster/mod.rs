@@ -180,6 +180,9 @@ pub struct SimplifyParams {
     /// QEM: collapse across UV seams and colour/normal discontinuities (default false).
     #[serde(default)]
     pub collapse_seams: Option<bool>,
+    /// QEM: order the collapses by a `heap` (default) or in `passes`.
+    #[serde(default)]
+    pub engine: Option<crate::simplify::qem::Engine>,
 }
 
 impl SimplifyParams {
@@ -226,6 +229,7 @@ impl SimplifyParams {
             saliency_view_size: None,
             pair_distance: None,
             collapse_seams: None,
+            engine: None,
         }
     }
 
@@ -379,6 +383,7 @@ impl SimplifyParams {
             ("saliency_view_size", self.saliency_view_size.is_some()),
             ("pair_distance", self.pair_distance.is_some()),
             ("collapse_seams", self.collapse_seams.is_some()),
+            ("engine", self.engine.is_some()),
         ];
         let clustering_keys = [
             ("cell_size", self.cell_size.is_some()),

@@ -20,6 +20,8 @@ use crate::simplify::quadric::Quadric;
 use glam::{DVec3, Vec2, Vec3};
 use rayon::prelude::*;
 
+mod passes;
+
 const NONE: u32 = u32::MAX;
 
 /// A triangle is "of zero area" after a collapse when twice its area is below this fraction
@@ -95,8 +97,10 @@ struct Vertex {
     cap: u32,
     /// A visit mark (see [`Collapse::epoch`]).
     mark: u32,
-    /// More than zero when some refused edge may touch the vertex (an over-count: it is
-    /// exact again, zero, after the vertex's edges are searched).
+    /// Heap engine: more than zero when some refused edge may touch the vertex (an
+    /// over-count: it is exact again, zero, after the vertex's edges are searched). Pass
+    /// engine: the last pass whose collapse moved the vertex (in the record the pass
+    /// reads anyway, rather than in an array of its own).
     refused_at: u32,
     /// On a border (of the input, or merged with a vertex that was).
     border: bool,
@@ -201,6 +205,12 @@ pub struct Collapse<'m> {
     /// With an error bound and free borders: the input's border edges (as zero-area
     /// triangles), so that no border vertex is placed further than the bound from them.
     border_bvh: Option<crate::mesh::Bvh>,
+    /// Pass engine: per heap slot (corner or pair), 1 + the collapse count when its edge
+    /// was last refused (0: never).
+    refused_when: Vec<u32>,
+    /// Pass engine: per vertex, the collapse count when a collapse last changed one of its
+    /// faces.
+    changed: Vec<u32>,
 }
 
 /// The dense faces with three distinct corners, and the index of each in
@@ -462,6 +472,8 @@ impl<'m> Collapse<'m> {
             joined: vec![false; n],
             pair_overflow: false,
             border_bvh: None,
+            refused_when: Vec::new(),
+            changed: Vec::new(),
         };
         if params.max_error.is_some() && !params.lock_border {
             c.border_bvh = border_edges(prep, &ef);
@@ -478,7 +490,9 @@ impl<'m> Collapse<'m> {
             c.fold_hint = c.orig_face.iter().map(|&o| slots[o as usize]).collect();
             c.orig_bvh = Some(bvh);
         }
-        c.seed_heap(&ef);
+        if params.engine == super::Engine::Heap {
+            c.seed_heap(&ef);
+        }
         c
     }
 
@@ -1361,7 +1375,17 @@ impl<'m> Collapse<'m> {
         self.half = half;
     }
 
-    /// The heap-driven loop: collapse the least-cost valid edge until `target` triangles
+    /// Collapses until `target` triangles or no valid collapse is left, by the engine
+    /// `params.engine` names.
+    pub fn run(&mut self, target: usize) {
+        match self.params.engine {
+            super::Engine::Heap => self.run_fast(target),
+            super::Engine::Passes => self.run_passes(target),
+        }
+    }
+
+    /// The heap-driven loop (the heap engine's; the heap is filled when the engine is
+    /// set up with `Engine::Heap`): collapse the least-cost valid edge until `target` triangles
     /// or no valid collapse is left.
     pub fn run_fast(&mut self, target: usize) {
         while self.tris > target {

@@ -133,6 +133,35 @@ impl std::fmt::Display for WeightRule {
     }
 }
 
+/// How the engine orders its collapses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Engine {
+    /// In passes, as meshoptimizer does: each pass costs every edge once, sorts them, and
+    /// collapses them in that order up to an error goal, skipping an edge whose vertex a
+    /// collapse of the same pass has already moved (its cost is stale). No heap, no
+    /// re-evaluation; the validity checks still run on each collapse against the mesh as
+    /// it is then, so every guarantee of the heap engine holds. Faster (bunny → 10 %: about
+    /// 0.6–0.8 × the heap engine's time) but its symmetric max error is within 1.2 ×
+    /// meshoptimizer's on 19 of the 24 cases of the quality table against 21 (the same
+    /// Metro mean wins, 22): not the default.
+    Passes,
+    /// Greedy: an indexed heap always collapses the valid edge of least current cost (the
+    /// exact order of Garland & Heckbert; equal to the slow twin). The default: it meets
+    /// the quality criteria best.
+    #[default]
+    Heap,
+}
+
+impl std::fmt::Display for Engine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Engine::Passes => "passes",
+            Engine::Heap => "heap",
+        })
+    }
+}
+
 /// Parameters of a quadric edge collapse.
 #[derive(Debug, Clone, PartialEq)]
 pub struct QemParams {
@@ -165,11 +194,15 @@ pub struct QemParams {
     pub collapse_seams: bool,
     /// How `weights` enter the order (the cost, as the thesis, or the quadrics).
     pub weight_rule: WeightRule,
+    /// The order of the collapses: in passes or by a heap.
+    pub engine: Engine,
 }
 
 impl QemParams {
     /// Plain QEM down to `triangles` with `placement`: no error bound, summed quadrics,
-    /// quadric cost, border free, no intersection check, no weights.
+    /// quadric cost, border free, no intersection check, no weights, the heap engine (the
+    /// exact greedy order, which its slow twin reproduces and the progressive strips
+    /// replay).
     pub fn plain(triangles: u64, placement: Placement) -> QemParams {
         QemParams {
             triangles,
@@ -183,6 +216,7 @@ impl QemParams {
             pair_distance: 0.0,
             collapse_seams: false,
             weight_rule: WeightRule::Cost,
+            engine: Engine::Heap,
         }
     }
 }
@@ -224,7 +258,7 @@ pub fn simplify(mesh: &TriMesh, params: &QemParams) -> Result<QemResult> {
     let prep = Prepared::new(mesh);
     let mut c = Collapse::new(&prep, params);
     c.pairs_ok()?;
-    c.run_fast(params.triangles as usize);
+    c.run(params.triangles as usize);
     Ok(c.finish())
 }
 
@@ -238,7 +272,7 @@ pub fn simplify_logged(
     let mut c = Collapse::new(&prep, params);
     c.pairs_ok()?;
     c.record = true;
-    c.run_fast(params.triangles as usize);
+    c.run(params.triangles as usize);
     let steps = std::mem::take(&mut c.steps);
     Ok((c.finish(), steps))
 }

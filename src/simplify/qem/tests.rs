@@ -52,6 +52,17 @@ fn params(triangles: u64, placement: Placement) -> QemParams {
     QemParams::plain(triangles, placement)
 }
 
+/// Both engines: the tests of an invariant run on each.
+const ENGINES: [Engine; 2] = [Engine::Heap, Engine::Passes];
+
+/// [`params`] with `engine`.
+fn on(engine: Engine, triangles: u64, placement: Placement) -> QemParams {
+    QemParams {
+        engine,
+        ..params(triangles, placement)
+    }
+}
+
 #[test]
 fn a_plane_quadric_is_zero_on_its_plane() {
     let n = DVec3::new(1.0, 2.0, -2.0).normalize();
@@ -206,10 +217,12 @@ fn the_heap_equals_the_slow_twin() {
 #[test]
 fn a_closed_surface_stays_a_closed_manifold() {
     let m = sphere(16);
-    for target in [400, 100, 20, 4] {
-        let r = simplify(&m, &params(target, Placement::Optimal)).unwrap();
-        assert_closed_manifold(&r.mesh);
-        assert!(r.mesh.triangle_count() as u64 <= target.max(4) + 1);
+    for engine in ENGINES {
+        for target in [400, 100, 20, 4] {
+            let r = simplify(&m, &on(engine, target, Placement::Optimal)).unwrap();
+            assert_closed_manifold(&r.mesh);
+            assert!(r.mesh.triangle_count() as u64 <= target.max(4) + 1);
+        }
     }
 }
 
@@ -218,37 +231,41 @@ fn lock_border_keeps_the_border_exactly() {
     let m = grid(12);
     let on_border = |p: &Vec3| p.x == 0.0 || p.x == 1.0 || p.y == 0.0 || p.y == 1.0;
     let border_in: Vec<Vec3> = m.positions.iter().copied().filter(on_border).collect();
-    let p = QemParams {
-        lock_border: true,
-        ..params(60, Placement::Optimal)
-    };
-    let r = simplify(&m, &p).unwrap();
-    // Every border vertex of the input is still there, unmoved.
-    for b in &border_in {
-        assert!(r.mesh.positions.contains(b), "{b}");
+    for engine in ENGINES {
+        let p = QemParams {
+            lock_border: true,
+            ..on(engine, 60, Placement::Optimal)
+        };
+        let r = simplify(&m, &p).unwrap();
+        // Every border vertex of the input is still there, unmoved.
+        for b in &border_in {
+            assert!(r.mesh.positions.contains(b), "{engine}: {b}");
+        }
     }
 }
 
 #[test]
 fn max_error_stops_the_collapse() {
     let m = sphere(12);
-    let p = QemParams {
-        max_error: Some(0.01),
-        ..params(1, Placement::Optimal)
-    };
-    let r = simplify(&m, &p).unwrap();
-    assert!(!r.report.target_reached, "{:?}", r.report);
-    assert!(r.report.max_error <= 0.01);
-    assert!(r.mesh.triangle_count() < m.triangle_count());
-    let loose = simplify(
-        &m,
-        &QemParams {
-            max_error: Some(0.1),
-            ..p
-        },
-    )
-    .unwrap();
-    assert!(loose.mesh.triangle_count() < r.mesh.triangle_count());
+    for engine in ENGINES {
+        let p = QemParams {
+            max_error: Some(0.01),
+            ..on(engine, 1, Placement::Optimal)
+        };
+        let r = simplify(&m, &p).unwrap();
+        assert!(!r.report.target_reached, "{:?}", r.report);
+        assert!(r.report.max_error <= 0.01);
+        assert!(r.mesh.triangle_count() < m.triangle_count());
+        let loose = simplify(
+            &m,
+            &QemParams {
+                max_error: Some(0.1),
+                ..p
+            },
+        )
+        .unwrap();
+        assert!(loose.mesh.triangle_count() < r.mesh.triangle_count());
+    }
 }
 
 #[test]
@@ -262,10 +279,12 @@ fn non_manifold_parts_are_left_alone() {
     let (a, b) = (3 * 7 + 3, 3 * 7 + 4);
     m.indices.push([a, b, n]);
     m.indices.push([b, a, n + 1]);
-    let r = simplify(&m, &params(10, Placement::Optimal)).unwrap();
-    assert!(r.report.non_manifold_vertices >= 2);
-    for v in [a, b] {
-        assert!(r.mesh.positions.contains(&m.positions[v as usize]));
+    for engine in ENGINES {
+        let r = simplify(&m, &on(engine, 10, Placement::Optimal)).unwrap();
+        assert!(r.report.non_manifold_vertices >= 2);
+        for v in [a, b] {
+            assert!(r.mesh.positions.contains(&m.positions[v as usize]));
+        }
     }
 }
 
@@ -322,21 +341,24 @@ fn the_intersection_check_keeps_nested_spheres_apart() {
         Placement::Endpoint,
         Placement::TwoLocalMappings,
     ] {
-        for target in [200u64, 60, 24] {
+        for (engine, target) in ENGINES
+            .into_iter()
+            .flat_map(|e| [200u64, 60, 24].map(|t| (e, t)))
+        {
             let mut found = [0usize; 2];
             for (k, check) in [false, true].into_iter().enumerate() {
                 let p = QemParams {
                     check_intersections: check,
-                    ..params(target, placement)
+                    ..on(engine, target, placement)
                 };
                 let r = simplify(&m, &p).unwrap();
                 found[k] = crate::mesh::intersect::self_intersections(&r.mesh).len();
             }
             println!(
-                "{placement} -> {target}: {} pairs unchecked, {} checked",
+                "{engine} {placement} -> {target}: {} pairs unchecked, {} checked",
                 found[0], found[1]
             );
-            assert_eq!(found[1], 0, "{placement} {target}");
+            assert_eq!(found[1], 0, "{engine} {placement} {target}");
             unchecked += found[0];
         }
     }
@@ -519,4 +541,86 @@ fn pair_distance_is_checked() {
     };
     let e = simplify(&m, &p).unwrap_err();
     assert!(e.to_string().contains("candidate vertex pairs"), "{e}");
+}
+
+/// The pass engine reaches the same triangle count as the heap engine (both stop only at
+/// the target or where no valid collapse is left), on closed, open and cube meshes, for
+/// each placement, with and without the intersection check.
+#[test]
+fn both_engines_reach_the_target() {
+    for (m, target) in [
+        (grid(9), 40u64),
+        (grid(12), 8),
+        (sphere(8), 20),
+        (sphere(16), 60),
+        (cube(3), 12),
+    ] {
+        for placement in [
+            Placement::Optimal,
+            Placement::Endpoint,
+            Placement::TwoLocalMappings,
+        ] {
+            for check in [false, true] {
+                let r = ENGINES.map(|e| {
+                    let p = QemParams {
+                        check_intersections: check,
+                        ..on(e, target, placement)
+                    };
+                    simplify(&m, &p).unwrap()
+                });
+                let what = format!("{placement} check {check} -> {target}");
+                assert_eq!(
+                    r[0].report.target_reached, r[1].report.target_reached,
+                    "{what}: {:?}",
+                    r[1].report
+                );
+                if r[1].report.target_reached {
+                    // A collapse removes at most two triangles.
+                    let t = r[1].mesh.triangle_count() as u64;
+                    assert!(t <= target && t + 2 >= target, "{what}: {t}");
+                } else {
+                    assert!(r[1].mesh.triangle_count() <= r[0].mesh.triangle_count() + 4);
+                }
+            }
+        }
+    }
+}
+
+/// The pass engine with the intersection check, on random bumpy spheres nested a random
+/// hair apart: no face of the output folds over against the input and no two faces
+/// without a common vertex meet, whatever the placement and the target.
+mod passes_proptest {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(12))]
+        #[test]
+        fn no_folds_and_no_self_intersections_with_the_check(
+            n in 6usize..11,
+            gap in 0.9f32..0.99,
+            ratio in 0.05f64..0.6,
+            placement in prop_oneof![
+                Just(Placement::Optimal),
+                Just(Placement::Endpoint),
+                Just(Placement::TwoLocalMappings),
+            ],
+        ) {
+            let outer = sphere(n);
+            let mut m = outer.clone();
+            let base = m.positions.len() as u32;
+            m.positions.extend(outer.positions.iter().map(|p| *p * gap));
+            m.indices.extend(outer.indices.iter().map(|t| t.map(|i| i + base)));
+            prop_assume!(crate::mesh::intersect::self_intersections(&m).is_empty());
+            let target = ((m.triangle_count() as f64 * ratio) as u64).max(8);
+            let p = QemParams {
+                check_intersections: true,
+                ..on(Engine::Passes, target, placement)
+            };
+            let r = simplify(&m, &p).unwrap();
+            let bvh = crate::mesh::Bvh::new(&m);
+            prop_assert_eq!(crate::mesh::intersect::fold_overs(&m, &bvh, &r.mesh).len(), 0);
+            prop_assert_eq!(crate::mesh::intersect::self_intersections(&r.mesh).len(), 0);
+        }
+    }
 }
