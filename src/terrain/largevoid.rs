@@ -102,8 +102,14 @@ const SCAN_MAX: usize = 32;
 /// empty cells between measured ones find a measured neighbour at once, and a cell deep in a
 /// void fails on its first side, so this reads far fewer cells than the whole-grid passes of
 /// [`enclosed`] (and writes none) for the radii it is used for ([`SCAN_MAX`]).
-fn enclosed_at(state: &[CellState], cols: usize, j: usize, i: usize, r: usize) -> bool {
-    let rows = state.len() / cols;
+fn enclosed_at(
+    state: &[CellState],
+    cols: usize,
+    rows: usize,
+    j: usize,
+    i: usize,
+    r: usize,
+) -> bool {
     let k = j * cols + i;
     let m = |k: usize| state[k] == CellState::Measured;
     m(k) || ((1..=r.min(i)).any(|d| m(k - d))
@@ -131,20 +137,24 @@ pub(crate) fn membrane_large_voids(hf: &mut Heightfield, r: usize, report: &mut 
         .enumerate()
         .map(|(b, hb)| {
             let (mut n, mut lo, mut hi) = (0usize, f32::INFINITY, f32::NEG_INFINITY);
-            for (k, v) in (b * BAND * cols..).zip(hb.iter_mut()) {
-                match s[k] {
-                    CellState::Interpolated
-                        if !match &whole {
-                            Some(w) => w[k],
-                            None => enclosed_at(s, cols, k / cols, k % cols, r),
-                        } =>
-                    {
-                        *v = f32::NAN;
-                        n += 1;
+            // Row by row: the cell's row and column without a division per cell.
+            for (j, hr) in (b * BAND..).zip(hb.chunks_mut(cols)) {
+                let k0 = j * cols;
+                for ((i, v), st) in hr.iter_mut().enumerate().zip(&s[k0..k0 + cols]) {
+                    match st {
+                        CellState::Interpolated
+                            if !match &whole {
+                                Some(w) => w[k0 + i],
+                                None => enclosed_at(s, cols, rows, j, i, r),
+                            } =>
+                        {
+                            *v = f32::NAN;
+                            n += 1;
+                        }
+                        CellState::Empty => *v = f32::NAN,
+                        _ if v.is_finite() => (lo, hi) = (lo.min(*v), hi.max(*v)),
+                        _ => {}
                     }
-                    CellState::Empty => *v = f32::NAN,
-                    _ if v.is_finite() => (lo, hi) = (lo.min(*v), hi.max(*v)),
-                    _ => {}
                 }
             }
             (n, lo, hi)
@@ -290,7 +300,7 @@ mod tests {
             let slow = enclosed_slow(&state, cols, r);
             for (k, want) in slow.iter().enumerate() {
                 assert_eq!(
-                    enclosed_at(&state, cols, k / cols, k % cols, r),
+                    enclosed_at(&state, cols, rows, k / cols, k % cols, r),
                     *want,
                     "{cols}×{rows} r {r} cell {k}"
                 );

@@ -342,17 +342,17 @@ fn solve_component(
         x: vec![0.0; lc * lr],
         par: count >= PAR_CELLS,
     };
+    // The box's columns inside the grid: global ga..gb, local from la.
+    let (ga, gb) = (i0.saturating_sub(1), (i1 + 2).min(cols));
+    let la = ga + 1 - i0;
     for lj in 0..lr {
         let Some(j) = (j0 + lj).checked_sub(1).filter(|j| *j < rows) else {
             continue;
         };
-        for li in 0..lc {
-            let Some(i) = (i0 + li).checked_sub(1).filter(|i| *i < cols) else {
-                continue;
-            };
-            let v = z[j * cols + i];
+        let src = &z[j * cols + ga..j * cols + gb];
+        for (x, v) in f.x[lj * lc + la..].iter_mut().zip(src) {
             if v.is_finite() {
-                f.x[lj * lc + li] = v;
+                *x = *v;
             }
         }
     }
@@ -632,15 +632,17 @@ fn standard(l: usize) -> [f32; 9] {
 }
 
 /// The level below a level of `cols` × `rows` cells (its index `level`, 0 the finest) whose
-/// stencils are `stencil(k)` (zero at inactive cells): R A P at every coarse cell, the
-/// interior stencil of the level below where all nine fine cells under it are interior
-/// (`is_std`), which most are.
+/// stencils are `stencil(k)` and whose cells are of `class[k]` ([`INACTIVE`]: a zero
+/// stencil; [`INTERIOR`]: the level's interior stencil; [`EDGE`]: any other): R A P at every
+/// coarse cell, the interior stencil of the level below where all nine fine cells under it
+/// are interior, which most are, and nothing where all nine are inactive (the box around a
+/// round void), both read from the classes alone.
 fn galerkin_with(
     cols: usize,
     rows: usize,
     level: usize,
     par: bool,
-    is_std: impl Fn(usize) -> bool,
+    class: &[u8],
     stencil: impl Fn(usize) -> [f32; 9],
 ) -> Coarse {
     let (cc, cr) = coarse_dims(cols, rows);
@@ -655,16 +657,33 @@ fn galerkin_with(
                 let (i, j) = ((fi + dx).checked_sub(1)?, (fj + dy).checked_sub(1)?);
                 (i < cols && j < rows).then_some(j * cols + i)
             };
-            let mut all = true;
-            for dy in 0..3 {
-                for dx in 0..3 {
-                    all &= at(dx, dy).is_some_and(&is_std);
+            // The classes of the 3 × 3 fine cells: all interior, all inactive, or mixed.
+            let (mut all_std, mut any) = (true, false);
+            if fi >= 1 && fj >= 1 && fi + 1 < cols && fj + 1 < rows {
+                let a = (fj - 1) * cols + fi - 1;
+                for m in [a, a + cols, a + 2 * cols] {
+                    for c in &class[m..m + 3] {
+                        all_std &= *c == INTERIOR;
+                        any |= *c != INACTIVE;
+                    }
+                }
+            } else {
+                for dy in 0..3 {
+                    for dx in 0..3 {
+                        let c = at(dx, dy).map_or(INACTIVE, |m| class[m]);
+                        all_std &= c == INTERIOR;
+                        any |= c != INACTIVE;
+                    }
                 }
             }
             let k = cj * cc + ci;
-            if all {
+            if all_std {
                 st[k] = s_std;
                 kind[k] = INTERIOR;
+                continue;
+            }
+            // No active fine cell under it: R A P is zero.
+            if !any {
                 continue;
             }
             let mut a = [[0.0f32; 9]; 9];
@@ -675,12 +694,10 @@ fn galerkin_with(
                     }
                 }
             }
-            // No active fine cell under it (the box around a round void): R A P is zero.
-            if a.as_flattened().iter().all(|v| *v == 0.0) {
-                continue;
-            }
-            st[k] = rap(&a);
-            if st[k][4] > 0.0 {
+            let s = rap(&a);
+            // An inactive coarse cell keeps a zero stencil, as its class says.
+            if s[4] > 0.0 {
+                st[k] = s;
                 kind[k] = EDGE;
             }
         }
@@ -702,42 +719,40 @@ fn galerkin_with(
 fn galerkin_fine(f: &Fine, par: bool) -> Coarse {
     let c = f.cols;
     let nb = &f.nb;
-    galerkin_with(
-        f.cols,
-        f.rows,
-        0,
-        par,
-        |a| nb[a] != 0 && nb[a - 1] != 0 && nb[a + 1] != 0 && nb[a - c] != 0 && nb[a + c] != 0,
-        |a| {
-            if nb[a] == 0 {
-                return [0.0; 9];
-            }
-            let e = |b: usize| -((nb[b] != 0) as u8 as f32);
-            [
-                0.0,
-                e(a - c),
-                0.0,
-                e(a - 1),
-                nb[a] as f32,
-                e(a + 1),
-                0.0,
-                e(a + c),
-                0.0,
-            ]
-        },
-    )
+    // A free cell whose four neighbours are free has the five-point stencil itself (its
+    // four neighbours lie inside the grid, so it counts four).
+    let mut class = vec![INACTIVE; nb.len()];
+    for (k, cl) in class.iter_mut().enumerate().take(nb.len() - c).skip(c) {
+        if nb[k] != 0 {
+            *cl = if nb[k - 1] != 0 && nb[k + 1] != 0 && nb[k - c] != 0 && nb[k + c] != 0 {
+                INTERIOR
+            } else {
+                EDGE
+            };
+        }
+    }
+    galerkin_with(f.cols, f.rows, 0, par, &class, |a| {
+        if nb[a] == 0 {
+            return [0.0; 9];
+        }
+        let e = |b: usize| -((nb[b] != 0) as u8 as f32);
+        [
+            0.0,
+            e(a - c),
+            0.0,
+            e(a - 1),
+            nb[a] as f32,
+            e(a + 1),
+            0.0,
+            e(a + c),
+            0.0,
+        ]
+    })
 }
 
 /// The level below coarse level `l` (its index `level`).
 fn galerkin_coarse(l: &Coarse, level: usize, par: bool) -> Coarse {
-    galerkin_with(
-        l.cols,
-        l.rows,
-        level,
-        par,
-        |a| l.kind[a] == INTERIOR,
-        |a| l.st[a],
-    )
+    galerkin_with(l.cols, l.rows, level, par, &l.kind, |a| l.st[a])
 }
 
 /// b − A x at coarse cell `k` of a level `c` wide, its centre term left out unless `centre`
