@@ -17,6 +17,7 @@ use crate::error::{Error, Result};
 use std::fs::File;
 use std::io::{BufWriter, Read, Write};
 use std::path::{Component, Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Mutex, MutexGuard};
 
 /// The file that marks a directory as terratile's output: a run may replace a directory that
@@ -40,6 +41,48 @@ pub(crate) fn register(path: &Path) {
 
 pub(crate) fn unregister(path: &Path) {
     created().retain(|p| p != path);
+}
+
+/// Set by the signal handler before it removes the temporaries: a thread that is about to
+/// create a file from then on waits for the process to exit instead.
+static STOPPING: AtomicBool = AtomicBool::new(false);
+
+/// Threads between starting to create a file and finishing it (renamed into place, or a
+/// brick's append done): the signal handler waits for them before it removes what they
+/// write, so that no file is created after its last pass over the directories (a run
+/// interrupted while shards were spilled left a `prepared-I.bin` behind that way).
+static CREATING: AtomicUsize = AtomicUsize::new(0);
+
+/// Held while a file this process may have to remove on a signal is created and written.
+pub(crate) struct Creating(());
+
+/// Marks the calling thread as creating a file until the guard drops. Once the signal
+/// handler has started, it never returns: the handler exits the process.
+pub(crate) fn creating() -> Creating {
+    CREATING.fetch_add(1, Ordering::SeqCst);
+    if STOPPING.load(Ordering::SeqCst) {
+        CREATING.fetch_sub(1, Ordering::SeqCst);
+        loop {
+            std::thread::park();
+        }
+    }
+    Creating(())
+}
+
+impl Drop for Creating {
+    fn drop(&mut self) {
+        CREATING.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// Stops new file creation and waits (at most `limit`) for the files being created to be
+/// finished, so that the removal that follows sees all of them.
+fn stop_creating(limit: std::time::Duration) {
+    STOPPING.store(true, Ordering::SeqCst);
+    let t = std::time::Instant::now();
+    while CREATING.load(Ordering::SeqCst) > 0 && t.elapsed() < limit {
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
 }
 
 /// A working directory kept across runs (resumable), of which this process owns only the
@@ -125,6 +168,9 @@ pub fn clean_up_on_signals() -> Result<()> {
             .name("signals".into())
             .spawn(move || {
                 if let Some(sig) = signals.forever().next() {
+                    // A file being written is finished first (bounded: a thread stuck in
+                    // a write must not keep the process from exiting).
+                    stop_creating(std::time::Duration::from_secs(10));
                     remove_created();
                     let name = if sig == SIGINT { "SIGINT" } else { "SIGTERM" };
                     eprintln!("terratile: interrupted by {name}; its temporary files are removed");
@@ -157,6 +203,7 @@ pub fn write_atomic(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<File>) -> Result<()>,
 ) -> Result<()> {
+    let _creating = creating();
     let tmp = temp_sibling(path);
     register(&tmp);
     let result = (|| {

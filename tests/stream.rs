@@ -366,7 +366,13 @@ fn interrupted_stream_at(
 ) -> Option<(tempfile::TempDir, PathBuf)> {
     let f = real("lidar/autzen_trim.las")?;
     let dir = tempfile::tempdir().unwrap();
-    let p = pipeline(dir.path(), "stream", &[&f], "stream", "");
+    // LAS tiles are read by bounds (no bricks) unless bricks are asked for.
+    let extra = if at == "brick-" {
+        "read = \"bricks\"\n"
+    } else {
+        ""
+    };
+    let p = pipeline(dir.path(), "stream", &[&f], "stream", extra);
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_terratile"))
         .args(["run", "-q"])
         .arg(&p)
@@ -424,10 +430,10 @@ fn sigint_removes_the_spilled_prepared_shards() {
 
 /// The signal handler removed the streaming run's temporary directory whole
 /// (`remove_dir_all`), a file someone else had put in it too; it now removes only the names
-/// the run writes, and the directory only when nothing else is left. (A brick that a
-/// bucketing thread still writes after the handler's last pass may stay beside the user's
-/// file: the process exits without stopping its writers; the next run of the job reuses or
-/// clears it.)
+/// the run writes, and the directory only when nothing else is left. (The handler first
+/// waits for the files being written and stops new ones, so no brick or prepared shard is
+/// created after its last pass: under load `sigint_removes_the_spilled_prepared_shards`
+/// found a `prepared-I.bin` written after it.)
 #[cfg(unix)]
 #[test]
 fn sigint_keeps_a_foreign_file_in_the_temporary_directory() {

@@ -182,6 +182,7 @@ impl BrickWriter {
             return Ok(());
         }
         let path = brick_path(&self.dir, b);
+        let _creating = crate::fsutil::creating();
         let mut f = std::fs::OpenOptions::new()
             .create(true)
             .append(true)
