@@ -493,11 +493,8 @@ fn reading_by_bounds_equals_memory() {
     }
 }
 
-#[test]
-fn auto_reads_las_tiles_by_bounds_and_writes_no_bricks() {
-    // 4 × 4 LAS tiles of 25,000 points under a budget whose windows hold about a tile: each
-    // point is read about four times, so the run reads by bounds and its temporary
-    // directory holds no brick. A single file of the same points is bucketed.
+/// A directory with `tiles/`: 4 × 4 generated LAS tiles of 25,000 points.
+fn tiles_4x4() -> tempfile::TempDir {
     let dir = tempfile::tempdir().unwrap();
     std::fs::create_dir(dir.path().join("tiles")).unwrap();
     let gen = [
@@ -510,6 +507,15 @@ fn auto_reads_las_tiles_by_bounds_and_writes_no_bricks() {
         "4x4",
     ];
     terratile(dir.path(), &gen).ok();
+    dir
+}
+
+#[test]
+fn auto_reads_las_tiles_by_bounds_and_writes_no_bricks() {
+    // 4 × 4 LAS tiles of 25,000 points under a budget whose windows hold about a tile: each
+    // point is read about four times, so the run reads by bounds and its temporary
+    // directory holds no brick. A single file of the same points is bucketed.
+    let dir = tiles_4x4();
     let s = pipeline(dir.path(), "stream", &["tiles/*.las"], "stream", "");
     let text = std::fs::read_to_string(&s).unwrap();
     std::fs::write(&s, text.replace("\"16MiB\"", "\"10MiB\"")).unwrap();
@@ -540,6 +546,43 @@ fn auto_reads_las_tiles_by_bounds_and_writes_no_bricks() {
     r.ok();
     let read = figure(&summary(&r), "bucket", "read");
     assert_eq!(read.as_deref(), Some("bricks"), "{}", r.context());
+}
+
+#[test]
+fn reading_by_bounds_decodes_a_tile_once_for_all_its_windows() {
+    // 4 × 4 LAS tiles under windows of about a tile: read one window at a time
+    // (`TERRATILE_REUSE=off`, as before the pass reader) each point is decoded about four
+    // times a pass; the pass reader decodes a file once for the windows it meets and keeps
+    // the parts of later windows, so it decodes fewer points, with the same outputs.
+    let dir = tiles_4x4();
+    let decoded = |sum: &serde_json::Value, stage: &str| -> u64 {
+        figure(sum, stage, "points decoded")
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let mut got = Vec::new();
+    for reuse in ["on", "off"] {
+        let s = pipeline(
+            dir.path(),
+            reuse,
+            &["tiles/*.las"],
+            "stream",
+            "read = \"direct\"\n",
+        );
+        let text = std::fs::read_to_string(&s).unwrap();
+        std::fs::write(&s, text.replace("\"16MiB\"", "\"10MiB\"")).unwrap();
+        let r = run_json(dir.path(), &s, &[("TERRATILE_REUSE", reuse)]);
+        r.ok();
+        let sum = summary(&r);
+        assert_read_by_bounds(&sum, &r);
+        assert_several_shards(&sum, &r);
+        got.push([decoded(&sum, "denoise"), decoded(&sum, "grid shards")]);
+    }
+    let points = 400_000;
+    assert!(got[1][0] > points && got[1][1] > points, "{got:?}");
+    assert!(got[0][0] < got[1][0] && got[0][1] < got[1][1], "{got:?}");
+    same_tree(&dir.path().join("out_on"), &dir.path().join("out_off"));
 }
 
 #[test]

@@ -223,6 +223,14 @@ pub struct BrickPoints {
 }
 
 impl BrickPoints {
+    /// Appends one point.
+    pub fn push(&mut self, x: f64, y: f64, z: f64, seq: u64) {
+        self.x.push(x);
+        self.y.push(y);
+        self.z.push(z);
+        self.seq.push(seq);
+    }
+
     /// The points as a noise-removal window's input: `owned` its own voxel columns, the rest
     /// of the points its halo.
     pub fn shard_input<'a>(

@@ -99,28 +99,29 @@ pub fn load(
             for k in 0..c.len() {
                 let (px, py) = (c.x[k], c.y[k]);
                 if wanted(seq, px, py) {
-                    p.x.push(px);
-                    p.y.push(py);
-                    p.z.push(c.z[k]);
-                    p.seq.push(seq);
+                    p.push(px, py, c.z[k], seq);
                 }
                 seq += 1;
             }
             Ok(())
         })?;
         if kept != f.read[i] {
-            return Err(Error::format(
-                path,
-                0,
-                format!(
-                    "gives {kept} points where the first pass of this run counted {}: it \
-                     changed during the run",
-                    f.read[i]
-                ),
-            ));
+            return Err(changed_during_run(path, kept, f.read[i]));
         }
     }
     Ok(p)
+}
+
+/// The error of a file that gives `kept` points where the counting pass counted `counted`.
+pub fn changed_during_run(path: &std::path::Path, kept: u64, counted: u64) -> Error {
+    Error::format(
+        path,
+        0,
+        format!(
+            "gives {kept} points where the first pass of this run counted {counted}: it \
+             changed during the run"
+        ),
+    )
 }
 
 /// About how many times each point is decoded when windows holding `window_points` points

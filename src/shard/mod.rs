@@ -34,6 +34,7 @@ pub mod direct;
 pub mod jobs;
 pub mod points;
 pub mod prepared_spill;
+pub mod reuse;
 pub mod scale_bench;
 pub mod spill;
 pub mod store;

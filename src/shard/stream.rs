@@ -27,6 +27,7 @@
 
 use super::bricks::{self, BrickLattice, BrickPoints, BrickWriter, SourceTransform};
 use super::direct::{self, FileBox, Files};
+use super::reuse;
 use super::{complete_coarse, finish_with, merge, prepare, prepared_spill};
 use super::{ShardLayout, ShardOutput};
 use crate::config::LoadedPipeline;
@@ -128,6 +129,31 @@ pub const SHARD_BYTES_PER_CELL: u64 = 48;
 /// Bytes a cell of a prepared shard holds between the two steps of the smooth fill: its
 /// height (4), count (4) and state (1), and the pyramid above it (4/3), rounded up.
 pub const PREPARED_BYTES_PER_CELL: u64 = 12;
+
+/// Bytes of decoded points a pass read by bounds may keep for its later windows and shards
+/// ([`reuse::PassReader`]): a quarter of the budget (the windows in flight have half).
+/// `TERRATILE_REUSE=off` (for measurements) keeps nothing and reads one window a round: each
+/// window decodes every file that meets it, as before the reader shared them.
+fn reuse_cap(sizing: &Sizing) -> u64 {
+    if reuse_off() {
+        0
+    } else {
+        sizing.budget / 4
+    }
+}
+
+fn reuse_off() -> bool {
+    std::env::var("TERRATILE_REUSE").is_ok_and(|v| v == "off")
+}
+
+/// Windows a round of a pass read by bounds: those run at once, or one with reuse off.
+fn reuse_round(sizing: &Sizing) -> usize {
+    if reuse_off() {
+        1
+    } else {
+        sizing.parallel
+    }
+}
 
 /// Points of a brick at most (smaller when the budget makes windows smaller).
 const BRICK_POINTS: u64 = 200_000;
@@ -670,6 +696,10 @@ struct DenoisePass {
     windows: usize,
     resumed: usize,
     steps: u32,
+    /// Points decoded from the inputs by the pass (read by bounds), and the most bytes of
+    /// decoded points waiting for later windows.
+    decoded: u64,
+    stored: u64,
 }
 
 fn write_u64s(path: &Path, v: &[u64]) -> Result<()> {
@@ -760,11 +790,16 @@ fn denoise_pass(
     };
     let inv = s.voxel_size;
     // The points a window reads: its columns and the halo, as `denoise_sharded` buckets them
-    // (in brick order: noise removal does not depend on the order of its points).
-    let load = |k: usize| -> Result<BrickPoints> {
+    // (in brick order: noise removal does not depend on the order of its points), and the
+    // world range that holds them (one column of margin for rounding).
+    let columns = |k: usize| {
         let own = window(k);
         let rx = own.x.start.saturating_sub(halo)..(own.x.end + halo).min(cx);
         let ry = own.y.start.saturating_sub(halo)..(own.y.end + halo).min(cy);
+        (rx, ry)
+    };
+    let range = |k: usize| -> reuse::Range2 {
+        let (rx, ry) = columns(k);
         let world = |r: &std::ops::Range<u64>, a: usize, c: u64| {
             let lo = frame.bounds.min[a] + (r.start as f64 - 1.0) * inv;
             let hi = if r.end >= c {
@@ -774,33 +809,59 @@ fn denoise_pass(
             };
             [lo, hi]
         };
-        bk.load(
-            dir,
-            files,
-            world(&rx, 0, cx),
-            world(&ry, 1, cy),
-            bricks::Order::Bricks,
-            |_, x, y| {
-                let (a, b) = frame.column(&s, x, y);
-                rx.contains(&a) && ry.contains(&b)
-            },
-        )
+        (world(&rx, 0, cx), world(&ry, 1, cy))
     };
+    let wanted = |k: usize, _: u64, x: f64, y: f64| {
+        let (rx, ry) = columns(k);
+        let (a, b) = frame.column(&s, x, y);
+        rx.contains(&a) && ry.contains(&b)
+    };
+    let load = |k: usize| -> Result<BrickPoints> {
+        let (x, y) = range(k);
+        bk.load(dir, files, x, y, bricks::Order::Bricks, |q, x, y| {
+            wanted(k, q, x, y)
+        })
+    };
+    let decoded = std::sync::atomic::AtomicU64::new(0);
+    let stored = std::sync::atomic::AtomicU64::new(0);
     let name = |kind: &str, k: usize| dir.join(format!("{kind}-{groups}-{k:07}.bin"));
-    let run_batch = |ks: &[usize], f: &(dyn Fn(usize) -> Result<()> + Sync)| -> Result<()> {
-        for chunk in ks.chunks(sizing.parallel) {
-            chunk.par_iter().try_for_each(|&k| f(k))?;
-            progress.advance(chunk.len() as u64);
-        }
-        Ok(())
-    };
+    // Runs `f` on each window of `ks` with its points, `sizing.parallel` at a time: from the
+    // bricks, or by bounds with each file decoded about once for the whole list.
+    let run_batch =
+        |ks: &[usize], f: &(dyn Fn(usize, BrickPoints) -> Result<()> + Sync)| -> Result<()> {
+            if bk.boxes.is_empty() {
+                for chunk in ks.chunks(sizing.parallel) {
+                    chunk.par_iter().try_for_each(|&k| f(k, load(k)?))?;
+                    progress.advance(chunk.len() as u64);
+                }
+                return Ok(());
+            }
+            let ranges = (0..count).map(range).collect();
+            let reader = reuse::PassReader::new(
+                *files,
+                ranges,
+                ks.to_vec(),
+                reuse_round(sizing),
+                reuse_cap(sizing),
+                wanted,
+            );
+            let out = (0..reader.rounds()).try_for_each(|r| {
+                let pts = reader.load(r)?;
+                let ws = reader.round_windows(r);
+                ws.par_iter().zip(pts).try_for_each(|(&k, p)| f(k, p))?;
+                progress.advance(ws.len() as u64);
+                Ok(())
+            });
+            decoded.fetch_add(reader.decoded(), std::sync::atomic::Ordering::Relaxed);
+            stored.fetch_max(reader.stored_peak(), std::sync::atomic::Ordering::Relaxed);
+            out
+        };
     let crash_after: Option<usize> = std::env::var("TERRATILE_STREAM_CRASH_AFTER")
         .ok()
         .and_then(|v| v.parse().ok());
     let written = std::sync::atomic::AtomicUsize::new(0);
     // One window filtered at `q`: its keep file (saved: resumable).
-    let keep_of = |k: usize, q: u32| -> Result<()> {
-        let p = load(k)?;
+    let keep_of = |k: usize, q: u32, p: BrickPoints| -> Result<()> {
         let own = window(k);
         let mut out = vec![q as u64, 0];
         let mut kept = Bounds::EMPTY;
@@ -838,7 +899,7 @@ fn denoise_pass(
         let done = |k: &usize| read_keep(&name("keep", *k)).is_some_and(|v| v.0 == q as u64);
         let todo: Vec<usize> = (0..count).filter(|k| !done(k)).collect();
         progress.start(label, todo.len() as u64);
-        run_batch(&todo, &|k| keep_of(k, q))?;
+        run_batch(&todo, &|k, p| keep_of(k, q, p))?;
         progress.finish();
         Ok(count - todo.len())
     };
@@ -849,13 +910,8 @@ fn denoise_pass(
     let mut q = 1;
     if denoise::choose_steps(params, &[[failing as usize; 3]], frame.points) != 1 {
         // More than the budget fails at q = 1: the counts at every height decide.
-        progress.start("denoise: counts", count as u64);
-        let counts_of = |k: usize| -> Result<()> {
+        let counts_of = |k: usize, p: BrickPoints| -> Result<()> {
             let path = name("counts", k);
-            if read_u64s(&path).is_some() {
-                return Ok(());
-            }
-            let p = load(k)?;
             let own = window(k);
             let c = if p.is_empty() {
                 Vec::new()
@@ -866,8 +922,12 @@ fn denoise_pass(
             let flat: Vec<u64> = c.iter().flat_map(|c| c.map(|v| v as u64)).collect();
             write_u64s(&path, &flat)
         };
-        let all: Vec<usize> = (0..count).collect();
-        run_batch(&all, &counts_of)?;
+        // Windows whose counts are already there (a resumed run) are not redone.
+        let todo: Vec<usize> = (0..count)
+            .filter(|&k| read_u64s(&name("counts", k)).is_none())
+            .collect();
+        progress.start("denoise: counts", todo.len() as u64);
+        run_batch(&todo, &counts_of)?;
         progress.finish();
         let mut sums: Vec<[usize; 3]> = Vec::new();
         for k in 0..count {
@@ -905,6 +965,8 @@ fn denoise_pass(
         windows: count,
         resumed,
         steps: q,
+        decoded: decoded.into_inner(),
+        stored: stored.into_inner(),
     })
 }
 
@@ -916,6 +978,11 @@ fn block_for(sizing: &Sizing, tile_step: usize) -> usize {
     let side = (cells as f64).sqrt() / tile_step as f64;
     (side.floor() as usize).saturating_sub(2).max(1)
 }
+
+/// What the grid pass leaves: the layout, the merged tiles, whether the prepared shards were
+/// kept in memory, the bytes of prepared shards spilled (when they were), and the points
+/// decoded by bounds with the most bytes of decoded points kept waiting.
+type GridPass = (ShardLayout, super::Merged, bool, Option<u64>, [u64; 2]);
 
 /// Runs the grid shards over the kept points of the bricks and merges them.
 #[allow(clippy::too_many_arguments)]
@@ -930,7 +997,7 @@ fn grid_pass(
     sizing: &Sizing,
     mut spill: Option<&mut super::spill::Spilled>,
     progress: &dyn Progress,
-) -> Result<(ShardLayout, super::Merged, bool, Option<u64>)> {
+) -> Result<GridPass> {
     let cfg = &pipeline.config;
     let fill = cfg.fill.enabled.then_some(&cfg.fill);
     let step = cfg.tiles.tile_size() - 1;
@@ -947,48 +1014,82 @@ fn grid_pass(
     );
     // The unfilled cells `ci` × `cj` of the grid, from the kept points of the bricks they
     // overlap (in input order: the resampling sums in it).
-    let cells_of =
-        |ci: std::ops::Range<usize>, cj: std::ops::Range<usize>| -> Result<Heightfield> {
-            let world = |r: &std::ops::Range<usize>, a: usize, n: usize| {
-                let lo = spec.corner[a] + (r.start as f64 - 1.0) * spec.cell_size[a];
-                let hi = if r.end >= n {
-                    f64::INFINITY
-                } else {
-                    spec.corner[a] + (r.end as f64 + 1.0) * spec.cell_size[a]
-                };
-                [lo, hi]
-            };
-            let p = bk.load(
-                dir,
-                files,
-                world(&ci, 0, spec.cols),
-                world(&cj, 1, spec.rows),
-                bricks::Order::Input,
-                |s, x, y| {
-                    keep.is_none_or(|k| k.get(s))
-                        && ci.contains(&spec.col(x))
-                        && cj.contains(&spec.row(y))
-                },
-            )?;
-            Ok(resample::resample_window(
-                [&p.x, &p.y, &p.z],
-                None,
-                spec,
-                [ci, cj],
-                cfg.resample.method,
-                crs.clone(),
-            ))
-        };
-    let prepared_of = |i: usize| -> Result<super::Prepared> {
+    // A shard's input cells, the world range that holds their points (one cell of margin
+    // for rounding) and the test of each point: kept, and in one of the cells.
+    let input_cells = |i: usize| {
         let shard = layout.shard(i);
-        let (ci, cj) = (shard.input(&layout, 0, fill), shard.input(&layout, 1, fill));
+        (shard.input(&layout, 0, fill), shard.input(&layout, 1, fill))
+    };
+    let range = |i: usize| -> reuse::Range2 {
+        let (ci, cj) = input_cells(i);
+        let world = |r: &std::ops::Range<usize>, a: usize, n: usize| {
+            let lo = spec.corner[a] + (r.start as f64 - 1.0) * spec.cell_size[a];
+            let hi = if r.end >= n {
+                f64::INFINITY
+            } else {
+                spec.corner[a] + (r.end as f64 + 1.0) * spec.cell_size[a]
+            };
+            [lo, hi]
+        };
+        (world(&ci, 0, spec.cols), world(&cj, 1, spec.rows))
+    };
+    let wanted = |i: usize, s: u64, x: f64, y: f64| {
+        let (ci, cj) = input_cells(i);
+        keep.is_none_or(|k| k.get(s)) && ci.contains(&spec.col(x)) && cj.contains(&spec.row(y))
+    };
+    // Shard `i` prepared from its points (`None`: read from the bricks now): the unfilled
+    // cells of its input from the kept points (in input order: the resampling sums in it).
+    let prepared_of = |i: usize, p: Option<BrickPoints>| -> Result<super::Prepared> {
+        let shard = layout.shard(i);
+        let (ci, cj) = input_cells(i);
         let offset = [ci.start, cj.start];
-        let cells = cells_of(ci, cj)?;
+        let p = match p {
+            Some(p) => p,
+            None => {
+                let (x, y) = range(i);
+                bk.load(dir, files, x, y, bricks::Order::Input, |s, x, y| {
+                    wanted(i, s, x, y)
+                })?
+            }
+        };
+        let cells = resample::resample_window(
+            [&p.x, &p.y, &p.z],
+            None,
+            spec,
+            [ci, cj],
+            cfg.resample.method,
+            crs.clone(),
+        );
+        drop(p);
         prepare(&layout, &shard, &cells, offset, fill)
     };
     let smooth = fill.is_some_and(|f| f.fallback == Fallback::Smooth);
     let n = layout.count();
     let all: Vec<usize> = (0..n).collect();
+    // Read by bounds: each input decoded about once for all shards, in the chunks below.
+    let reader = (!bk.boxes.is_empty()).then(|| {
+        reuse::PassReader::new(
+            *files,
+            (0..n).map(range).collect(),
+            all.clone(),
+            reuse_round(sizing),
+            reuse_cap(sizing),
+            wanted,
+        )
+    });
+    // The points of chunk `r` of `all`, when the reader serves them.
+    let points_of = |r: usize, len: usize| -> Result<Vec<Option<BrickPoints>>> {
+        match &reader {
+            Some(rd) if rd.round() == sizing.parallel => {
+                Ok(rd.load(r)?.into_iter().map(Some).collect())
+            }
+            // Reuse off: one shard a round.
+            Some(rd) => (0..len)
+                .map(|j| Ok(rd.load(r * sizing.parallel + j)?.pop()))
+                .collect(),
+            None => Ok((0..len).map(|_| None).collect()),
+        }
+    };
     // With the smooth fill every shard's coarse cells come first; the prepared shards wait
     // for the second step in memory when they fit the budget, else each in its own
     // temporary file (`prepared_spill`): either way every shard is prepared once.
@@ -1002,11 +1103,13 @@ fn grid_pass(
     let coarse = if smooth {
         progress.start("grid shards: coarse level", n as u64);
         let mut cells = Vec::new();
-        for chunk in all.chunks(sizing.parallel) {
+        for (r, chunk) in all.chunks(sizing.parallel).enumerate() {
+            let pts = points_of(r, chunk.len())?;
             let got = chunk
                 .par_iter()
-                .map(|&i| {
-                    let p = prepared_of(i)?;
+                .zip(pts)
+                .map(|(&i, pts)| {
+                    let p = prepared_of(i, pts)?;
                     let c = p.coarse(&layout);
                     if keep_prepared {
                         return Ok((c, Some(p)));
@@ -1030,18 +1133,25 @@ fn grid_pass(
     let spill_prepared = smooth && !keep_prepared;
     progress.start("grid shards", n as u64);
     let mut outputs: Vec<ShardOutput> = Vec::with_capacity(n);
-    for chunk in all.chunks(sizing.parallel) {
+    for (r, chunk) in all.chunks(sizing.parallel).enumerate() {
         let taken: Vec<Option<super::Prepared>> = chunk.iter().map(|&i| kept[i].take()).collect();
+        // Without the smooth fill this loop is the one that reads the points.
+        let pts = if smooth {
+            (0..chunk.len()).map(|_| None).collect()
+        } else {
+            points_of(r, chunk.len())?
+        };
         let got: Vec<ShardOutput> = chunk
             .par_iter()
             .zip(taken)
-            .map(|(&i, p)| {
+            .zip(pts)
+            .map(|((&i, p), pts)| {
                 let p = match p {
                     Some(p) => p,
                     None if spill_prepared => {
                         prepared_spill::take(dir, &layout, i, fill, crs.as_ref())?
                     }
-                    None => prepared_of(i)?,
+                    None => prepared_of(i, pts)?,
                 };
                 // The extraction builds its own vertical error from the merged tiles.
                 finish_with(&layout, p, &coarse, &cfg.tiles, &cfg.quadtree, false)
@@ -1059,7 +1169,8 @@ fn grid_pass(
     progress.finish();
     let merged = merge(&layout, &geo, &cfg.tiles, &cfg.quadtree, outputs)?;
     let spilled = spill_prepared.then(|| spilled.into_inner());
-    Ok((layout, merged, smooth && keep_prepared, spilled))
+    let reads = reader.map_or([0, 0], |r| [r.decoded(), r.stored_peak()]);
+    Ok((layout, merged, smooth && keep_prepared, spilled, reads))
 }
 
 fn fig(k: &str, v: impl ToString) -> (String, String) {
@@ -1248,6 +1359,15 @@ fn stream_passes(
                 fig("voxel height steps", d.steps),
             ],
         ));
+        if !bk.boxes.is_empty() {
+            let f = &mut stages.last_mut().expect("just pushed").figures;
+            f.push(fig("points decoded", d.decoded));
+            f.push(fig(
+                "decoded per point",
+                format!("{:.2}", d.decoded as f64 / bk.points as f64),
+            ));
+            f.push(fig("decoded kept waiting", crate::memory::human(d.stored)));
+        }
         (Some(d.keep), b, kept)
     } else {
         (None, all_bounds, bk.points)
@@ -1264,7 +1384,7 @@ fn stream_passes(
     // With only tile-by-tile outputs, the finished tiles leave memory shard by shard.
     let mut spilled =
         crate::output::writes_tile_by_tile(&cfg.output).then(super::spill::Spilled::default);
-    let (layout, merged, kept_prepared, spilled_prepared) = grid_pass(
+    let (layout, merged, kept_prepared, spilled_prepared, reads) = grid_pass(
         pipeline,
         dir,
         &bk,
@@ -1287,6 +1407,14 @@ fn stream_passes(
         fig("prepared shards kept", kept_prepared),
         fig("prepared shards spilled", spilled_prepared.is_some()),
     ];
+    if !bk.boxes.is_empty() {
+        figures.push(fig("points decoded", reads[0]));
+        figures.push(fig(
+            "decoded per point",
+            format!("{:.2}", reads[0] as f64 / bk.points as f64),
+        ));
+        figures.push(fig("decoded kept waiting", crate::memory::human(reads[1])));
+    }
     if let Some(b) = spilled_prepared {
         figures.push(fig("prepared spill", crate::memory::human(b)));
     }
