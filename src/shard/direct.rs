@@ -73,6 +73,39 @@ pub struct Files<'a> {
     pub opts: &'a ReadOptions,
 }
 
+impl Files<'_> {
+    /// Decodes file `i` whole, calling `each(seq, x, y, z)` for every point it keeps in
+    /// record order, with the sequence numbers the counting pass gave it. A file that gives
+    /// another number of points than the counting pass (changed since) is refused, naming
+    /// it. Returns the points decoded.
+    pub fn decode_each(
+        &self,
+        i: usize,
+        cloud: &mut PointCloud,
+        mut each: impl FnMut(u64, f64, f64, f64),
+    ) -> Result<u64> {
+        let path = &self.paths[i];
+        let first = self.sources[i].first;
+        let mut o = self.opts.clone();
+        if let Some(cap) = self.opts.max_points {
+            o.max_points = Some(cap.saturating_sub(first));
+        }
+        let map = points::map_file(path)?;
+        let mut seq = first;
+        let (_, kept) = points::for_each_decoded(path, &map, &o, BATCH, cloud, |c, _| {
+            for k in 0..c.len() {
+                each(seq, c.x[k], c.y[k], c.z[k]);
+                seq += 1;
+            }
+            Ok(())
+        })?;
+        if kept != self.read[i] {
+            return Err(changed_during_run(path, kept, self.read[i]));
+        }
+        Ok(kept)
+    }
+}
+
 /// The points of the files whose box meets `x` × `y` that `wanted(seq, x, y)` accepts, in
 /// input order. A file that gives another number of points than the counting pass (changed
 /// since) is refused, naming it.
@@ -84,36 +117,21 @@ pub fn load(
 ) -> Result<BrickPoints> {
     let mut p = BrickPoints::default();
     let mut cloud = PointCloud::default();
-    for (i, path) in f.paths.iter().enumerate() {
+    for i in 0..f.paths.len() {
         if f.read[i] == 0 || !f.boxes[i].meets(x, y) {
             continue;
         }
-        let first = f.sources[i].first;
-        let mut o = f.opts.clone();
-        if let Some(cap) = f.opts.max_points {
-            o.max_points = Some(cap.saturating_sub(first));
-        }
-        let map = points::map_file(path)?;
-        let mut seq = first;
-        let (_, kept) = points::for_each_decoded(path, &map, &o, BATCH, &mut cloud, |c, _| {
-            for k in 0..c.len() {
-                let (px, py) = (c.x[k], c.y[k]);
-                if wanted(seq, px, py) {
-                    p.push(px, py, c.z[k], seq);
-                }
-                seq += 1;
+        f.decode_each(i, &mut cloud, |seq, px, py, pz| {
+            if wanted(seq, px, py) {
+                p.push(px, py, pz, seq);
             }
-            Ok(())
         })?;
-        if kept != f.read[i] {
-            return Err(changed_during_run(path, kept, f.read[i]));
-        }
     }
     Ok(p)
 }
 
 /// The error of a file that gives `kept` points where the counting pass counted `counted`.
-pub fn changed_during_run(path: &std::path::Path, kept: u64, counted: u64) -> Error {
+fn changed_during_run(path: &std::path::Path, kept: u64, counted: u64) -> Error {
     Error::format(
         path,
         0,
@@ -195,5 +213,55 @@ mod tests {
         let one = [(b(0.0, 0.0, 10_000.0, 10_000.0), 100_000_000)];
         assert!(amplification(&one, 1_000_000).unwrap() > 100.0);
         assert_eq!(amplification(&[], 5), None);
+    }
+
+    /// A file that gives another number of points than the counting pass counted (changed
+    /// between the passes) is refused with one line naming it, from every reader by bounds.
+    #[test]
+    fn a_file_changed_since_the_count_is_refused_naming_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("tile.las");
+        let cloud = PointCloud {
+            x: vec![1.0, 2.0, 3.0],
+            y: vec![1.0, 2.0, 3.0],
+            z: vec![0.0, 0.5, 1.0],
+            ..PointCloud::default()
+        };
+        crate::points::write_las(&path, &cloud, &Default::default()).unwrap();
+        let paths = [path.clone()];
+        let sources = [SourceTransform {
+            first: 0,
+            scale: [0.01; 3],
+            offset: [0.0; 3],
+        }];
+        let boxes = [FileBox::of(&b(1.0, 1.0, 3.0, 3.0))];
+        let opts = ReadOptions::default();
+        for (counted, ok) in [(3, true), (5, false)] {
+            let read = [counted];
+            let files = Files {
+                paths: &paths,
+                sources: &sources,
+                read: &read,
+                boxes: &boxes,
+                opts: &opts,
+            };
+            let mut seqs = Vec::new();
+            let r = files.decode_each(0, &mut PointCloud::default(), |seq, _, _, _| seqs.push(seq));
+            let all = [f64::NEG_INFINITY, f64::INFINITY];
+            let l = load(&files, all, all, |_, _, _| true);
+            if ok {
+                assert_eq!((r.unwrap(), seqs), (3, vec![0, 1, 2]));
+                assert_eq!(l.unwrap().seq, vec![0, 1, 2]);
+            } else {
+                for e in [r.unwrap_err(), l.unwrap_err()] {
+                    let m = e.to_string();
+                    assert!(
+                        m.contains("tile.las") && m.contains("changed during the run"),
+                        "{m}"
+                    );
+                    assert!(!m.contains('\n'), "{m}");
+                }
+            }
+        }
     }
 }

@@ -24,14 +24,11 @@
 use super::bricks::BrickPoints;
 use super::direct::Files;
 use crate::error::{Error, Result};
-use crate::points::{self, PointCloud};
+use crate::points::PointCloud;
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
-
-/// Records decoded per batch.
-const BATCH: usize = 1 << 18;
 
 /// Bytes a stored point costs: x, y, z and its sequence number.
 pub const STORED_BYTES_PER_POINT: u64 = 32;
@@ -239,15 +236,6 @@ where
     /// range that it wants. A file that gives another number of points than the counting
     /// pass (changed since) is refused, naming it.
     fn decode(&self, f: usize, dest: &[usize]) -> Result<Vec<(usize, BrickPoints)>> {
-        let files = &self.files;
-        let path = &files.paths[f];
-        let first = files.sources[f].first;
-        let mut o = files.opts.clone();
-        if let Some(cap) = files.opts.max_points {
-            o.max_points = Some(cap.saturating_sub(first));
-        }
-        let map = points::map_file(path)?;
-        let mut seq = first;
         let mut cloud = PointCloud::default();
         let mut parts: Vec<(usize, BrickPoints)> =
             dest.iter().map(|&p| (p, BrickPoints::default())).collect();
@@ -255,28 +243,20 @@ where
             .iter()
             .map(|&p| (self.order[p], self.ranges[self.order[p]]))
             .collect();
-        let (_, kept) = points::for_each_decoded(path, &map, &o, BATCH, &mut cloud, |c, _| {
-            for k in 0..c.len() {
-                let (px, py) = (c.x[k], c.y[k]);
-                for ((w, (rx, ry)), (_, part)) in windows.iter().zip(parts.iter_mut()) {
-                    // The range first (a few comparisons), then the window's own test.
-                    if px >= rx[0]
-                        && px <= rx[1]
-                        && py >= ry[0]
-                        && py <= ry[1]
-                        && (self.wanted)(*w, seq, px, py)
-                    {
-                        part.push(px, py, c.z[k], seq);
-                    }
+        let kept = self.files.decode_each(f, &mut cloud, |seq, px, py, pz| {
+            for ((w, (rx, ry)), (_, part)) in windows.iter().zip(parts.iter_mut()) {
+                // The range first (a few comparisons), then the window's own test.
+                if px >= rx[0]
+                    && px <= rx[1]
+                    && py >= ry[0]
+                    && py <= ry[1]
+                    && (self.wanted)(*w, seq, px, py)
+                {
+                    part.push(px, py, pz, seq);
                 }
-                seq += 1;
             }
-            Ok(())
         })?;
         self.decoded.fetch_add(kept, Ordering::Relaxed);
-        if kept != files.read[f] {
-            return Err(super::direct::changed_during_run(path, kept, files.read[f]));
-        }
         Ok(parts)
     }
 }
