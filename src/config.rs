@@ -102,6 +102,7 @@ impl InputConfig {
             },
             classes: ClassFilter::new(self.keep_classes.as_deref(), &self.drop_classes),
             max_points: self.max_points,
+            ..Default::default()
         }
     }
 }

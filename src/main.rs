@@ -544,6 +544,7 @@ impl ReadArgs {
             }),
             classes: ClassFilter::new(self.keep_classes.as_deref(), &self.drop_classes),
             max_points: self.max_points,
+            ..Default::default()
         }
     }
 }

@@ -310,7 +310,12 @@ fn tile_run(hf: &Heightfield, dirs: &RunDirs, run: usize) -> Result<TileRun> {
 fn grid_run(path: &Path) -> Result<GridRun> {
     let c0 = cpu_now();
     let t0 = Instant::now();
-    let (cloud, bounds) = points::read_with_bounds(path, &ReadOptions::default(), &NoProgress)?;
+    // The columns `terratile run` reads for this pipeline (x, y and z only).
+    let opts = ReadOptions {
+        columns: crate::pipeline::read_columns(&bench_pipeline()),
+        ..Default::default()
+    };
+    let (cloud, bounds) = points::read_with_bounds(path, &opts, &NoProgress)?;
     let t1 = Instant::now();
     let read_cpu = cpu_since(c0);
     let clock = StageClock::default();

@@ -17,6 +17,7 @@ pub use crate::outnames::NOISE_FILE;
 pub use memory::{current_rss, empty_input, estimate_pipeline, peak_rss, reset_peak_rss};
 pub use plan::Plan;
 pub use report::{stage_seconds, BaselineMeasurements, RunSummary, StageReport};
+pub use run::read_columns;
 pub use run::{
     grid_stages, grid_stages_with_bounds, run, run_with_context, tile_stages, GridStages,
     RunContext, RunOutput, TileStages,

@@ -63,6 +63,8 @@ pub fn convert(input: &Path, output: &Path, selection: Selection) -> Result<u64>
         extended: h.point_format >= 6,
         scale: h.scale,
         offset: h.offset,
+        // Only the count and the bounds are wanted from the decoded points.
+        columns: super::Columns::XYZ,
     };
     let mut cloud = PointCloud::default();
     let (_, bounds) = las_records::decode(out, &layout, &ClassFilter::default(), None, &mut cloud);

@@ -51,6 +51,7 @@ pub(crate) fn read_las_bounds(
         extended: h.point_format >= 6,
         scale: h.scale,
         offset: h.offset,
+        columns: opts.columns,
     };
     let mut cloud = PointCloud::default();
     let mut bounds = super::Bounds::EMPTY;
@@ -81,7 +82,7 @@ pub(crate) fn read_las_bounds(
             })?;
         }
         progress.start(&format!("reading {}", path.display()), h.point_count);
-        cloud.reserve_exact(wanted as usize, true);
+        cloud.reserve_exact(wanted as usize, opts.columns);
         let mut buf = Vec::new();
         let mut done = 0u64;
         while done < h.point_count {
@@ -387,6 +388,7 @@ pub(crate) fn for_each_decoded(
         extended: h.point_format >= 6,
         scale: h.scale,
         offset: h.offset,
+        columns: opts.columns,
     };
     let mut kept = 0u64;
     for_each_batch(path, bytes, &h, |records| {

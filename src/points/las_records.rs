@@ -8,7 +8,7 @@
 //! byte 15 = classification (bits 0–4) | flags. Formats 6–10: byte 14 = return number
 //! (bits 0–3) | number of returns (bits 4–7), byte 16 = classification (all 8 bits).
 
-use super::{Bounds, ClassFilter, PointCloud};
+use super::{Bounds, ClassFilter, Columns, PointCloud};
 use rayon::prelude::*;
 
 /// Records per parallel work unit: 64 Ki records is 1.3–4.4 MB of input, large enough to
@@ -26,6 +26,8 @@ pub(crate) struct Layout {
     pub scale: [f64; 3],
     /// Offsets.
     pub offset: [f64; 3],
+    /// The attribute columns to decode and store (x, y and z always are).
+    pub columns: Columns,
 }
 
 impl Layout {
@@ -39,7 +41,7 @@ impl Layout {
     }
 }
 
-/// Output slices of one chunk.
+/// Output slices of one chunk; an attribute column not asked for is empty.
 struct Out<'a> {
     x: &'a mut [f64],
     y: &'a mut [f64],
@@ -54,6 +56,10 @@ impl<'a> Out<'a> {
     /// Splits off the first `n` entries of every column.
     fn take(&mut self, n: usize) -> Out<'a> {
         fn split<'a, T>(s: &mut &'a mut [T], n: usize) -> &'a mut [T] {
+            if s.is_empty() {
+                // A column not asked for.
+                return &mut [];
+            }
             let (head, tail) = std::mem::take(s).split_at_mut(n);
             *s = tail;
             head
@@ -75,27 +81,49 @@ fn i32_at(r: &[u8], at: usize) -> i32 {
     i32::from_le_bytes([r[at], r[at + 1], r[at + 2], r[at + 3]])
 }
 
-/// Decodes one record into slot `k` of `out`.
+/// Decodes one record into slot `k` of `out`: x, y, z, and the attribute columns of
+/// `l.columns`.
 #[inline(always)]
 fn put(l: &Layout, r: &[u8], out: &mut Out<'_>, k: usize) {
     // Same expression as `las::Transform::direct`, so the values are bit-identical to las-rs.
     out.x[k] = l.scale[0] * f64::from(i32_at(r, 0)) + l.offset[0];
     out.y[k] = l.scale[1] * f64::from(i32_at(r, 4)) + l.offset[1];
     out.z[k] = l.scale[2] * f64::from(i32_at(r, 8)) + l.offset[2];
-    out.intensity[k] = u16::from_le_bytes([r[12], r[13]]);
+    if l.columns.intensity {
+        out.intensity[k] = u16::from_le_bytes([r[12], r[13]]);
+    }
     let b = r[14];
-    if l.extended {
-        out.ret[k] = b & 0x0F;
-        out.nret[k] = b >> 4;
-        out.class[k] = r[16];
-    } else {
-        out.ret[k] = b & 0x07;
-        out.nret[k] = (b >> 3) & 0x07;
-        out.class[k] = r[15] & 0x1F;
+    if l.columns.returns {
+        (out.ret[k], out.nret[k]) = if l.extended {
+            (b & 0x0F, b >> 4)
+        } else {
+            (b & 0x07, (b >> 3) & 0x07)
+        };
+    }
+    if l.columns.class {
+        out.class[k] = l.class(r);
     }
 }
 
-/// Decodes every record of `recs` into `out` (same length): the unfiltered hot loop, written
+/// Decodes x, y and z only of every record of `recs` into `out` (same length): the hot loop
+/// when no attribute column is asked for (the terrain stages read nothing else).
+fn decode_xyz(l: &Layout, recs: &[u8], out: &mut Out<'_>) {
+    let [sx, sy, sz] = l.scale;
+    let [ox, oy, oz] = l.offset;
+    let cols = out.x.iter_mut().zip(out.y.iter_mut()).zip(out.z.iter_mut());
+    for (r, ((x, y), z)) in recs.chunks_exact(l.len).zip(cols) {
+        let r: &[u8; 12] = match r.first_chunk() {
+            Some(r) => r,
+            None => return,
+        };
+        *x = sx * f64::from(i32_at(r, 0)) + ox;
+        *y = sy * f64::from(i32_at(r, 4)) + oy;
+        *z = sz * f64::from(i32_at(r, 8)) + oz;
+    }
+}
+
+/// Decodes every record of `recs` into `out` (same length, every column asked for): the
+/// unfiltered hot loop, written
 /// with zipped iterators so that no index is bounds-checked.
 fn decode_dense(l: &Layout, recs: &[u8], out: &mut Out<'_>) {
     let [sx, sy, sz] = l.scale;
@@ -184,6 +212,15 @@ fn zeroed<T: Copy + Default>(len: usize) -> Vec<T> {
     vec![T::default(); len]
 }
 
+/// The part of column `v` from `start` on when it is `wanted`, else nothing.
+fn tail<T>(v: &mut [T], start: usize, wanted: bool) -> &mut [T] {
+    if wanted {
+        &mut v[start..]
+    } else {
+        &mut []
+    }
+}
+
 /// Decodes `records` (whole records, `layout.len` bytes each) into `cloud`'s columns,
 /// keeping the points `filter` keeps, at most `cap` of them. Returns the number kept and
 /// their tight bounds (measured chunk by chunk as they are decoded, so that the stages after
@@ -223,18 +260,25 @@ pub(crate) fn decode(
     grow(&mut cloud.x, start + total);
     grow(&mut cloud.y, start + total);
     grow(&mut cloud.z, start + total);
-    grow(&mut cloud.classification, start + total);
-    grow(&mut cloud.return_number, start + total);
-    grow(&mut cloud.number_of_returns, start + total);
-    grow(&mut cloud.intensity, start + total);
+    let cols = layout.columns;
+    if cols.class {
+        grow(&mut cloud.classification, start + total);
+    }
+    if cols.returns {
+        grow(&mut cloud.return_number, start + total);
+        grow(&mut cloud.number_of_returns, start + total);
+    }
+    if cols.intensity {
+        grow(&mut cloud.intensity, start + total);
+    }
     let mut rest = Out {
         x: &mut cloud.x[start..],
         y: &mut cloud.y[start..],
         z: &mut cloud.z[start..],
-        class: &mut cloud.classification[start..],
-        ret: &mut cloud.return_number[start..],
-        nret: &mut cloud.number_of_returns[start..],
-        intensity: &mut cloud.intensity[start..],
+        class: tail(&mut cloud.classification, start, cols.class),
+        ret: tail(&mut cloud.return_number, start, cols.returns),
+        nret: tail(&mut cloud.number_of_returns, start, cols.returns),
+        intensity: tail(&mut cloud.intensity, start, cols.intensity),
     };
     let tasks: Vec<(&[u8], Out<'_>)> = chunks
         .iter()
@@ -247,8 +291,14 @@ pub(crate) fn decode(
         .into_par_iter()
         .map(|(recs, mut out)| {
             let want = out.x.len();
-            if !filter.is_active() {
+            if !filter.is_active() && layout.columns == Columns::ALL {
                 decode_dense(layout, &recs[..want * len], &mut out);
+            } else if !filter.is_active() && layout.columns == Columns::XYZ {
+                decode_xyz(layout, &recs[..want * len], &mut out);
+            } else if !filter.is_active() {
+                for (k, r) in recs[..want * len].chunks_exact(len).enumerate() {
+                    put(layout, r, &mut out, k);
+                }
             } else {
                 let mut k = 0;
                 for r in recs.chunks_exact(len) {
@@ -265,4 +315,85 @@ pub(crate) fn decode(
         })
         .reduce(|| Bounds::EMPTY, Bounds::union);
     (total, bounds)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `n` records of `len` bytes with varied fields (a small linear congruential stream).
+    fn records(n: usize, len: usize) -> Vec<u8> {
+        let mut s = 0x2545_f491_4f6c_dd1du64;
+        (0..n * len)
+            .map(|_| {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (s >> 56) as u8
+            })
+            .collect()
+    }
+
+    fn layout(len: usize, extended: bool, columns: Columns) -> Layout {
+        Layout {
+            len,
+            extended,
+            scale: [0.01, 0.02, 0.001],
+            offset: [100.0, -5.0, 0.5],
+            columns,
+        }
+    }
+
+    /// Every column mask, with and without a class filter and a cap, in both bit layouts,
+    /// across several chunks: x, y, z and the bounds as with every column, each asked-for
+    /// column as the full decode has it, the others empty.
+    #[test]
+    fn a_column_mask_leaves_out_exactly_its_columns() {
+        for (len, extended) in [(20, false), (30, true)] {
+            let recs = records(CHUNK * 2 + 777, len);
+            for filter in [ClassFilter::default(), ClassFilter::new(None, &[1, 2, 3])] {
+                for cap in [None, Some(CHUNK as u64 + 5)] {
+                    let mut all = PointCloud::default();
+                    let want = decode(
+                        &recs,
+                        &layout(len, extended, Columns::ALL),
+                        &filter,
+                        cap,
+                        &mut all,
+                    );
+                    for bits in 0..8u8 {
+                        let columns = Columns {
+                            class: bits & 1 != 0,
+                            returns: bits & 2 != 0,
+                            intensity: bits & 4 != 0,
+                        };
+                        let mut c = PointCloud::default();
+                        let got =
+                            decode(&recs, &layout(len, extended, columns), &filter, cap, &mut c);
+                        assert_eq!(got, want, "{columns:?}");
+                        assert_eq!((&c.x, &c.y, &c.z), (&all.x, &all.y, &all.z));
+                        let empty_or = |wanted: bool, v: &[u8], w: &[u8]| {
+                            if wanted {
+                                assert_eq!(v, w, "{columns:?}");
+                            } else {
+                                assert!(v.is_empty(), "{columns:?}");
+                            }
+                        };
+                        empty_or(columns.class, &c.classification, &all.classification);
+                        empty_or(columns.returns, &c.return_number, &all.return_number);
+                        empty_or(
+                            columns.returns,
+                            &c.number_of_returns,
+                            &all.number_of_returns,
+                        );
+                        if columns.intensity {
+                            assert_eq!(c.intensity, all.intensity);
+                        } else {
+                            assert!(c.intensity.is_empty());
+                        }
+                    }
+                }
+            }
+        }
+    }
 }

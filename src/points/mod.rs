@@ -215,7 +215,7 @@ impl ClassFilter {
     }
 }
 
-/// Reader options: format override, class filter, point cap.
+/// Reader options: format override, class filter, point cap, attribute columns.
 #[derive(Debug, Clone, Default)]
 pub struct ReadOptions {
     /// Force a format instead of recognising it from the content.
@@ -224,6 +224,43 @@ pub struct ReadOptions {
     pub classes: ClassFilter,
     /// Keep at most this many points (the first ones in file order, after the class filter).
     pub max_points: Option<u64>,
+    /// Which attribute columns to fill besides x, y and z (default all).
+    pub columns: Columns,
+}
+
+/// Which attribute columns of a [`PointCloud`] a reader fills besides x, y and z. A column
+/// left out is neither decoded nor stored: it stays empty, as for XYZ text, which has none.
+/// The terrain stages read x, y and z only; the class filter reads the records' classes
+/// whatever this says.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Columns {
+    /// `classification`.
+    pub class: bool,
+    /// `return_number` and `number_of_returns`.
+    pub returns: bool,
+    /// `intensity`.
+    pub intensity: bool,
+}
+
+impl Columns {
+    /// Every attribute column.
+    pub const ALL: Columns = Columns {
+        class: true,
+        returns: true,
+        intensity: true,
+    };
+    /// None: x, y and z only.
+    pub const XYZ: Columns = Columns {
+        class: false,
+        returns: false,
+        intensity: false,
+    };
+}
+
+impl Default for Columns {
+    fn default() -> Self {
+        Columns::ALL
+    }
 }
 
 impl PointCloud {
@@ -237,17 +274,21 @@ impl PointCloud {
         self.x.is_empty()
     }
 
-    /// Reserves room for exactly `additional` more points in the coordinate columns and, with
-    /// `attributes`, in the class, return and intensity columns too (an XYZ file has none:
-    /// those columns stay empty). The one place that sizes the columns ahead of a reader.
-    pub(crate) fn reserve_exact(&mut self, additional: usize, attributes: bool) {
+    /// Reserves room for exactly `additional` more points in the coordinate columns and
+    /// in the attribute columns of `attributes` too (an XYZ file has none: those columns stay
+    /// empty). The one place that sizes the columns ahead of a reader.
+    pub(crate) fn reserve_exact(&mut self, additional: usize, attributes: Columns) {
         self.x.reserve_exact(additional);
         self.y.reserve_exact(additional);
         self.z.reserve_exact(additional);
-        if attributes {
+        if attributes.class {
             self.classification.reserve_exact(additional);
+        }
+        if attributes.returns {
             self.return_number.reserve_exact(additional);
             self.number_of_returns.reserve_exact(additional);
+        }
+        if attributes.intensity {
             self.intensity.reserve_exact(additional);
         }
     }

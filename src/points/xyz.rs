@@ -206,7 +206,7 @@ pub fn parse_xyz(path: &Path, text: &[u8], progress: &dyn Progress) -> Result<Po
         ));
     }
     let mut cloud = PointCloud::default();
-    cloud.reserve_exact(total, false);
+    cloud.reserve_exact(total, super::Columns::XYZ);
     for p in parsed.into_iter().flatten() {
         cloud.x.extend_from_slice(&p.x);
         cloud.y.extend_from_slice(&p.y);
