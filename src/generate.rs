@@ -211,17 +211,25 @@ impl World {
             dx * dx + dy * dy < 1.0
         };
         let near_cliff = self.cliff_distance(c[0], c[1]).abs() < r + 3.0 && c[0] > 0.5 * self.w;
+        !(in_lake || near_cliff || self.near_building(c, r) || self.near_tree(c, r))
+    }
+
+    /// True if a building's footprint, grown by `r`, holds `c` (through the feature grid).
+    fn near_building(&self, c: [f64; 2], r: f64) -> bool {
         let reach = MAX_HALF + r;
-        let near_building = self.building_grid.near(c, [reach, reach]).any(|k| {
+        self.building_grid.near(c, [reach, reach]).any(|k| {
             let b = &self.buildings[k];
             (c[0] - b.c[0]).abs() < b.half[0] + r && (c[1] - b.c[1]).abs() < b.half[1] + r
-        });
+        })
+    }
+
+    /// True if a tree's crown, grown by `r / 2`, holds `c` (through the feature grid).
+    fn near_tree(&self, c: [f64; 2], r: f64) -> bool {
         let reach = MAX_TREE_R + r * 0.5;
-        let near_tree = self.tree_grid.near(c, [reach, reach]).any(|k| {
+        self.tree_grid.near(c, [reach, reach]).any(|k| {
             let t = &self.trees[k];
             (c[0] - t.c[0]).hypot(c[1] - t.c[1]) < t.r + r * 0.5
-        });
-        !(in_lake || near_cliff || near_building || near_tree)
+        })
     }
 
     /// Signed distance to the cliff line (positive on the high side).
@@ -964,17 +972,8 @@ mod tests {
                 .trees
                 .iter()
                 .any(|t| (c[0] - t.c[0]).hypot(c[1] - t.c[1]) < t.r + r * 0.5);
-            let reach = MAX_HALF + r;
-            let grid_b = world.building_grid.near(c, [reach, reach]).any(|k| {
-                let b = &world.buildings[k];
-                (c[0] - b.c[0]).abs() < b.half[0] + r && (c[1] - b.c[1]).abs() < b.half[1] + r
-            });
-            let reach = MAX_TREE_R + r * 0.5;
-            let grid_t = world.tree_grid.near(c, [reach, reach]).any(|k| {
-                let t = &world.trees[k];
-                (c[0] - t.c[0]).hypot(c[1] - t.c[1]) < t.r + r * 0.5
-            });
-            assert_eq!((grid_b, grid_t), (plain_b, plain_t), "({u}, {v}) r {r}");
+            let grid = (world.near_building(c, r), world.near_tree(c, r));
+            assert_eq!(grid, (plain_b, plain_t), "({u}, {v}) r {r}");
         }
     }
 

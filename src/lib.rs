@@ -29,6 +29,7 @@ pub mod shard;
 pub mod simplify;
 pub mod terrain;
 
+mod chart;
 mod error;
 mod fsutil;
 mod memory;

@@ -117,32 +117,7 @@ enum Command {
     /// Measure the Metro-style Hausdorff error between two meshes (OBJ or PLY): both
     /// one-sided errors and the symmetric one, max and mean, absolute and in % of the
     /// original's bounding-box diagonal.
-    Compare {
-        /// The original mesh.
-        original: PathBuf,
-        /// The simplified mesh.
-        simplified: PathBuf,
-        /// Area samples per direction (default: 10 per triangle, at least 200,000; at most
-        /// 100,000,000).
-        #[arg(long, value_name = "N")]
-        samples: Option<u64>,
-        /// Also render the original coloured by each vertex's distance to the simplified
-        /// surface (blue 0 → red at the 99th percentile), front and back, into this new PNG.
-        #[arg(long, value_name = "OUT.png")]
-        heatmap: Option<PathBuf>,
-        /// Refuse files that are read with a warning by default (unusable texture
-        /// coordinates, normals or colours; faces with fewer than 3 vertices).
-        #[arg(long)]
-        strict: bool,
-        /// Also count fold-overs (simplified faces more than 90° from the original's
-        /// normal at the nearest point) and self-intersecting faces (non-adjacent pairs
-        /// that meet, exact predicates), and the original's own self-intersections.
-        #[arg(long)]
-        check_folds: bool,
-        /// Print JSON.
-        #[arg(long)]
-        json: bool,
-    },
+    Compare(CompareArgs),
     /// Per-vertex curvature, mesh saliency, multi-view image saliency (max, min, mean) and
     /// the hybrid saliency of a mesh, written to DIR as saliency.ply (one float property
     /// per map, hybrid-coloured vertices) and one PNG per map (front and back, colour bar).
@@ -255,6 +230,34 @@ enum StripsCommand {
 enum EncodingArg {
     Naive,
     Encoded,
+}
+
+#[derive(Args, Debug)]
+struct CompareArgs {
+    /// The original mesh.
+    original: PathBuf,
+    /// The simplified mesh.
+    simplified: PathBuf,
+    /// Area samples per direction (default: 10 per triangle, at least 200,000; at most
+    /// 100,000,000).
+    #[arg(long, value_name = "N")]
+    samples: Option<u64>,
+    /// Also render the original coloured by each vertex's distance to the simplified
+    /// surface (blue 0 → red at the 99th percentile), front and back, into this new PNG.
+    #[arg(long, value_name = "OUT.png")]
+    heatmap: Option<PathBuf>,
+    /// Refuse files that are read with a warning by default (unusable texture
+    /// coordinates, normals or colours; faces with fewer than 3 vertices).
+    #[arg(long)]
+    strict: bool,
+    /// Also count fold-overs (simplified faces more than 90° from the original's
+    /// normal at the nearest point) and self-intersecting faces (non-adjacent pairs
+    /// that meet, exact predicates), and the original's own self-intersections.
+    #[arg(long)]
+    check_folds: bool,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Args, Debug)]
@@ -889,65 +892,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Classify(a) => classify(a, progress)?,
         Command::Simplify(a) => simplify(a)?,
         Command::Strips(a) => strips(a)?,
-        Command::Compare {
-            original,
-            simplified,
-            samples,
-            heatmap,
-            strict,
-            check_folds,
-            json,
-        } => {
-            if let Some(out) = &heatmap {
-                if out.exists() {
-                    return Err(Error::Usage(format!(
-                        "{}: the heatmap file exists (terratile does not overwrite it)",
-                        out.display()
-                    )));
-                }
-            }
-            let params = terratile::mesh::HausdorffParams {
-                samples: samples.unwrap_or(0),
-            };
-            let read = terratile::mesh::io::ReadOptions { strict };
-            let r = terratile::mesh::hausdorff::compare_files(
-                &original,
-                &simplified,
-                &params,
-                &read,
-                check_folds,
-            )?;
-            for w in &r.warnings {
-                eprintln!("terratile: warning: {}", one_line(w));
-            }
-            let heat = match &heatmap {
-                Some(out) => {
-                    let load = |p: &PathBuf| terratile::mesh::io::read_surface_with(p, &read);
-                    let (a, b) = (load(&original)?.0, load(&simplified)?.0);
-                    Some(terratile::simplify::saliency::pictures::write_heatmap(
-                        &a, &b, 512, out,
-                    )?)
-                }
-                None => None,
-            };
-            if json {
-                match &heat {
-                    Some(h) => print_json(&serde_json::json!({ "compare": r, "heatmap": h }))?,
-                    None => print_json(&r)?,
-                }
-            } else {
-                out!("{r}");
-                if let Some(h) = &heat {
-                    outln!(
-                        "heatmap {}: red at {:.6}, vertex distance max {:.6}, mean {:.6}",
-                        h.file.display(),
-                        h.red_at,
-                        h.max,
-                        h.mean
-                    );
-                }
-            }
-        }
+        Command::Compare(a) => compare(a)?,
         Command::Saliency {
             input,
             out,
@@ -1008,6 +953,69 @@ fn run(cli: Cli) -> Result<()> {
                     m.files.len()
                 );
             }
+        }
+    }
+    Ok(())
+}
+
+/// `terratile compare`: the Hausdorff error between two meshes, with an optional heatmap.
+fn compare(a: CompareArgs) -> Result<()> {
+    let CompareArgs {
+        original,
+        simplified,
+        samples,
+        heatmap,
+        strict,
+        check_folds,
+        json,
+    } = a;
+    if let Some(out) = &heatmap {
+        if out.exists() {
+            return Err(Error::Usage(format!(
+                "{}: the heatmap file exists (terratile does not overwrite it)",
+                out.display()
+            )));
+        }
+    }
+    let params = terratile::mesh::HausdorffParams {
+        samples: samples.unwrap_or(0),
+    };
+    let read = terratile::mesh::io::ReadOptions { strict };
+    let r = terratile::mesh::hausdorff::compare_files(
+        &original,
+        &simplified,
+        &params,
+        &read,
+        check_folds,
+    )?;
+    for w in &r.warnings {
+        eprintln!("terratile: warning: {}", one_line(w));
+    }
+    let heat = match &heatmap {
+        Some(out) => {
+            let load = |p: &PathBuf| terratile::mesh::io::read_surface_with(p, &read);
+            let (a, b) = (load(&original)?.0, load(&simplified)?.0);
+            Some(terratile::simplify::saliency::pictures::write_heatmap(
+                &a, &b, 512, out,
+            )?)
+        }
+        None => None,
+    };
+    if json {
+        match &heat {
+            Some(h) => print_json(&serde_json::json!({ "compare": r, "heatmap": h }))?,
+            None => print_json(&r)?,
+        }
+    } else {
+        out!("{r}");
+        if let Some(h) = &heat {
+            outln!(
+                "heatmap {}: red at {:.6}, vertex distance max {:.6}, mean {:.6}",
+                h.file.display(),
+                h.red_at,
+                h.max,
+                h.mean
+            );
         }
     }
     Ok(())

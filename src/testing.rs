@@ -20,3 +20,20 @@ where
         assert_eq!(on_threads(threads, &f), one, "{threads} threads");
     }
 }
+
+/// A 2 × 3 quad of two triangles (z up, heights 1, 1.5, 1, 0.5 at its corners) with normals:
+/// the smallest mesh every writer and reader of the glb format must carry exactly.
+pub(crate) fn quad() -> crate::mesh::TriMesh {
+    use glam::Vec3;
+    crate::mesh::TriMesh {
+        positions: vec![
+            Vec3::new(0.0, 0.0, 1.0),
+            Vec3::new(2.0, 0.0, 1.5),
+            Vec3::new(2.0, 3.0, 1.0),
+            Vec3::new(0.0, 3.0, 0.5),
+        ],
+        indices: vec![[0, 1, 2], [0, 2, 3]],
+        normals: Some(vec![Vec3::Z; 4]),
+        ..Default::default()
+    }
+}

@@ -61,6 +61,17 @@ fn check_shared(limit: usize) {
     }
 }
 
+/// The `folds` object of `compare ORIGINAL SIMPLIFIED --check-folds --json` run in `dir`.
+fn folds(dir: &std::path::Path, original: &str, simplified: &str) -> serde_json::Value {
+    let r = common::terratile(
+        dir,
+        &["compare", original, simplified, "--check-folds", "--json"],
+    );
+    r.ok();
+    let mut v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+    v["folds"].take()
+}
+
 /// `compare --check-folds` on a mesh against itself: no fold-over, and the input's own
 /// self-intersections reported on both sides (text and JSON).
 #[test]
@@ -70,15 +81,11 @@ fn compare_check_folds_reports_counts() {
     };
     let dir = tempfile::tempdir().unwrap();
     let c = cow.to_str().unwrap();
-    let r = common::terratile(dir.path(), &["compare", c, c, "--check-folds", "--json"]);
-    r.ok();
-    let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
-    let f = &v["folds"];
-    assert_eq!(f["fold_overs"].as_array().unwrap().len(), 0, "{}", r.stdout);
+    let f = folds(dir.path(), c, c);
+    assert_eq!(f["fold_overs"].as_array().unwrap().len(), 0, "{f}");
     assert_eq!(
         f["self_intersecting_pairs"], f["original_self_intersecting_pairs"],
-        "{}",
-        r.stdout
+        "{f}"
     );
     let r = common::terratile(dir.path(), &["compare", c, c, "--check-folds"]);
     r.ok();
@@ -105,13 +112,7 @@ fn checked_qem_output_passes_the_checker() {
             args.push("--check-intersections");
         }
         common::terratile(dir.path(), &args).ok();
-        let r = common::terratile(
-            dir.path(),
-            &["compare", b, "out.obj", "--check-folds", "--json"],
-        );
-        r.ok();
-        let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
-        let f = &v["folds"];
+        let f = folds(dir.path(), b, "out.obj");
         counts.push((
             f["fold_overs"].as_array().unwrap().len(),
             f["self_intersecting_pairs"].as_u64().unwrap(),

@@ -318,33 +318,14 @@ fn accuracy_row(p: &Path) -> AccuracyRow {
     fill(&mut g.grid, &FillParams::default()).unwrap();
     let tin_points = delaunay::prepare(&c.x, &c.y, &c.z, Some(&train)).unwrap();
     let tin = delaunay::triangulate(&tin_points, TinMethod::Incremental).unwrap();
-    let xy: Vec<[f64; 2]> = test
-        .iter()
-        .map(|&i| [c.x[i as usize], c.y[i as usize]])
-        .collect();
-    let tin_z = tin.z_at_many(&xy);
-    let grid_z: Vec<Option<f64>> = xy
-        .iter()
-        .map(|&[x, y]| g.grid.sample_bilinear(x, y))
-        .collect();
-    let truth: Vec<f64> = test.iter().map(|&i| c.z[i as usize]).collect();
-    let stats = |pred: &[Option<f64>], sel: &dyn Fn(usize) -> bool| {
-        ErrorStats::of(
-            (0..test.len())
-                .filter(|&k| sel(test[k] as usize))
-                .map(|k| (pred[k], truth[k])),
-        )
-        .scaled(mpu)
-    };
-    let ground = |i: usize| c.classification.get(i) == Some(&2);
-    let has_ground = c.classification.contains(&2);
+    let s = delaunay::score_holdout(&c, &test, &g.grid, &tin, mpu);
     AccuracyRow {
         file: name(p),
         grid: [g.spec.cols, g.spec.rows],
-        grid_all: stats(&grid_z, &|_| true),
-        tin_all: stats(&tin_z, &|_| true),
-        grid_ground: has_ground.then(|| stats(&grid_z, &ground)),
-        tin_ground: has_ground.then(|| stats(&tin_z, &ground)),
+        grid_all: s.grid,
+        tin_all: s.tin,
+        grid_ground: s.grid_ground,
+        tin_ground: s.tin_ground,
     }
 }
 

@@ -1,51 +1,28 @@
 //! The plot of `bench table1 --plot FILE.png`: time against points, log–log, for the grid
 //! pipeline and the Delaunay build measured here and for the paper's pipeline (its Delaunay:
-//! a line at "more than 12 hours"). Drawn with `embedded-graphics` (lines, markers and its
-//! built-in bitmap font, so no system font is needed) into an `image` buffer written as PNG.
+//! a line at "more than 12 hours"). Drawn on a `chart::Frame` (grid, labels, border, axis
+//! names, title); the series, markers and legend are drawn here.
 
 use super::table1::{Table1, PAPER, PAPER_DELAUNAY_S};
-use crate::error::{Error, Result};
-use embedded_graphics::mono_font::{ascii::FONT_6X10, MonoTextStyle};
+use crate::chart::{Frame, Tick, TEXT};
+use crate::error::Result;
 use embedded_graphics::pixelcolor::Rgb888;
 use embedded_graphics::prelude::*;
 use embedded_graphics::primitives::{Circle, Line, PrimitiveStyle, Rectangle, Triangle};
-use embedded_graphics::text::{Alignment, Text};
+use embedded_graphics::text::Text;
 use std::path::Path;
 
-/// An `image` buffer as an embedded-graphics target (also drawn on by the strips figure).
-pub(crate) struct Canvas(pub(crate) image::RgbImage);
+/// The strips figure takes the canvas from here; it belongs to `chart`.
+pub(crate) use crate::chart::Canvas;
 
-impl OriginDimensions for Canvas {
-    fn size(&self) -> Size {
-        Size::new(self.0.width(), self.0.height())
-    }
-}
-
-impl DrawTarget for Canvas {
-    type Color = Rgb888;
-    type Error = std::convert::Infallible;
-
-    fn draw_iter<I: IntoIterator<Item = Pixel<Rgb888>>>(
-        &mut self,
-        pixels: I,
-    ) -> std::result::Result<(), Self::Error> {
-        let (w, h) = (self.0.width() as i32, self.0.height() as i32);
-        for Pixel(p, c) in pixels {
-            if p.x >= 0 && p.y >= 0 && p.x < w && p.y < h {
-                self.0
-                    .put_pixel(p.x as u32, p.y as u32, image::Rgb([c.r(), c.g(), c.b()]));
-            }
-        }
-        Ok(())
-    }
-}
-
-const W: i32 = 900;
-const H: i32 = 620;
-const LEFT: i32 = 90;
-const RIGHT: i32 = 30;
-const TOP: i32 = 50;
-const BOTTOM: i32 = 70;
+const FRAME: Frame = Frame {
+    w: 900,
+    h: 620,
+    left: 90,
+    right: 30,
+    top: 50,
+    bottom: 70,
+};
 
 /// Log-scale axis mapping from [lo, hi] (decades) to pixels [a, b].
 struct Axis {
@@ -59,6 +36,13 @@ impl Axis {
     fn px(&self, v: f64) -> i32 {
         let t = (v.log10() - self.lo) / (self.hi - self.lo);
         (self.a as f64 + t * (self.b - self.a) as f64).round() as i32
+    }
+
+    /// A grid line at each decade, labelled by `label`.
+    fn decades(&self, label: fn(f64) -> String) -> Vec<Tick> {
+        ((self.lo as i32)..=(self.hi as i32))
+            .map(|d| (self.px(10f64.powi(d)), label(10f64.powi(d))))
+            .collect()
     }
 }
 
@@ -80,11 +64,7 @@ fn label_seconds(v: f64) -> String {
 
 /// Draws `t` as a PNG at `path`.
 pub fn plot_table1(t: &Table1, path: &Path) -> Result<()> {
-    let mut c = Canvas(image::RgbImage::from_pixel(
-        W as u32,
-        H as u32,
-        image::Rgb([255, 255, 255]),
-    ));
+    let mut c = FRAME.canvas();
     let ours: Vec<(f64, f64, f64)> = t
         .rows
         .iter()
@@ -97,7 +77,8 @@ pub fn plot_table1(t: &Table1, path: &Path) -> Result<()> {
             .file_name()
             .map_or("?".into(), |f| f.to_string_lossy())
     );
-    draw_frame(&mut c, &xa, &ya, &title);
+    let ticks = [&xa.decades(label_points)[..], &ya.decades(label_seconds)];
+    FRAME.draw(&mut c, GREY, ticks, ["points", "seconds"], &title);
 
     let grid: Vec<(f64, f64)> = ours.iter().map(|o| (o.0, o.1)).collect();
     let tin: Vec<(f64, f64)> = ours.iter().map(|o| (o.0, o.2)).collect();
@@ -107,18 +88,16 @@ pub fn plot_table1(t: &Table1, path: &Path) -> Result<()> {
     draw_series(&mut c, &xa, &ya, &tin, RED, 1);
     // The paper's Delaunay: "more than 12 hours", dashed.
     let y = ya.px(PAPER_DELAUNAY_S);
-    let mut x = LEFT;
-    while x < W - RIGHT {
-        let _ = Line::new(Point::new(x, y), Point::new((x + 8).min(W - RIGHT), y))
+    let (left, right) = (FRAME.left, FRAME.w - FRAME.right);
+    let mut x = left;
+    while x < right {
+        let _ = Line::new(Point::new(x, y), Point::new((x + 8).min(right), y))
             .into_styled(PrimitiveStyle::with_stroke(GREEN, 2))
             .draw(&mut c);
         x += 14;
     }
     draw_legend(&mut c);
-    let mut png = Vec::new();
-    c.0.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-        .map_err(|e| Error::Internal(format!("png: {e}")))?;
-    crate::fsutil::write_bytes_atomic(path, &png)
+    crate::fsutil::write_bytes_atomic(path, &c.png()?)
 }
 
 const BLUE: Rgb888 = Rgb888::new(30, 90, 200);
@@ -143,61 +122,16 @@ fn axes(ours: &[(f64, f64, f64)]) -> (Axis, Axis) {
     let xa = Axis {
         lo: xmin.log10().floor(),
         hi: xmax.log10().ceil(),
-        a: LEFT,
-        b: W - RIGHT,
+        a: FRAME.left,
+        b: FRAME.w - FRAME.right,
     };
     let ya = Axis {
         lo: ymin.log10().floor(),
         hi: (ymax * 2.0).log10().ceil(),
-        a: H - BOTTOM,
-        b: TOP,
+        a: FRAME.h - FRAME.bottom,
+        b: FRAME.top,
     };
     (xa, ya)
-}
-
-/// The grid lines and labels at each decade, the plot's frame, the axis names and `title`.
-fn draw_frame(c: &mut Canvas, xa: &Axis, ya: &Axis, title: &str) {
-    let black = Rgb888::BLACK;
-    let text = MonoTextStyle::new(&FONT_6X10, black);
-    let thin = |col| PrimitiveStyle::with_stroke(col, 1);
-    for d in (xa.lo as i32)..=(xa.hi as i32) {
-        let x = xa.px(10f64.powi(d));
-        let _ = Line::new(Point::new(x, TOP), Point::new(x, H - BOTTOM))
-            .into_styled(thin(GREY))
-            .draw(c);
-        let _ = Text::with_alignment(
-            &label_points(10f64.powi(d)),
-            Point::new(x, H - BOTTOM + 16),
-            text,
-            Alignment::Center,
-        )
-        .draw(c);
-    }
-    for d in (ya.lo as i32)..=(ya.hi as i32) {
-        let y = ya.px(10f64.powi(d));
-        let _ = Line::new(Point::new(LEFT, y), Point::new(W - RIGHT, y))
-            .into_styled(thin(GREY))
-            .draw(c);
-        let _ = Text::with_alignment(
-            &label_seconds(10f64.powi(d)),
-            Point::new(LEFT - 6, y + 3),
-            text,
-            Alignment::Right,
-        )
-        .draw(c);
-    }
-    let _ = Rectangle::with_corners(Point::new(LEFT, TOP), Point::new(W - RIGHT, H - BOTTOM))
-        .into_styled(thin(black))
-        .draw(c);
-    let _ = Text::with_alignment(
-        "points",
-        Point::new((LEFT + W - RIGHT) / 2, H - 24),
-        text,
-        Alignment::Center,
-    )
-    .draw(c);
-    let _ = Text::new("seconds", Point::new(8, TOP - 10), text).draw(c);
-    let _ = Text::with_alignment(title, Point::new(W / 2, 22), text, Alignment::Center).draw(c);
 }
 
 /// A marker at `q`: 0 a disc, 1 a square, anything else a triangle.
@@ -236,7 +170,6 @@ fn draw_series(c: &mut Canvas, xa: &Axis, ya: &Axis, pts: &[(f64, f64)], col: Rg
 
 /// The legend, in the lower right corner.
 fn draw_legend(c: &mut Canvas) {
-    let text = MonoTextStyle::new(&FONT_6X10, Rgb888::BLACK);
     let entries = [
         (BLUE, 0u8, "terratile grid pipeline (this machine)"),
         (RED, 1, "spade Delaunay build (this machine)"),
@@ -244,7 +177,10 @@ fn draw_legend(c: &mut Canvas) {
         (GREEN, 3, "paper's Delaunay: more than 12 h"),
     ];
     for (k, (col, marker, name)) in entries.iter().enumerate() {
-        let p = Point::new(W - RIGHT - 280, H - BOTTOM - 70 + 16 * k as i32);
+        let p = Point::new(
+            FRAME.w - FRAME.right - 280,
+            FRAME.h - FRAME.bottom - 70 + 16 * k as i32,
+        );
         if *marker == 3 {
             let _ = Line::new(p + Point::new(-8, 0), p + Point::new(8, 0))
                 .into_styled(PrimitiveStyle::with_stroke(*col, 2))
@@ -252,6 +188,6 @@ fn draw_legend(c: &mut Canvas) {
         } else {
             draw_marker(c, p, *col, *marker);
         }
-        let _ = Text::new(name, p + Point::new(14, 3), text).draw(c);
+        let _ = Text::new(name, p + Point::new(14, 3), TEXT).draw(c);
     }
 }

@@ -147,6 +147,37 @@ struct TriErr {
     queries: u64,
 }
 
+/// Closest-point queries in sequence, each starting from the triangle the last one found
+/// (neighbouring queries mostly end on the same or a nearby triangle).
+#[derive(Default)]
+struct Probe {
+    hint: Option<u32>,
+}
+
+impl Probe {
+    /// Distance from `p` to the surface in `y` (infinite if `y` is empty).
+    fn distance(&mut self, y: &Bvh, p: DVec3) -> f64 {
+        let hit = y.closest(p, self.hint, f64::INFINITY);
+        self.hint = hit.map(|h| h.slot);
+        hit.map_or(f64::INFINITY, |h| h.dist2.sqrt())
+    }
+}
+
+/// `f(i, probe)` for every `i` in `0..n`, in parallel over chunks of `CHUNK` consecutive
+/// items, each chunk in order with one `Probe` (so its hints follow the mesh's own order);
+/// the results in index order.
+fn in_chunks<T: Send>(n: usize, f: impl Fn(usize, &mut Probe) -> T + Sync) -> Vec<T> {
+    (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .flat_map_iter(|c| {
+            let mut probe = Probe::default();
+            (c * CHUNK..((c + 1) * CHUNK).min(n))
+                .map(|i| f(i, &mut probe))
+                .collect::<Vec<T>>()
+        })
+        .collect()
+}
+
 /// One-sided error from `x` to the surface in `y` (built over the other mesh); `diagonal` is
 /// the 100 % of the percentages.
 pub fn one_sided(x: &TriMesh, y: &Bvh, params: &HausdorffParams, diagonal: f64) -> OneSided {
@@ -158,82 +189,58 @@ pub fn one_sided(x: &TriMesh, y: &Bvh, params: &HausdorffParams, diagonal: f64) 
     // Referenced vertices first: each is measured once and shared by its triangles.
     let used = x.referenced();
     let nv = x.vertex_count();
-    let vdist: Vec<f64> = (0..nv.div_ceil(CHUNK))
-        .into_par_iter()
-        .flat_map_iter(|c| {
-            let mut hint = None;
-            let range = c * CHUNK..((c + 1) * CHUNK).min(nv);
-            range
-                .map(|v| {
-                    if !used[v] {
-                        return 0.0;
-                    }
-                    let hit = y.closest(x.positions[v].as_dvec3(), hint, f64::INFINITY);
-                    hint = hit.map(|h| h.slot);
-                    hit.map_or(f64::INFINITY, |h| h.dist2.sqrt())
-                })
-                .collect::<Vec<f64>>()
-        })
-        .collect();
+    let vdist: Vec<f64> = in_chunks(nv, |v, probe: &mut Probe| {
+        if used[v] {
+            probe.distance(y, x.positions[v].as_dvec3())
+        } else {
+            0.0
+        }
+    });
     let vqueries = used.iter().filter(|u| **u).count() as u64;
 
-    let nf = x.triangle_count();
-    let per_tri: Vec<TriErr> = (0..nf.div_ceil(CHUNK))
-        .into_par_iter()
-        .flat_map_iter(|c| {
-            let mut hint = None;
-            let range = c * CHUNK..((c + 1) * CHUNK).min(nf);
-            let areas = &areas;
-            let vdist = &vdist;
-            range
-                .map(move |f| {
-                    let [a, b, cc] = x.corners(f);
-                    let (ab, ac) = (b - a, cc - a);
-                    let mut e = TriErr {
-                        area: areas[f],
-                        worst: f64::NEG_INFINITY,
-                        worst_at: a,
-                        weighted_sum: 0.0,
-                        queries: 0,
-                    };
-                    for (k, p) in x.indices[f].iter().zip([a, b, cc]) {
-                        let d = vdist[*k as usize];
-                        if d > e.worst {
-                            e.worst = d;
-                            e.worst_at = p;
-                        }
-                    }
-                    let k = ((areas[f] * density).sqrt().round() as usize).clamp(1, 4096);
-                    let inv = 1.0 / k as f64;
-                    let mut sum = 0.0;
-                    let mut measure = |u: f64, v: f64| {
-                        let p = a + ab * (u * inv) + ac * (v * inv);
-                        let hit = y.closest(p, hint, f64::INFINITY);
-                        hint = hit.map(|h| h.slot);
-                        let d = hit.map_or(f64::INFINITY, |h| h.dist2.sqrt());
-                        sum += d;
-                        if d > e.worst {
-                            e.worst = d;
-                            e.worst_at = p;
-                        }
-                    };
-                    // The k² sub-triangle centroids, row by row (neighbouring samples in
-                    // sequence keep the hint good).
-                    for i in 0..k {
-                        for j in 0..k - i {
-                            measure(i as f64 + 1.0 / 3.0, j as f64 + 1.0 / 3.0);
-                            if i + j + 1 < k {
-                                measure(i as f64 + 2.0 / 3.0, j as f64 + 2.0 / 3.0);
-                            }
-                        }
-                    }
-                    e.queries = (k * k) as u64;
-                    e.weighted_sum = sum * areas[f] / (k * k) as f64;
-                    e
-                })
-                .collect::<Vec<TriErr>>()
-        })
-        .collect();
+    let per_tri: Vec<TriErr> = in_chunks(x.triangle_count(), |f, probe: &mut Probe| {
+        let [a, b, cc] = x.corners(f);
+        let (ab, ac) = (b - a, cc - a);
+        let mut e = TriErr {
+            area: areas[f],
+            worst: f64::NEG_INFINITY,
+            worst_at: a,
+            weighted_sum: 0.0,
+            queries: 0,
+        };
+        for (k, p) in x.indices[f].iter().zip([a, b, cc]) {
+            let d = vdist[*k as usize];
+            if d > e.worst {
+                e.worst = d;
+                e.worst_at = p;
+            }
+        }
+        let k = ((areas[f] * density).sqrt().round() as usize).clamp(1, 4096);
+        let inv = 1.0 / k as f64;
+        let mut sum = 0.0;
+        let mut measure = |u: f64, v: f64| {
+            let p = a + ab * (u * inv) + ac * (v * inv);
+            let d = probe.distance(y, p);
+            sum += d;
+            if d > e.worst {
+                e.worst = d;
+                e.worst_at = p;
+            }
+        };
+        // The k² sub-triangle centroids, row by row (neighbouring samples in sequence keep
+        // the hint good).
+        for i in 0..k {
+            for j in 0..k - i {
+                measure(i as f64 + 1.0 / 3.0, j as f64 + 1.0 / 3.0);
+                if i + j + 1 < k {
+                    measure(i as f64 + 2.0 / 3.0, j as f64 + 2.0 / 3.0);
+                }
+            }
+        }
+        e.queries = (k * k) as u64;
+        e.weighted_sum = sum * areas[f] / (k * k) as f64;
+        e
+    });
 
     let mut out = OneSided {
         max: 0.0,

@@ -118,38 +118,34 @@ impl<'a> Prepared<'a> {
     pub fn weights(&self) -> &[f64] {
         self.weights.get_or_init(|| {
             let vf = self.vertex_faces();
-            (0..self.mesh.vertex_count() as u32)
-                .into_par_iter()
-                .with_min_len(256)
-                .map_init(Vec::new, |nb: &mut Vec<u32>, v| {
-                    nb.clear();
-                    for &f in vf.of(v) {
-                        nb.extend(self.faces[f as usize].iter().filter(|&&u| u != v));
-                    }
-                    nb.sort_unstable();
-                    nb.dedup();
-                    if nb.is_empty() {
-                        return 0.0;
-                    }
-                    let p = self.pos(v);
-                    let mut longest = 0.0f64;
-                    let mut min_cos = 1.0f64;
-                    for (i, &a) in nb.iter().enumerate() {
-                        let ea = self.pos(a) - p;
-                        let la = ea.length();
-                        longest = longest.max(la);
-                        for &b in &nb[i + 1..] {
-                            let eb = self.pos(b) - p;
-                            let lb = eb.length();
-                            if la > 0.0 && lb > 0.0 {
-                                min_cos = min_cos.min(ea.dot(eb) / (la * lb));
-                            }
+            self.per_vertex(256, Vec::new, |nb: &mut Vec<u32>, v| {
+                nb.clear();
+                for &f in vf.of(v) {
+                    nb.extend(self.faces[f as usize].iter().filter(|&&u| u != v));
+                }
+                nb.sort_unstable();
+                nb.dedup();
+                if nb.is_empty() {
+                    return 0.0;
+                }
+                let p = self.pos(v);
+                let mut longest = 0.0f64;
+                let mut min_cos = 1.0f64;
+                for (i, &a) in nb.iter().enumerate() {
+                    let ea = self.pos(a) - p;
+                    let la = ea.length();
+                    longest = longest.max(la);
+                    for &b in &nb[i + 1..] {
+                        let eb = self.pos(b) - p;
+                        let lb = eb.length();
+                        if la > 0.0 && lb > 0.0 {
+                            min_cos = min_cos.min(ea.dot(eb) / (la * lb));
                         }
                     }
-                    let theta = min_cos.clamp(-1.0, 1.0).acos();
-                    longest * (theta * 0.5).cos()
-                })
-                .collect()
+                }
+                let theta = min_cos.clamp(-1.0, 1.0).acos();
+                longest * (theta * 0.5).cos()
+            })
         })
     }
 
@@ -159,13 +155,9 @@ impl<'a> Prepared<'a> {
     pub fn quadrics(&self) -> &[Quadric] {
         self.quadrics.get_or_init(|| {
             let planes = self.planes();
-            (0..self.mesh.vertex_count() as u32)
-                .into_par_iter()
-                .with_min_len(1024)
-                .map_init(Vec::new, |edges: &mut Vec<u64>, v| {
-                    self.vertex_quadric(v, &planes, edges)
-                })
-                .collect()
+            self.per_vertex(1024, Vec::new, |edges: &mut Vec<u64>, v| {
+                self.vertex_quadric(v, &planes, edges)
+            })
         })
     }
 
@@ -177,45 +169,42 @@ impl<'a> Prepared<'a> {
             return (q, n);
         }
         let planes = self.planes();
-        let both: Vec<(Quadric, NormalStats)> = (0..self.mesh.vertex_count() as u32)
-            .into_par_iter()
-            .with_min_len(1024)
-            .map_init(
-                || (Vec::new(), Vec::new()),
-                |(edges, fan): &mut (Vec<u64>, Vec<(u32, u32, Vec3)>), v| {
-                    let q = self.vertex_quadric(v, &planes, edges);
-                    // The vertex's triangles as (its two other corners, unit normal).
-                    fan.clear();
-                    let (mut an, mut area) = (DVec3::ZERO, 0.0);
-                    for &f in self.vertex_faces().of(v) {
-                        let (n, _, a) = planes[f as usize];
-                        an += n * (a / 3.0);
-                        area += a / 3.0;
-                        if n != DVec3::ZERO {
-                            let t = self.faces[f as usize];
-                            let k = t.iter().position(|&x| x == v).unwrap_or(0);
-                            fan.push((t[(k + 1) % 3], t[(k + 2) % 3], n.as_vec3()));
+        let both: Vec<(Quadric, NormalStats)> = self.per_vertex(
+            1024,
+            || (Vec::new(), Vec::new()),
+            |(edges, fan): &mut (Vec<u64>, Vec<(u32, u32, Vec3)>), v| {
+                let q = self.vertex_quadric(v, &planes, edges);
+                // The vertex's triangles as (its two other corners, unit normal).
+                fan.clear();
+                let (mut an, mut area) = (DVec3::ZERO, 0.0);
+                for &f in self.vertex_faces().of(v) {
+                    let (n, _, a) = planes[f as usize];
+                    an += n * (a / 3.0);
+                    area += a / 3.0;
+                    if n != DVec3::ZERO {
+                        let t = self.faces[f as usize];
+                        let k = t.iter().position(|&x| x == v).unwrap_or(0);
+                        fan.push((t[(k + 1) % 3], t[(k + 2) % 3], n.as_vec3()));
+                    }
+                }
+                // θmax: the smallest cosine between two triangles sharing an edge at v
+                // (they share v and one more corner).
+                let mut min_cos = 1.0f32;
+                for (i, &(a, b, nf)) in fan.iter().enumerate() {
+                    for &(c, e, ng) in &fan[i + 1..] {
+                        if a == c || a == e || b == c || b == e {
+                            min_cos = min_cos.min(nf.dot(ng));
                         }
                     }
-                    // θmax: the smallest cosine between two triangles sharing an edge at v
-                    // (they share v and one more corner).
-                    let mut min_cos = 1.0f32;
-                    for (i, &(a, b, nf)) in fan.iter().enumerate() {
-                        for &(c, e, ng) in &fan[i + 1..] {
-                            if a == c || a == e || b == c || b == e {
-                                min_cos = min_cos.min(nf.dot(ng));
-                            }
-                        }
-                    }
-                    let stats = NormalStats {
-                        area_normal: an.as_vec3(),
-                        area: area as f32,
-                        theta_max: min_cos.clamp(-1.0, 1.0).acos(),
-                    };
-                    (q, stats)
-                },
-            )
-            .collect();
+                }
+                let stats = NormalStats {
+                    area_normal: an.as_vec3(),
+                    area: area as f32,
+                    theta_max: min_cos.clamp(-1.0, 1.0).acos(),
+                };
+                (q, stats)
+            },
+        );
         let (q, n): (Vec<Quadric>, Vec<NormalStats>) = both.into_iter().unzip();
         // Another thread may have filled either meanwhile; the values are the same.
         let _ = self.quadrics.set(q);
@@ -224,6 +213,21 @@ impl<'a> Prepared<'a> {
             self.quadrics.get().expect("set above"),
             self.normals.get().expect("set above"),
         )
+    }
+
+    /// `f(scratch, v)` for every vertex `v`, in parallel in runs of at least `min_len`
+    /// vertices, each worker with its own scratch from `init` (no allocation per vertex).
+    fn per_vertex<S, T: Send>(
+        &self,
+        min_len: usize,
+        init: impl Fn() -> S + Sync + Send,
+        f: impl Fn(&mut S, u32) -> T + Sync + Send,
+    ) -> Vec<T> {
+        (0..self.mesh.vertex_count() as u32)
+            .into_par_iter()
+            .with_min_len(min_len)
+            .map_init(init, f)
+            .collect()
     }
 
     /// Per welded triangle: its plane (unit normal, offset) and area, computed once.

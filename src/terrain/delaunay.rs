@@ -587,31 +587,64 @@ pub fn baseline(
             &prepare(&cloud.x, &cloud.y, &cloud.z, Some(&train))?,
             method,
         )?;
-        let xy: Vec<[f64; 2]> = test
-            .iter()
-            .map(|&i| [cloud.x[i as usize], cloud.y[i as usize]])
-            .collect();
-        let tz = tin_train.z_at_many(&xy);
-        let gz: Vec<Option<f64>> = xy.iter().map(|&[x, y]| g.sample_bilinear(x, y)).collect();
-        let truth: Vec<f64> = test.iter().map(|&i| cloud.z[i as usize]).collect();
-        let score = |pred: &[Option<f64>], sel: &dyn Fn(usize) -> bool| {
-            ErrorStats::of(
-                (0..test.len())
-                    .filter(|&k| sel(test[k] as usize))
-                    .map(|k| (pred[k], truth[k])),
-            )
-            .scaled(mpu)
-        };
+        let scores = score_holdout(cloud, &test, &g, &tin_train, mpu);
         report.holdout = test.len();
-        report.grid_accuracy = Some(score(&gz, &|_| true));
-        report.tin_accuracy = Some(score(&tz, &|_| true));
-        if cloud.classification.contains(&2) {
-            let ground = |i: usize| cloud.classification[i] == 2;
-            report.grid_accuracy_ground = Some(score(&gz, &ground));
-            report.tin_accuracy_ground = Some(score(&tz, &ground));
-        }
+        report.grid_accuracy = Some(scores.grid);
+        report.tin_accuracy = Some(scores.tin);
+        report.grid_accuracy_ground = scores.grid_ground;
+        report.tin_accuracy_ground = scores.tin_ground;
     }
     Ok((report, tin))
+}
+
+/// A grid and a TIN scored at the same held-out points, in metres.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HoldoutScores {
+    /// The grid at every held-out point.
+    pub grid: ErrorStats,
+    /// The TIN at every held-out point.
+    pub tin: ErrorStats,
+    /// The grid at the held-out ground points (class 2), when the data is classified.
+    pub grid_ground: Option<ErrorStats>,
+    /// The TIN at the held-out ground points, when the data is classified.
+    pub tin_ground: Option<ErrorStats>,
+}
+
+/// Scores `grid` (bilinear) and `tin` at the held-out points `test` of `cloud` (neither
+/// built from them) against their own heights; `mpu` turns the data's units into metres.
+pub fn score_holdout(
+    cloud: &crate::points::PointCloud,
+    test: &[u32],
+    grid: &Heightfield,
+    tin: &Tin,
+    mpu: f64,
+) -> HoldoutScores {
+    let xy: Vec<[f64; 2]> = test
+        .iter()
+        .map(|&i| [cloud.x[i as usize], cloud.y[i as usize]])
+        .collect();
+    let tz = tin.z_at_many(&xy);
+    let gz: Vec<Option<f64>> = xy
+        .iter()
+        .map(|&[x, y]| grid.sample_bilinear(x, y))
+        .collect();
+    let truth: Vec<f64> = test.iter().map(|&i| cloud.z[i as usize]).collect();
+    let score = |pred: &[Option<f64>], sel: &dyn Fn(usize) -> bool| {
+        ErrorStats::of(
+            (0..test.len())
+                .filter(|&k| sel(test[k] as usize))
+                .map(|k| (pred[k], truth[k])),
+        )
+        .scaled(mpu)
+    };
+    let classified = cloud.classification.contains(&2);
+    let ground = |i: usize| cloud.classification[i] == 2;
+    HoldoutScores {
+        grid: score(&gz, &|_| true),
+        tin: score(&tz, &|_| true),
+        grid_ground: classified.then(|| score(&gz, &ground)),
+        tin_ground: classified.then(|| score(&tz, &ground)),
+    }
 }
 
 /// Checks that `tin` is a valid Delaunay triangulation of `points`: every distinct point a

@@ -331,3 +331,13 @@ pub fn environment_lock() -> std::sync::MutexGuard<'static, ()> {
     static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
     LOCK.lock().unwrap_or_else(|p| p.into_inner())
 }
+
+/// The height at (x, y) of the plane through the triangle `p` (corners as x, y, z), if
+/// (x, y) lies in the triangle's footprint (within 1e-9 in barycentric coordinates).
+pub fn height_in_triangle(p: [[f64; 3]; 3], x: f64, y: f64) -> Option<f64> {
+    let det = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
+    let l1 = ((x - p[0][0]) * (p[2][1] - p[0][1]) - (p[2][0] - p[0][0]) * (y - p[0][1])) / det;
+    let l2 = ((p[1][0] - p[0][0]) * (y - p[0][1]) - (x - p[0][0]) * (p[1][1] - p[0][1])) / det;
+    let l0 = 1.0 - l1 - l2;
+    (l0 >= -1e-9 && l1 >= -1e-9 && l2 >= -1e-9).then(|| l0 * p[0][2] + l1 * p[1][2] + l2 * p[2][2])
+}

@@ -2,25 +2,30 @@
 
 use crate::common::*;
 
+/// Runs the default job with `[input] crs = CRS` (TOML string syntax) and expects one error
+/// line holding every needle, exit 2, nothing written.
+fn input_crs_is_refused(crs: &str, needles: &[&str]) {
+    let d = default_job();
+    edit_pipeline(d.path(), "[input]\n", &format!("[input]\ncrs = {crs}\n"));
+    terratile(d.path(), &["run", "--quiet"])
+        .input_error(needles)
+        .left_nothing("out");
+}
+
 /// `[input] crs` naming a code the EPSG table lacks: one line at the key, exit 2, nothing
 /// written (it used not to exist; an unknown code must not reach the encoders).
 #[test]
 fn input_crs_unknown_epsg_code_is_refused_at_its_key() {
-    let d = default_job();
-    edit_pipeline(d.path(), "[input]\n", "[input]\ncrs = \"EPSG:99999\"\n");
-    terratile(d.path(), &["run", "--quiet"])
-        .input_error(&["pipeline.toml:", "input.crs", "EPSG:99999"])
-        .left_nothing("out");
+    input_crs_is_refused(
+        "\"EPSG:99999\"",
+        &["pipeline.toml:", "input.crs", "EPSG:99999"],
+    );
 }
 
 /// `[input] crs` that is not `EPSG:n` at all.
 #[test]
 fn input_crs_not_an_epsg_code_is_refused_at_its_key() {
-    let d = default_job();
-    edit_pipeline(d.path(), "[input]\n", "[input]\ncrs = \"+proj=utm\\n\"\n");
-    terratile(d.path(), &["run", "--quiet"])
-        .input_error(&["input.crs", "EPSG:n", "\\n"])
-        .left_nothing("out");
+    input_crs_is_refused("\"+proj=utm\\n\"", &["input.crs", "EPSG:n", "\\n"]);
 }
 
 /// The Cesium tileset's most detailed level resampled the grid on a geographic lattice turned
@@ -91,17 +96,7 @@ fn quantized_mesh_most_detailed_level_holds_the_grid_at_walls() {
                             let q = t.uv[k as usize];
                             [f64::from(q[0]), f64::from(q[1]), t.heights[k as usize]]
                         });
-                        let det = (p[1][0] - p[0][0]) * (p[2][1] - p[0][1])
-                            - (p[2][0] - p[0][0]) * (p[1][1] - p[0][1]);
-                        let l1 = ((u - p[0][0]) * (p[2][1] - p[0][1])
-                            - (p[2][0] - p[0][0]) * (v - p[0][1]))
-                            / det;
-                        let l2 = ((p[1][0] - p[0][0]) * (v - p[0][1])
-                            - (u - p[0][0]) * (p[1][1] - p[0][1]))
-                            / det;
-                        let l0 = 1.0 - l1 - l2;
-                        (l0 >= -1e-9 && l1 >= -1e-9 && l2 >= -1e-9)
-                            .then(|| l0 * p[0][2] + l1 * p[1][2] + l2 * p[2][2])
+                        height_in_triangle(p, u, v)
                     })
                     .expect("the tile's triangles cover it");
                 worst = worst.max((mesh - want).abs());

@@ -296,6 +296,18 @@ fn wait_for_staging(dir: &Path, child: &mut Child) -> bool {
     panic!("no staging directory appeared in {dir:?}");
 }
 
+/// Runs `p.toml` in `dir` and sends it SIG`sig` `delay` after its staging directory
+/// appeared; its output, or None if it finished before it began writing.
+fn run_signalled(dir: &Path, sig: &str, delay: Duration) -> Option<std::process::Output> {
+    let mut child = spawn_run(dir, "p.toml");
+    if !wait_for_staging(dir, &mut child) {
+        return None;
+    }
+    std::thread::sleep(delay);
+    signal(&child, sig);
+    Some(child.wait_with_output().unwrap())
+}
+
 #[cfg(unix)]
 #[test]
 fn interrupted_run_left_its_staging_directory() {
@@ -308,13 +320,9 @@ fn interrupted_run_left_its_staging_directory() {
     for (sig, code) in [("TERM", 143), ("INT", 130)] {
         // Signalled while reading (staging exists from the start) and again later.
         for delay_ms in [0u64, 300] {
-            let mut child = spawn_run(p, "p.toml");
-            if !wait_for_staging(p, &mut child) {
+            let Some(out) = run_signalled(p, sig, Duration::from_millis(delay_ms)) else {
                 continue;
-            }
-            std::thread::sleep(Duration::from_millis(delay_ms));
-            signal(&child, sig);
-            let out = child.wait_with_output().unwrap();
+            };
             let stderr = String::from_utf8_lossy(&out.stderr);
             // It may have finished first on a fast machine; then it is a normal success.
             let status = out.status.code();
@@ -349,12 +357,7 @@ fn killed_swap_left_no_output_directory() {
     common::run_p_toml(p).ok();
     let run_ms = t.elapsed().as_millis() as u64;
     for step in 0..8 {
-        let mut child = spawn_run(p, "p.toml");
-        if wait_for_staging(p, &mut child) {
-            std::thread::sleep(Duration::from_millis(run_ms * step / 8));
-            signal(&child, "KILL");
-        }
-        let _ = child.wait();
+        run_signalled(p, "KILL", Duration::from_millis(run_ms * step / 8));
         assert_complete_output(&p.join("out"), &format!("killed at step {step}"));
     }
     let r = common::run_p_toml(p);

@@ -687,20 +687,7 @@ fn one_line(s: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn quad() -> TriMesh {
-        TriMesh {
-            positions: vec![
-                Vec3::new(0.0, 0.0, 1.0),
-                Vec3::new(2.0, 0.0, 1.5),
-                Vec3::new(2.0, 3.0, 1.0),
-                Vec3::new(0.0, 3.0, 0.5),
-            ],
-            indices: vec![[0, 1, 2], [0, 2, 3]],
-            normals: Some(vec![Vec3::Z; 4]),
-            ..Default::default()
-        }
-    }
+    use crate::testing::quad;
 
     #[test]
     fn the_tile_writer_reads_back_exactly() {

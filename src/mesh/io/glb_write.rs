@@ -135,18 +135,7 @@ mod tests {
 
     #[test]
     fn a_quad_reads_back_through_the_gltf_crate() {
-        let mesh = TriMesh {
-            positions: vec![
-                Vec3::new(0.0, 0.0, 1.0),
-                Vec3::new(2.0, 0.0, 1.0),
-                Vec3::new(2.0, 3.0, 2.0),
-                Vec3::new(0.0, 3.0, 1.5),
-            ],
-            indices: vec![[0, 1, 2], [0, 2, 3]],
-            normals: Some(vec![Vec3::Z; 4]),
-            colors: None,
-            uvs: None,
-        };
+        let mesh = crate::testing::quad();
         let bytes = glb_bytes(&mesh, "tile_000_000", 1.0).unwrap();
         assert_eq!(bytes.len() % 4, 0);
         let g = gltf::Gltf::from_slice(&bytes).unwrap();
@@ -155,7 +144,8 @@ mod tests {
         let p = m.primitives().next().unwrap();
         let reader = p.reader(|_| Some(blob));
         let pos: Vec<[f32; 3]> = reader.read_positions().unwrap().collect();
-        assert_eq!(pos[2], [2.0, 2.0, -3.0]);
+        assert_eq!(pos[1], [2.0, 1.5, 0.0]);
+        assert_eq!(pos[2], [2.0, 1.0, -3.0]);
         let nor: Vec<[f32; 3]> = reader.read_normals().unwrap().collect();
         assert_eq!(nor[0], [0.0, 1.0, 0.0]);
         let idx: Vec<u32> = reader.read_indices().unwrap().into_u32().collect();
