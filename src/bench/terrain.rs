@@ -346,6 +346,59 @@ fn grid_run(path: &Path) -> Result<GridRun> {
     })
 }
 
+/// The Delaunay side's medians over `repeats` runs of each method.
+struct DelaunayRuns {
+    prepare_s: f64,
+    bulk_s: f64,
+    incremental_s: f64,
+    /// CPU seconds, bulk then incremental.
+    cpu_s: [f64; 2],
+    vertices: usize,
+    triangles: usize,
+    merged: usize,
+    peak: Option<u64>,
+}
+
+/// Triangulates the grid run's kept (denoised) points with both of spade's methods,
+/// `repeats` times each, with the peak memory of this side alone.
+fn delaunay_runs(last: &GridRun, repeats: usize) -> Result<DelaunayRuns> {
+    reset_peak_rss();
+    let t = Instant::now();
+    let tin_points = delaunay::prepare(
+        &last.cloud.x,
+        &last.cloud.y,
+        &last.cloud.z,
+        Some(&last.keep),
+    )?;
+    let prepare_s = t.elapsed().as_secs_f64();
+    let (mut bulk, mut incr) = (Vec::new(), Vec::new());
+    let (mut bulk_cpu, mut incr_cpu) = (Vec::new(), Vec::new());
+    let (mut vertices, mut triangles) = (0, 0);
+    for _ in 0..repeats {
+        for (method, out, out_cpu) in [
+            (TinMethod::Bulk, &mut bulk, &mut bulk_cpu),
+            (TinMethod::Incremental, &mut incr, &mut incr_cpu),
+        ] {
+            let (c, t) = (cpu_now(), Instant::now());
+            let tin = delaunay::triangulate(&tin_points, method)?;
+            out.push(t.elapsed().as_secs_f64());
+            out_cpu.push(cpu_since(c)[0]);
+            vertices = tin.vertices();
+            triangles = tin.triangles();
+        }
+    }
+    Ok(DelaunayRuns {
+        prepare_s,
+        bulk_s: median(bulk),
+        incremental_s: median(incr),
+        cpu_s: [median(bulk_cpu), median(incr_cpu)],
+        vertices,
+        triangles,
+        merged: tin_points.merged,
+        peak: peak_rss(),
+    })
+}
+
 /// Runs the benchmark on `path`, `repeats` times each (medians reported).
 pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
     let repeats = repeats.max(1);
@@ -416,40 +469,15 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
         .map(u64::from);
     let kept = last.keep.iter().filter(|&&k| k).count() as u64;
 
-    // The Delaunay side, on the same denoised points.
-    reset_peak_rss();
-    let t = Instant::now();
-    let tin_points = delaunay::prepare(
-        &last.cloud.x,
-        &last.cloud.y,
-        &last.cloud.z,
-        Some(&last.keep),
-    )?;
-    let tin_prepare_s = t.elapsed().as_secs_f64();
-    let (mut bulk, mut incr) = (Vec::new(), Vec::new());
-    let (mut bulk_cpu, mut incr_cpu) = (Vec::new(), Vec::new());
-    let (mut vertices, mut triangles) = (0, 0);
-    for _ in 0..repeats {
-        for (method, out, out_cpu) in [
-            (TinMethod::Bulk, &mut bulk, &mut bulk_cpu),
-            (TinMethod::Incremental, &mut incr, &mut incr_cpu),
-        ] {
-            let (c, t) = (cpu_now(), Instant::now());
-            let tin = delaunay::triangulate(&tin_points, method)?;
-            out.push(t.elapsed().as_secs_f64());
-            out_cpu.push(cpu_since(c)[0]);
-            vertices = tin.vertices();
-            triangles = tin.triangles();
-        }
-    }
-    let delaunay_peak = peak_rss();
-    let (b, i) = (median(bulk), median(incr));
+    let tin = delaunay_runs(&last, repeats)?;
+    let delaunay_peak = tin.peak;
+    let (b, i) = (tin.bulk_s, tin.incremental_s);
     let (delaunay_s, method) = if i <= b {
         (i, "incremental")
     } else {
         (b, "bulk")
     };
-    let delaunay_cpu_s = [median(bulk_cpu), median(incr_cpu)];
+    let delaunay_cpu_s = tin.cpu_s;
     let mb = |v: u64| v as f64 / 1e6;
     let record_bytes = record_length.map_or(0, |l| l * points);
     Ok(TerrainBench {
@@ -463,15 +491,15 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
         resample_s: col(2),
         fill_s: col(3),
         stages_s,
-        tin_prepare_s,
+        tin_prepare_s: tin.prepare_s,
         delaunay_bulk_s: b,
         delaunay_incremental_s: i,
         delaunay_s,
         delaunay_method: method.into(),
         stages_ratio: delaunay_s / stages_s,
-        tin_vertices: vertices,
-        tin_triangles: triangles,
-        tin_merged: tin_points.merged,
+        tin_vertices: tin.vertices,
+        tin_triangles: tin.triangles,
+        tin_merged: tin.merged,
         grid_peak_mb: grid_peak.map(mb),
         grid_peak_per_record_bytes: grid_peak
             .filter(|_| record_bytes > 0)
