@@ -374,7 +374,7 @@ pub fn classify(
     params: &GroundParams,
     metres_per_unit: f64,
 ) -> Result<Ground> {
-    let run = || classify_here(x, y, z, keep, params, metres_per_unit);
+    let run = || classify_here([x, y, z], keep, params, metres_per_unit);
     match sequential_pool() {
         Some(pool) if x.len() < SEQUENTIAL_POINTS && rayon::current_num_threads() > 1 => {
             pool.install(run)
@@ -385,9 +385,7 @@ pub fn classify(
 
 /// [`classify`] on the current thread pool.
 fn classify_here(
-    x: &[f64],
-    y: &[f64],
-    z: &[f64],
+    [x, y, z]: [&[f64]; 3],
     keep: Option<&[bool]>,
     params: &GroundParams,
     metres_per_unit: f64,
@@ -1248,7 +1246,7 @@ mod tests {
             .num_threads(2)
             .build()
             .unwrap()
-            .install(|| classify_here(&x, &y, &z, None, &p, 1.0).unwrap().ground);
+            .install(|| classify_here([&x, &y, &z], None, &p, 1.0).unwrap().ground);
         assert_eq!(
             classify(&x, &y, &z, None, &p, 1.0).unwrap().ground,
             parallel
