@@ -93,7 +93,10 @@ const CSF_CHEAP: [&str; 1] = ["samp21"];
 
 /// The pip package `cloth-simulation-filter` (Zhang et al. 2016) with its defaults on one
 /// sample: its ground flags and the seconds of its `setPointCloud` + `do_filtering`
-/// (measured inside Python: the interpreter's start and the file transfer are not counted).
+/// (measured inside Python: the interpreter's start and the file transfer are not counted,
+/// as ours excludes reading the file). The best of up to five runs, as ours is the best of
+/// five: runs stop once they have taken 2 s in all, so a sample CSF takes seconds on runs
+/// once (its first run's extra costs are then a small share of its time).
 fn csf(py: &Path, c: &PointCloud) -> (Vec<bool>, f64) {
     let dir = tempfile::tempdir().unwrap();
     let mut xyz = Vec::with_capacity(c.len() * 24);
@@ -132,12 +135,17 @@ import sys, time
 import numpy as np
 import CSF
 xyz = np.fromfile(sys.argv[1], dtype="<f8").reshape(-1, 3)
-t = time.perf_counter()
-csf = CSF.CSF()
-csf.setPointCloud(xyz)
-ground, other = CSF.VecInt(), CSF.VecInt()
-csf.do_filtering(ground, other, False)
-secs = time.perf_counter() - t
+secs, spent = float("inf"), 0.0
+for _ in range(5):
+    t = time.perf_counter()
+    csf = CSF.CSF()
+    csf.setPointCloud(xyz)
+    ground, other = CSF.VecInt(), CSF.VecInt()
+    csf.do_filtering(ground, other, False)
+    run = time.perf_counter() - t
+    secs, spent = min(secs, run), spent + run
+    if spent > 2.0:
+        break
 flags = np.zeros(len(xyz), dtype=np.uint8)
 flags[np.array(list(ground), dtype=np.int64)] = 1
 flags.tofile(sys.argv[2])

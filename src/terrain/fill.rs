@@ -163,7 +163,15 @@ pub fn fill(hf: &mut Heightfield, params: &FillParams) -> Result<FillReport> {
         })
         .collect();
     let [dx, dy] = hf.cell_size;
-    let (measured, interpolated, missing) = hf
+    let membrane = params.fallback == Fallback::Membrane;
+    let none = BandFill {
+        measured: 0,
+        interpolated: 0,
+        missing: 0,
+        lo: f32::INFINITY,
+        hi: f32::NEG_INFINITY,
+    };
+    let done = hf
         .heights
         .axis_chunks_iter_mut(Axis(0), band_rows)
         .into_par_iter()
@@ -172,20 +180,37 @@ pub fn fill(hf: &mut Heightfield, params: &FillParams) -> Result<FillReport> {
         .enumerate()
         .map(|(band, ((mut h, mut s), halo))| {
             let (Some(h), Some(s)) = (h.as_slice_mut(), s.as_slice_mut()) else {
-                return (0, 0, 0);
+                return none;
             };
-            fill_band(h, s, band * band_rows, cols, r, [dx, dy], halo)
+            let at = Band {
+                j0: band * band_rows,
+                cols,
+                r,
+                cell: [dx, dy],
+                membrane,
+            };
+            fill_band(h, s, &at, halo)
         })
-        .reduce(|| (0, 0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
+        .reduce(
+            || none,
+            |a, b| BandFill {
+                measured: a.measured + b.measured,
+                interpolated: a.interpolated + b.interpolated,
+                missing: a.missing + b.missing,
+                lo: a.lo.min(b.lo),
+                hi: a.hi.max(b.hi),
+            },
+        );
     drop(halos);
     let mut report = FillReport {
-        measured,
-        interpolated,
+        measured: done.measured,
+        interpolated: done.interpolated,
         fallback: 0,
-        empty: missing,
+        empty: done.missing,
     };
-    if params.fallback == Fallback::Membrane {
-        super::largevoid::membrane_large_voids(hf, r, &mut report);
+    let missing = done.missing;
+    if membrane {
+        super::largevoid::membrane_large_voids(hf, [done.lo, done.hi], &mut report);
     } else if missing > 0 {
         match params.fallback {
             Fallback::Membrane => {}
@@ -214,18 +239,47 @@ pub fn fill(hf: &mut Heightfield, params: &FillParams) -> Result<FillReport> {
 /// Rows copied from beyond a band's edge: (first row, heights, states), whole rows.
 type Halo = (usize, Vec<f32>, Vec<CellState>);
 
-/// Interpolates the empty cells of one band (rows from `j0`; `h`, `s` its cells) from the
-/// measured cells within `r` cells, reading beyond the band from `halo` (below, above).
-/// Returns (measured, interpolated, left without a neighbour).
-fn fill_band(
-    h: &mut [f32],
-    s: &mut [CellState],
+/// Where a band lies and how it is filled.
+struct Band {
+    /// First row.
     j0: usize,
     cols: usize,
+    /// Radius in cells.
     r: usize,
-    [dx, dy]: [f64; 2],
-    halo: &[Halo; 2],
-) -> (usize, usize, usize) {
+    /// Cell size (x, y).
+    cell: [f64; 2],
+    /// `fallback = "membrane"`: only the cells with a measured cell on all four sides are
+    /// interpolated; every other empty cell is left to the membrane (see `largevoid`).
+    membrane: bool,
+}
+
+/// What [`fill_band`] did.
+#[derive(Debug, Clone, Copy)]
+struct BandFill {
+    measured: usize,
+    interpolated: usize,
+    /// Empty cells left (with `membrane`: every one the membrane solves for).
+    missing: usize,
+    /// With `membrane`, the range of the finite heights left (the tolerance of its solve).
+    lo: f32,
+    hi: f32,
+}
+
+/// Interpolates the empty cells of one band (rows from `at.j0`; `h`, `s` its cells) from the
+/// measured cells within `at.r` cells, reading beyond the band from `halo` (below, above).
+/// With `at.membrane` a cell is interpolated only with both of Kim & Shin's pairs complete;
+/// the others become NaN, their state [`CellState::Fallback`] (what the membrane makes of
+/// them), counted as missing: flagging them here spares a second pass that looked along every
+/// interpolated cell's row and column again.
+fn fill_band(h: &mut [f32], s: &mut [CellState], at: &Band, halo: &[Halo; 2]) -> BandFill {
+    let Band {
+        j0,
+        cols,
+        r,
+        cell: [dx, dy],
+        membrane,
+    } = *at;
+    let (mut zlo, mut zhi) = (f32::INFINITY, f32::NEG_INFINITY);
     let j1 = j0 + h.len() / cols;
     let below = &halo[0];
     let above = &halo[1];
@@ -325,10 +379,18 @@ fn fill_band(
                     measured += 1;
                     last[i] = j as u32;
                     left_at = i;
+                    if membrane && h[row + i].is_finite() {
+                        (zlo, zhi) = (zlo.min(h[row + i]), zhi.max(h[row + i]));
+                    }
                     continue;
                 }
                 CellState::Empty => {}
-                _ => continue,
+                _ => {
+                    if membrane && h[row + i].is_finite() {
+                        (zlo, zhi) = (zlo.min(h[row + i]), zhi.max(h[row + i]));
+                    }
+                    continue;
+                }
             }
             let l = if left_at != usize::MAX && i - left_at <= r {
                 i - left_at
@@ -348,6 +410,12 @@ fn fill_band(
             };
             up_row[i] = j as u32 + 1;
             up_d[i] = u as u16;
+            if membrane && (l == 0 || rt == 0 || d == 0 || u == 0) {
+                h[row + i] = f32::NAN;
+                s[row + i] = CellState::Fallback;
+                missing += 1;
+                continue;
+            }
             let n = Neighbours {
                 left: (l > 0).then(|| (l as f64 * dx, h[row + i - l] as f64)),
                 right: (rt > 0).then(|| (rt as f64 * dx, h[row + i + rt] as f64)),
@@ -359,12 +427,21 @@ fn fill_band(
                     h[row + i] = v as f32;
                     s[row + i] = CellState::Interpolated;
                     done += 1;
+                    if membrane && h[row + i].is_finite() {
+                        (zlo, zhi) = (zlo.min(h[row + i]), zhi.max(h[row + i]));
+                    }
                 }
                 None => missing += 1,
             }
         }
     }
-    (measured, done, missing)
+    BandFill {
+        measured,
+        interpolated: done,
+        missing,
+        lo: zlo,
+        hi: zhi,
+    }
 }
 
 /// The measured neighbours of an empty cell: (distance in world units, height).
