@@ -265,6 +265,73 @@ struct BandFill {
     hi: f32,
 }
 
+/// The rows a band may read: its own (`j0..j1`, in the band's slices) and its halos' (the
+/// rows below from `below.0`, the rows above from `above.0`), by grid row.
+struct BandRows<'a> {
+    j0: usize,
+    j1: usize,
+    cols: usize,
+    below: &'a Halo,
+    above: &'a Halo,
+}
+
+impl BandRows<'_> {
+    /// Where row `j` (own or halo) lies in its slice.
+    #[inline]
+    fn row(&self, j: usize) -> std::ops::Range<usize> {
+        let k = if j >= self.j1 {
+            (j - self.above.0) * self.cols
+        } else if j >= self.j0 {
+            (j - self.j0) * self.cols
+        } else {
+            (j - self.below.0) * self.cols
+        };
+        k..k + self.cols
+    }
+
+    /// The height at (j, i): the band's own `h` or a halo's.
+    #[inline]
+    fn height(&self, h: &[f32], j: usize, i: usize) -> f32 {
+        let k = self.row(j).start + i;
+        if j >= self.j1 {
+            self.above.1[k]
+        } else if j >= self.j0 {
+            h[k]
+        } else {
+            self.below.1[k]
+        }
+    }
+
+    /// One past the last row readable above.
+    #[inline]
+    fn hi(&self) -> usize {
+        self.above.0 + self.above.1.len() / self.cols
+    }
+
+    /// Whether (j, i), at or above the band's first row, is measured (false past the halo).
+    #[inline]
+    fn measured_at(&self, s: &[CellState], j: usize, i: usize) -> bool {
+        j < self.hi()
+            && (if j >= self.j1 {
+                self.above.2[(j - self.above.0) * self.cols + i]
+            } else {
+                s[(j - self.j0) * self.cols + i]
+            }) == CellState::Measured
+    }
+
+    /// Distance to the nearest measured cell above (j, i) within `r` rows (0: none), looked
+    /// up when a hole needs it (the scan stops at the first measured cell), instead of a
+    /// top-down sweep that wrote a distance for every cell of the band. Rows above j are
+    /// visited later, so their states are still the measured ones.
+    #[inline]
+    fn up_gap(&self, s: &[CellState], j: usize, i: usize, r: usize) -> usize {
+        (1..=r)
+            .take_while(|d| j + d < self.hi())
+            .find(|&d| self.measured_at(s, j + d, i))
+            .unwrap_or(0)
+    }
+}
+
 /// Interpolates the empty cells of one band (rows from `at.j0`; `h`, `s` its cells) from the
 /// measured cells within `at.r` cells, reading beyond the band from `halo` (below, above).
 /// With `at.membrane` a cell is interpolated only with both of Kim & Shin's pairs complete;
@@ -280,56 +347,15 @@ fn fill_band(h: &mut [f32], s: &mut [CellState], at: &Band, halo: &[Halo; 2]) ->
         membrane,
     } = *at;
     let (mut zlo, mut zhi) = (f32::INFINITY, f32::NEG_INFINITY);
-    let j1 = j0 + h.len() / cols;
-    let below = &halo[0];
-    let above = &halo[1];
-    let lo = below.0;
-    let hi = above.0 + above.1.len() / cols;
-    // Height and state of any row the band may read (the band's own, or a halo's).
-    let at = |h: &[f32], s: &[CellState], j: usize, i: usize| -> (f32, CellState) {
-        if j >= j1 {
-            let k = (j - above.0) * cols + i;
-            (above.1[k], above.2[k])
-        } else if j >= j0 {
-            let k = (j - j0) * cols + i;
-            (h[k], s[k])
-        } else {
-            let k = (j - below.0) * cols + i;
-            (below.1[k], below.2[k])
-        }
+    let rows = BandRows {
+        j0,
+        j1: j0 + h.len() / cols,
+        cols,
+        below: &halo[0],
+        above: &halo[1],
     };
-    // Where row `j` (own or halo) starts in its slice.
-    let state_row = |j: usize| -> std::ops::Range<usize> {
-        let k = if j >= j1 {
-            (j - above.0) * cols
-        } else if j >= j0 {
-            (j - j0) * cols
-        } else {
-            (j - below.0) * cols
-        };
-        k..k + cols
-    };
-    // Distance to the nearest measured cell above (j, i) within r rows (0: none), looked up
-    // when a hole needs it (the scan stops at the first measured cell), instead of a top-down
-    // sweep that wrote a distance for every cell of the band. Rows above j are visited
-    // later, so their states are still the measured ones.
-    let up_gap = |s: &[CellState], j: usize, i: usize| -> usize {
-        for d in 1..=r {
-            let jj = j + d;
-            if jj >= hi {
-                break;
-            }
-            let st = if jj >= j1 {
-                above.2[(jj - above.0) * cols + i]
-            } else {
-                s[(jj - j0) * cols + i]
-            };
-            if st == CellState::Measured {
-                return d;
-            }
-        }
-        0
-    };
+    let j1 = rows.j1;
+    let lo = rows.below.0;
     // The up distance each column's hole of the previous row found (`up_row[i]` = that row
     // + 1, `up_d[i]` the distance, 0 for none): the hole below it has the same nearest
     // measured cell above, one row closer (rows above are still unchanged), or when there
@@ -338,20 +364,12 @@ fn fill_band(h: &mut [f32], s: &mut [CellState], at: &Band, halo: &[Halo; 2]) ->
     // this stage's cache misses).
     let mut up_row = vec![u32::MAX; cols];
     let mut up_d = vec![0u16; cols];
-    let measured_at = |s: &[CellState], jj: usize, i: usize| -> bool {
-        jj < hi
-            && (if jj >= j1 {
-                above.2[(jj - above.0) * cols + i]
-            } else {
-                s[(jj - j0) * cols + i]
-            }) == CellState::Measured
-    };
     // Bottom-up: the nearest measured row below from a running record (`last`), the nearest
     // measured cell to the right from a backward scan of the row, to the left from a running
     // record along the row; then Kim & Shin's combination.
     let mut last = vec![u32::MAX; cols];
     for j in lo..j0 {
-        for (l, st) in last.iter_mut().zip(&below.2[state_row(j)]) {
+        for (l, st) in last.iter_mut().zip(&rows.below.2[rows.row(j)]) {
             if *st == CellState::Measured {
                 *l = j as u32;
             }
@@ -401,12 +419,12 @@ fn fill_band(h: &mut [f32], s: &mut [CellState], at: &Band, halo: &[Halo; 2]) ->
             let d = (j as u32).wrapping_sub(last[i]) as usize;
             let d = if last[i] != u32::MAX && d <= r { d } else { 0 };
             let u = match up_d[i] {
-                _ if up_row[i] != j as u32 => up_gap(s, j, i),
-                0 if r > 0 && measured_at(s, j + r, i) => r,
+                _ if up_row[i] != j as u32 => rows.up_gap(s, j, i, r),
+                0 if r > 0 && rows.measured_at(s, j + r, i) => r,
                 0 => 0,
                 d if d >= 2 => d as usize - 1,
                 // (The hole's cell was measured: cannot be; scan as without a record.)
-                _ => up_gap(s, j, i),
+                _ => rows.up_gap(s, j, i, r),
             };
             up_row[i] = j as u32 + 1;
             up_d[i] = u as u16;
@@ -419,8 +437,8 @@ fn fill_band(h: &mut [f32], s: &mut [CellState], at: &Band, halo: &[Halo; 2]) ->
             let n = Neighbours {
                 left: (l > 0).then(|| (l as f64 * dx, h[row + i - l] as f64)),
                 right: (rt > 0).then(|| (rt as f64 * dx, h[row + i + rt] as f64)),
-                down: (d > 0).then(|| (d as f64 * dy, at(h, s, j - d, i).0 as f64)),
-                up: (u > 0).then(|| (u as f64 * dy, at(h, s, j + u, i).0 as f64)),
+                down: (d > 0).then(|| (d as f64 * dy, rows.height(h, j - d, i) as f64)),
+                up: (u > 0).then(|| (u as f64 * dy, rows.height(h, j + u, i) as f64)),
             };
             match n.interpolate() {
                 Some(v) => {

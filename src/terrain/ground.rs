@@ -51,6 +51,7 @@ use super::ground_plane as plane;
 use super::ground_refine as refine;
 use super::voidfill;
 use crate::error::{Error, Result};
+use crate::points::Bounds;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -400,51 +401,19 @@ fn classify_here(
             "no points to classify",
         ));
     }
-    let mpu = if metres_per_unit > 0.0 && metres_per_unit.is_finite() {
-        metres_per_unit
-    } else {
-        1.0
-    };
-    let area_m2 = ((b.max[0] - b.min[0]) * (b.max[1] - b.min[1])).max(0.0) * mpu * mpu;
-    let spacing_m = (area_m2 / n as f64).sqrt();
-    let cell_m = params
-        .cell_size
-        .unwrap_or((spacing_m / 4.0).max(DEFAULT_CELL));
-    let cell = cell_m / mpu;
-    let cols = (((b.max[0] - b.min[0]) / cell).floor() as usize).saturating_add(1);
-    let rows = (((b.max[1] - b.min[1]) / cell).floor() as usize).saturating_add(1);
-    if cols.saturating_mul(rows) > MAX_CELLS {
-        return Err(Error::param(
-            "ground",
-            "cell_size",
-            cell_m,
-            format!("makes a grid of {cols} × {rows} cells for this survey, more than {MAX_CELLS}"),
-        ));
-    }
-    let grid = Grid {
-        cols,
-        rows,
-        origin: [b.min[0], b.min[1]],
-        cell,
-    };
+    let Scale {
+        grid,
+        mpu,
+        spacing_m,
+        cell_m,
+    } = Scale::of(&b, n, params.cell_size, metres_per_unit)?;
+    let (cols, rows, cell) = (grid.cols, grid.rows, grid.cell);
     let zref = b.min[2];
     // 1. Minimum surface, heights in metres above zref.
     let zmin = min_surface(x, y, z, keep, &grid, zref, mpu);
     let empty: Vec<bool> = zmin.par_iter().map(|v| v.is_nan()).collect();
-    // 2. Low outliers: a cell far below the closing of its measured 3 × 3 neighbourhood (an
-    // empty cell is the identity of each pass, see `progressive_object_mask`).
-    let neg: Vec<f32> = zmin
-        .par_iter()
-        .map(|v| if v.is_nan() { f32::INFINITY } else { -v })
-        .collect();
-    let closed = open(&neg, cols, rows, 1);
-    let low_limit = (5.0 * cell_m) as f32;
-    let low: Vec<bool> = neg
-        .par_iter()
-        .zip(&closed)
-        .map(|(n, o)| n - o > low_limit)
-        .collect();
-    drop((neg, closed));
+    // 2. Low outliers.
+    let low = low_outliers(&zmin, cols, rows, cell_m);
     // The measured cells that are not low; every other cell unknown (+∞, the erosion's
     // identity): not inpainted, see `progressive_object_mask`.
     let mut base: Vec<f32> = zmin
@@ -479,78 +448,27 @@ fn classify_here(
     }
     // Crests, rims and embankments the openings cut are ground again where ground holds them
     // up on two opposite sides: see `ground_refine`.
-    let live: Vec<bool> = empty.par_iter().zip(&low).map(|(e, l)| !e && !l).collect();
-    let support = refine::Support {
-        radius: params
-            .support_radius
-            .unwrap_or(refine::DEFAULT_SUPPORT_RADIUS),
-        tolerance: params
-            .support_tolerance
-            .unwrap_or(refine::DEFAULT_SUPPORT_TOLERANCE),
-        slope: params
-            .support_slope
-            .unwrap_or(refine::DEFAULT_SUPPORT_SLOPE),
-    };
-    if support.radius > 0.0 {
-        let radius_m = support.radius * spacing_m.max(cell_m);
-        let in_metres = refine::Support {
-            radius: radius_m,
-            ..support
-        };
-        refine::readmit_supported(&mut object, &live, &zmin, cols, rows, cell_m, in_metres);
-    }
-    drop(live);
+    let support = readmit_crests(
+        params,
+        &mut object,
+        [&empty, &low],
+        &zmin,
+        [cols, rows],
+        [spacing_m, cell_m],
+    );
     // 4. Provisional DEM.
-    let mut dem: Vec<f32> = (0..zmin.len())
-        .into_par_iter()
-        .map(|k| {
-            if empty[k] || low[k] || object[k] {
-                f32::NAN
-            } else {
-                zmin[k]
-            }
-        })
-        .collect();
-    if dem.iter().all(|v| v.is_nan()) {
-        return Err(Error::param(
-            "ground",
-            "enabled",
-            "true",
-            "no ground found: every cell of the minimum surface is an object or an outlier",
-        ));
-    }
-    inpaint(&mut dem, cols, rows);
-    let grad = slope_map(&dem, cols, rows, cell_m);
-    // Height and slope side by side: the per-point test reads both at the same four cells.
-    let surf: Vec<[f32; 2]> = dem.par_iter().zip(&grad).map(|(d, g)| [*d, *g]).collect();
-    drop((dem, grad));
+    let surf = provisional_dem(&zmin, [&empty, &low, &object], [cols, rows], cell_m)?;
     // 5. Final test per point.
     let threshold = params.threshold.unwrap_or(DEFAULT_THRESHOLD);
     let scalar = params.scalar.unwrap_or(DEFAULT_SCALAR);
-    let mut ground = vec![false; x.len()];
-    let count: usize = ground
-        .par_chunks_mut(POINT_CHUNK)
-        .enumerate()
-        .map(|(c, out)| {
-            let s = c * POINT_CHUNK;
-            let mut count = 0;
-            for (k, g) in out.iter_mut().enumerate() {
-                let p = s + k;
-                if keep.is_some_and(|kp| !kp[p]) {
-                    continue;
-                }
-                let (fi, fj) = grid.at(x[p], y[p]);
-                let [d, s] = bilinear2(&surf, cols, rows, fi, fj);
-                let h = ((z[p] - zref) * mpu) as f32 - d;
-                let t = (threshold + scalar * s as f64) as f32;
-                if h <= t && h >= -2.0 * t {
-                    *g = true;
-                    count += 1;
-                }
-            }
-            count
-        })
-        .sum();
+    let (mut ground, count) = final_test(
+        [x, y, z],
+        keep,
+        &grid,
+        &surf,
+        [zref, mpu],
+        [threshold, scalar],
+    );
     // 6. Points above the plane of their ground neighbours: see `ground_plane`.
     let test = plane::PlaneTest {
         radius: params.plane_radius.unwrap_or(plane::DEFAULT_RADIUS),
@@ -602,6 +520,178 @@ fn classify_here(
         },
         grid: [cols, rows],
     })
+}
+
+/// The classifier's lattice and scales for one survey.
+struct Scale {
+    grid: Grid,
+    /// Metres per data unit.
+    mpu: f64,
+    /// Mean point spacing in metres (from the bounds' area and the count).
+    spacing_m: f64,
+    /// Cell size in metres.
+    cell_m: f64,
+}
+
+impl Scale {
+    /// The grid of `cell_size` metres (default: a quarter of the mean spacing, at least
+    /// [`DEFAULT_CELL`]) over bounds `b` of `n` points; an error when it would hold more
+    /// than [`MAX_CELLS`] cells.
+    fn of(b: &Bounds, n: usize, cell_size: Option<f64>, metres_per_unit: f64) -> Result<Scale> {
+        let mpu = if metres_per_unit > 0.0 && metres_per_unit.is_finite() {
+            metres_per_unit
+        } else {
+            1.0
+        };
+        let area_m2 = ((b.max[0] - b.min[0]) * (b.max[1] - b.min[1])).max(0.0) * mpu * mpu;
+        let spacing_m = (area_m2 / n as f64).sqrt();
+        let cell_m = cell_size.unwrap_or((spacing_m / 4.0).max(DEFAULT_CELL));
+        let cell = cell_m / mpu;
+        let cols = (((b.max[0] - b.min[0]) / cell).floor() as usize).saturating_add(1);
+        let rows = (((b.max[1] - b.min[1]) / cell).floor() as usize).saturating_add(1);
+        if cols.saturating_mul(rows) > MAX_CELLS {
+            return Err(Error::param(
+                "ground",
+                "cell_size",
+                cell_m,
+                format!(
+                    "makes a grid of {cols} × {rows} cells for this survey, more than {MAX_CELLS}"
+                ),
+            ));
+        }
+        let grid = Grid {
+            cols,
+            rows,
+            origin: [b.min[0], b.min[1]],
+            cell,
+        };
+        Ok(Scale {
+            grid,
+            mpu,
+            spacing_m,
+            cell_m,
+        })
+    }
+}
+
+/// The crests, rims and embankments the openings cut become ground again where ground
+/// holds them up on two opposite sides (`ground_refine`); returns the settings used (radius
+/// in spacings).
+fn readmit_crests(
+    params: &GroundParams,
+    object: &mut [bool],
+    [empty, low]: [&[bool]; 2],
+    zmin: &[f32],
+    [cols, rows]: [usize; 2],
+    [spacing_m, cell_m]: [f64; 2],
+) -> refine::Support {
+    let support = refine::Support {
+        radius: params
+            .support_radius
+            .unwrap_or(refine::DEFAULT_SUPPORT_RADIUS),
+        tolerance: params
+            .support_tolerance
+            .unwrap_or(refine::DEFAULT_SUPPORT_TOLERANCE),
+        slope: params
+            .support_slope
+            .unwrap_or(refine::DEFAULT_SUPPORT_SLOPE),
+    };
+    if support.radius > 0.0 {
+        let live: Vec<bool> = empty.par_iter().zip(low).map(|(e, l)| !e && !l).collect();
+        let radius_m = support.radius * spacing_m.max(cell_m);
+        let in_metres = refine::Support {
+            radius: radius_m,
+            ..support
+        };
+        refine::readmit_supported(object, &live, zmin, cols, rows, cell_m, in_metres);
+    }
+    support
+}
+
+/// SMRF's provisional DEM: the minimum surface without its empty, low and object cells,
+/// inpainted, with its slope beside each height (the per-point test reads both at the same
+/// four cells). An error when no cell is left.
+fn provisional_dem(
+    zmin: &[f32],
+    [empty, low, object]: [&[bool]; 3],
+    [cols, rows]: [usize; 2],
+    cell_m: f64,
+) -> Result<Vec<[f32; 2]>> {
+    let mut dem: Vec<f32> = (0..zmin.len())
+        .into_par_iter()
+        .map(|k| {
+            if empty[k] || low[k] || object[k] {
+                f32::NAN
+            } else {
+                zmin[k]
+            }
+        })
+        .collect();
+    if dem.iter().all(|v| v.is_nan()) {
+        return Err(Error::param(
+            "ground",
+            "enabled",
+            "true",
+            "no ground found: every cell of the minimum surface is an object or an outlier",
+        ));
+    }
+    inpaint(&mut dem, cols, rows);
+    let grad = slope_map(&dem, cols, rows, cell_m);
+    // Height and slope side by side: the per-point test reads both at the same four cells.
+    Ok(dem.par_iter().zip(&grad).map(|(d, g)| [*d, *g]).collect())
+}
+
+/// SMRF's low outliers: a cell far (5 cells' width) below the closing of its measured 3 × 3
+/// neighbourhood (an empty cell is the identity of each pass, see `progressive_object_mask`).
+fn low_outliers(zmin: &[f32], cols: usize, rows: usize, cell_m: f64) -> Vec<bool> {
+    let neg: Vec<f32> = zmin
+        .par_iter()
+        .map(|v| if v.is_nan() { f32::INFINITY } else { -v })
+        .collect();
+    let closed = open(&neg, cols, rows, 1);
+    let low_limit = (5.0 * cell_m) as f32;
+    neg.par_iter()
+        .zip(&closed)
+        .map(|(n, o)| n - o > low_limit)
+        .collect()
+}
+
+/// SMRF's final test per point: ground where the point lies within `threshold + scalar ×
+/// slope` above the provisional DEM (`surf`: height and slope per cell, read bilinearly)
+/// and not more than twice that below it. Returns the flags and how many are set.
+fn final_test(
+    [x, y, z]: [&[f64]; 3],
+    keep: Option<&[bool]>,
+    grid: &Grid,
+    surf: &[[f32; 2]],
+    [zref, mpu]: [f64; 2],
+    [threshold, scalar]: [f64; 2],
+) -> (Vec<bool>, usize) {
+    let mut ground = vec![false; x.len()];
+    let count: usize = ground
+        .par_chunks_mut(POINT_CHUNK)
+        .enumerate()
+        .map(|(c, out)| {
+            let s = c * POINT_CHUNK;
+            let mut count = 0;
+            for (k, g) in out.iter_mut().enumerate() {
+                let p = s + k;
+                if keep.is_some_and(|kp| !kp[p]) {
+                    continue;
+                }
+                let (fi, fj) = grid.at(x[p], y[p]);
+                let [d, s] = bilinear2(surf, grid.cols, grid.rows, fi, fj);
+                let h = ((z[p] - zref) * mpu) as f32 - d;
+                let t = (threshold + scalar * s as f64) as f32;
+                if h <= t && h >= -2.0 * t {
+                    *g = true;
+                    count += 1;
+                }
+            }
+            count
+        })
+        .sum();
+    (ground, count)
 }
 
 /// The lowest point of every cell, in metres above `zref` (NaN: no point).
