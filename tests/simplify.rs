@@ -851,7 +851,8 @@ fn qem_runs_as_an_asset_and_its_keys_are_checked() {
 /// SALIENCY_MESHES=cow,spot picks meshes and SALIENCY_KINDS=hybrid the columns;
 /// SALIENCY_AREA_NORM (γ, [`area_normalised`]) tries weights divided by vertex area^γ and
 /// SALIENCY_CACHE=DIR keeps the maps between trials ([`cached_maps`]); SALIENCY_PHASES
-/// sets the two phases' share (0: one weighted run) and SALIENCY_MERGE=mean merges the
+/// sets the two phases' share (0: one weighted run), SALIENCY_CARRY=max their weight
+/// carried from phase 1 to phase 2 ([`phases::Carry`]) and SALIENCY_MERGE=mean merges the
 /// weighted rows' quadrics by An's eq. 4.3. The last column is each simplification's seconds (weights known), for the speed
 /// ratio of weighted to plain QEM.
 #[test]
@@ -894,6 +895,12 @@ fn saliency_table() {
         Ok("mean") => terratile::simplify::QuadricMerge::Mean,
         _ => terratile::simplify::QuadricMerge::Sum,
     };
+    // SALIENCY_CARRY=max: phase 2's weight of a vertex is the largest of those merged into
+    // it in phase 1 (default: the mean).
+    let carry = match std::env::var("SALIENCY_CARRY").as_deref() {
+        Ok("max") => phases::Carry::Max,
+        _ => phases::Carry::default(),
+    };
     let only = std::env::var("SALIENCY_MESHES").ok();
     let wanted = |n: &str| {
         only.as_deref()
@@ -922,7 +929,7 @@ fn saliency_table() {
         let t = m.triangle_count() as u64;
         cases.push((name.into(), m, vec![t / 10, t / 50]));
     }
-    println!("{w:?} {rule} area_norm {area_norm} merge {merge}");
+    println!("{w:?} {rule} area_norm {area_norm} merge {merge} carry {carry:?}");
     println!("| mesh | triangles | weights | whole (%) | salient 20 % (%) | salient vs plain | whole vs plain | QEM s |");
     println!("|---|---|---|---|---|---|---|---|");
     for (name, m, targets) in cases {
@@ -966,7 +973,9 @@ fn saliency_table() {
                 // As `Weighting::simplify`: two phases for weights in the quadrics.
                 let s = match ws {
                     Some((h, sal)) if w.phases > 0.0 && rule == WeightRule::Quadric => {
-                        phases::simplify(&m, &p, h, sal, w.phases).unwrap().mesh
+                        phases::simplify_carrying(&m, &p, h, sal, w.phases, carry)
+                            .unwrap()
+                            .mesh
                     }
                     _ => qem::simplify(&m, &p).unwrap().mesh,
                 };

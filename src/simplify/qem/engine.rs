@@ -20,7 +20,10 @@ use crate::simplify::quadric::Quadric;
 use glam::{DVec3, Vec2, Vec3};
 use rayon::prelude::*;
 
+mod hold;
 mod passes;
+
+pub use hold::Held;
 
 const NONE: u32 = u32::MAX;
 

@@ -42,7 +42,7 @@ mod heap;
 mod pairs;
 pub mod tlm;
 
-pub use engine::{simplify_slow, Checks, Collapse, CollapseStep};
+pub use engine::{simplify_slow, Checks, Collapse, CollapseStep, Held};
 
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
