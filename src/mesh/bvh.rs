@@ -33,6 +33,11 @@ struct Node {
     index: u32,
     /// Leaf: number of triangles (> 0); inner: 0.
     count: u32,
+    /// Normal cone of the triangles below (axis x, y, z and a threshold t): every nonzero
+    /// normal of a triangle below is within π/2 of any unit direction n̂ with n̂ · axis > t
+    /// (see [`Bvh::never_faces_away`]). A threshold above 1 certifies nothing; below −1
+    /// (no triangle below has a nonzero normal) everything.
+    cone: [f32; 4],
 }
 
 /// One triangle in build order: a corner and two edge vectors, and its index in the mesh.
@@ -129,6 +134,7 @@ impl Bvh {
         let mut nodes = Vec::with_capacity(2 * tris.len() / LEAF_MAX + 1);
         if !tris.is_empty() {
             build(&mut nodes, &mut tris, &mut boxes, 0);
+            build_cones(&mut nodes, &tris);
         }
         let magnitude = mesh
             .positions
@@ -166,6 +172,71 @@ impl Bvh {
         };
         self.closest(p, None, bound)
             .or_else(|| self.closest(p, None, f64::INFINITY))
+    }
+
+    /// Whether the triangle [`Bvh::closest_bounded_by`]`(p, hint)` finds is sure not to face
+    /// away from `n`: true only when every triangle that could be that hit has
+    /// `n.dot(self.normal(slot)) >= 0` (computed as written), found without searching for
+    /// the hit. False means "not shown", not "faces away": the caller then searches.
+    ///
+    /// Why it is exact: the hit lies no farther from `p` than the hint triangle, so it is in
+    /// a node whose padded box is within that distance (the search's own pruning, with the
+    /// same padding). Such a node is skipped when its normal cone shows that every normal
+    /// below it is less than π/2 − 10⁻⁵ from `n` (margins far above the rounding of the
+    /// cone, of n̂ and of the dot product: see `build_cones`); in a leaf, a triangle facing
+    /// away is ruled out only by a distance (the search's conservative sphere bound, or its
+    /// exact distance) above the hint's. The fold-over check of the quadric simplifier asks
+    /// this first: on a smooth patch the cones decide a few levels above the leaves, with no
+    /// point-to-triangle distance computed.
+    pub fn never_faces_away(&self, p: DVec3, n: DVec3, hint: u32) -> bool {
+        let (Some(t), Some(nh)) = (self.tris.get(hint as usize), direction(n)) else {
+            return false;
+        };
+        let bound = closest_on_tri(t, p).1 * (1.0 + 1e-6) + f64::MIN_POSITIVE;
+        let fbound = loosen(bound);
+        let pf = p.as_vec3a();
+        let scale = self.magnitude as f64 + p.abs().max_element();
+        let pad =
+            4.0 * f32::EPSILON * self.magnitude.max(pf.abs().max_element()) + f32::MIN_POSITIVE;
+        let mut stack = [0u32; 64];
+        let mut sp = 1usize;
+        while sp > 0 {
+            sp -= 1;
+            let ni = stack[sp];
+            let node = &self.nodes[ni as usize];
+            if box_dist2(node, pf, pad) > fbound {
+                continue;
+            }
+            let [x, y, z, t] = node.cone;
+            if nh.dot(DVec3::new(x as f64, y as f64, z as f64)) > t as f64 {
+                continue;
+            }
+            if node.count == 0 {
+                if sp + 2 > stack.len() {
+                    // Deeper than the fixed stack: not shown (the caller searches).
+                    return false;
+                }
+                stack[sp] = node.index;
+                stack[sp + 1] = ni + 1;
+                sp += 2;
+                continue;
+            }
+            for s in node.index..node.index + node.count {
+                let t = &self.tris[s as usize];
+                if n.dot(t.ab.cross(t.ac)) >= 0.0 {
+                    continue;
+                }
+                let len = (p - t.centre).length();
+                let gap = len - t.radius - 1e-12 * (len + t.radius + scale);
+                if gap > 0.0 && gap * gap > bound * (1.0 + 1e-9) {
+                    continue;
+                }
+                if closest_on_tri(t, p).1 <= bound {
+                    return false;
+                }
+            }
+        }
+        true
     }
 
     /// The (unnormalised) normal (b − a) × (c − a) of the triangle in build slot `slot`, from
@@ -349,6 +420,7 @@ fn build(
         max: bb.max.as_vec3a(),
         index: first,
         count: tris.len() as u32,
+        cone: [0.0, 0.0, 0.0, 2.0],
     });
     if tris.len() <= LEAF_MAX {
         return me;
@@ -422,6 +494,66 @@ fn build(
     n.index = right;
     n.count = 0;
     me
+}
+
+/// The unit direction of `v`, scaled first so that a tiny nonzero vector has one too; None
+/// for zero.
+fn direction(v: DVec3) -> Option<DVec3> {
+    let m = v.abs().max_element();
+    (m > 0.0 && m.is_finite()).then(|| (v / m).normalize())
+}
+
+/// The angle between unit vectors (atan2: accurate near 0 and π, where acos is not).
+fn angle(u: DVec3, d: DVec3) -> f64 {
+    u.cross(d).length().atan2(u.dot(d))
+}
+
+/// Fills every node's normal cone (children follow their parents in `nodes`, so a reverse
+/// sweep meets them first): a leaf's axis is the normalised sum of its triangles' unit
+/// normals and its half-angle the largest angle to one of them; an inner node's axis is the
+/// normalised sum of its children's axes and its half-angle covers theirs (the angle
+/// between axes plus the child's half-angle). Stored as [`Node::cone`]: the axis in f32 and
+/// the threshold sin(θ + 10⁻⁵) + 2·10⁻⁶, so that n̂ · axis above it puts n̂ within
+/// π/2 − θ − 10⁻⁵ of the f64 axis (the f32 axis is within 1.1·10⁻⁷ of it, the half-angles
+/// within 10⁻¹⁴ of the exact ones), hence within π/2 − 10⁻⁵ of every normal below.
+fn build_cones(nodes: &mut [Node], tris: &[Tri]) {
+    // Per node: (unit axis, half-angle); None when no triangle below has a normal.
+    let mut cones: Vec<Option<(DVec3, f64)>> = vec![None; nodes.len()];
+    let wide = (DVec3::Z, std::f64::consts::PI);
+    for i in (0..nodes.len()).rev() {
+        let node = nodes[i];
+        let cone = if node.count > 0 {
+            let ts = &tris[node.index as usize..(node.index + node.count) as usize];
+            let dirs = || ts.iter().filter_map(|t| direction(t.ab.cross(t.ac)));
+            if dirs().next().is_none() {
+                None
+            } else {
+                Some(match dirs().sum::<DVec3>().try_normalize() {
+                    Some(u) => (u, dirs().map(|d| angle(u, d)).fold(0.0, f64::max)),
+                    None => wide,
+                })
+            }
+        } else {
+            match (cones[i + 1], cones[node.index as usize]) {
+                (None, c) | (c, None) => c,
+                (Some((ua, ta)), Some((ub, tb))) => Some(match (ua + ub).try_normalize() {
+                    Some(u) => (u, (angle(u, ua) + ta).max(angle(u, ub) + tb)),
+                    None => wide,
+                }),
+            }
+        };
+        cones[i] = cone;
+        nodes[i].cone = match cone {
+            None => [0.0, 0.0, 0.0, -2.0],
+            Some((u, t)) if t + 1e-5 < std::f64::consts::FRAC_PI_2 => [
+                u.x as f32,
+                u.y as f32,
+                u.z as f32,
+                ((t + 1e-5).sin() + 2e-6) as f32,
+            ],
+            Some(_) => [0.0, 0.0, 0.0, 2.0],
+        };
+    }
 }
 
 /// Squared distance from `p` to box `n` grown by `pad` on every side.
@@ -617,6 +749,70 @@ mod tests {
             let hint = slots[(rng.unit() * m.indices.len() as f64) as usize % slots.len()];
             assert_eq!(bvh.closest_bounded_by(p, hint), Some(want));
             assert_eq!(bvh.closest_bounded_by(p, want.slot), Some(want));
+        }
+    }
+
+    /// A UV sphere of radius 3 around (5, 5, 5), outward faces: smooth, so the cones decide.
+    fn sphere(rings: u32, segs: u32) -> TriMesh {
+        let mut m = TriMesh::default();
+        for i in 0..=rings {
+            let th = std::f32::consts::PI * i as f32 / rings as f32;
+            for j in 0..segs {
+                let ph = std::f32::consts::TAU * j as f32 / segs as f32;
+                let d = Vec3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos());
+                m.positions.push(Vec3::splat(5.0) + d * 3.0);
+            }
+        }
+        for i in 0..rings {
+            for j in 0..segs {
+                let (a, b) = (i * segs + j, i * segs + (j + 1) % segs);
+                let (c, d) = (a + segs, b + segs);
+                m.indices.push([a, c, b]);
+                m.indices.push([b, c, d]);
+            }
+        }
+        m
+    }
+
+    /// `never_faces_away` says true only when the hit of the hinted search (the fold-over
+    /// check's) has a normal not facing away from n: on a smooth sphere, where it decides
+    /// most queries, and on random triangle soup, where the cones are wide; with directions
+    /// near the surface's normal, opposite to it and random, and random hints.
+    #[test]
+    fn never_faces_away_only_when_the_hit_does_not() {
+        let mut rng = SplitMix64::new(5);
+        let soup = random_mesh(&mut rng, 300);
+        for (m, smooth) in [(sphere(40, 80), true), (soup, false)] {
+            let bvh = Bvh::new(&m);
+            let (mut shown, mut away) = (0, 0);
+            for q in 0..4000 {
+                let dir = (DVec3::new(rng.unit(), rng.unit(), rng.unit()) - DVec3::splat(0.5))
+                    .normalize_or(DVec3::X);
+                let p = DVec3::splat(5.0) + dir * (1.5 + 3.0 * rng.unit());
+                let out = dir;
+                let r = DVec3::new(rng.unit(), rng.unit(), rng.unit()) - DVec3::splat(0.5);
+                let n = match q % 3 {
+                    0 => out + r * 0.5,
+                    1 => -out + r * 0.5,
+                    _ => r,
+                };
+                // A good hint (the nearest) or any.
+                let hint = match q % 2 {
+                    0 => bvh.closest(p, None, f64::INFINITY).unwrap().slot,
+                    _ => (rng.unit() * bvh.len() as f64) as u32 % bvh.len() as u32,
+                };
+                let hit = bvh.closest_bounded_by(p, hint).unwrap();
+                let faces_away = n.dot(bvh.normal(hit.slot)) < 0.0;
+                away += faces_away as usize;
+                if bvh.never_faces_away(p, n, hint) {
+                    assert!(!faces_away, "query {q}: shown, but the hit faces away");
+                    shown += 1;
+                }
+            }
+            assert!(away > 500, "{away}");
+            if smooth {
+                assert!(shown > 1000, "the cones decide too little: {shown}");
+            }
         }
     }
 

@@ -628,9 +628,12 @@ impl<'m> Collapse<'m> {
     ///
     /// Speed, not semantics: the guard is walked once for the box of the whole moved fan
     /// (not once per face), each face found is tested against the moved faces whose boxes
-    /// meet its box (disjoint boxes cannot meet), and the nearest input point is searched
-    /// from the face's last nearest triangle ([`crate::mesh::Bvh::closest_bounded_by`]:
-    /// the very hit of the unhinted search).
+    /// meet its box (disjoint boxes cannot meet), a face is cleared of folding by the input
+    /// hierarchy's normal cones when they show that no triangle as near as its hint can
+    /// face away from it ([`crate::mesh::Bvh::never_faces_away`]: most faces, with no
+    /// search), and otherwise the nearest input point is searched from the face's last
+    /// nearest triangle ([`crate::mesh::Bvh::closest_bounded_by`]: the very hit of the
+    /// unhinted search).
     fn intersects(&mut self, a: u32, b: u32, c: &Candidate) -> bool {
         let Some(mut guard) = self.guard.take() else {
             return false;
@@ -678,7 +681,7 @@ impl<'m> Collapse<'m> {
                 if gt.contains(&a) {
                     return false;
                 }
-                let (glo, ghi) = (it.lo, it.hi);
+                let (glo, ghi) = (it.lo.as_dvec3(), it.hi.as_dvec3());
                 // Disjoint boxes cannot meet: a face whose box meets no moved face's box is
                 // passed without a test.
                 let meets =
@@ -717,7 +720,13 @@ impl<'m> Collapse<'m> {
                 continue;
             }
             let centre = (tri[0] + tri[1] + tri[2]) / 3.0;
-            if let Some(h) = bvh.closest_bounded_by(centre, self.fold_hint[f as usize]) {
+            let hint = self.fold_hint[f as usize];
+            // Most faces are shown not to fold by the input's normal cones alone, with no
+            // search for the nearest triangle (the same answer: see `never_faces_away`).
+            if bvh.never_faces_away(centre, n, hint) {
+                continue;
+            }
+            if let Some(h) = bvh.closest_bounded_by(centre, hint) {
                 self.fold_hint[f as usize] = h.slot;
                 // The input triangle's normal from the hierarchy's own record of it (just
                 // loaded by the search; the same f64 corners, so the same bits as from the
@@ -1540,9 +1549,6 @@ impl<'m> Collapse<'m> {
     }
 }
 
-/// The error of placing a vertex with quadric `q` at `p`: the root mean square distance to
-/// its planes (Q(p) over the summed plane weights), in model units.
-#[inline]
 pub(crate) fn error(q: &Quadric, p: DVec3) -> f64 {
     let w = q.weight();
     if w > 0.0 {

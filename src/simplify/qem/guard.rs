@@ -1,6 +1,8 @@
 //! The optional exact intersection check of the collapse engine: a box hierarchy over the
 //! engine's faces whose boxes only ever grow (refit upward when a collapse moves a face),
-//! rebuilt from the live faces when half of them have gone.
+//! rebuilt from the live faces when half of them have gone. Boxes are f32, rounded outward
+//! from the f64 positions (which with the check on are f32 already: exact), so that a node
+//! is 32 bytes and a face's record 36: the walk is bound by their loads.
 //!
 //! Why this is correct: every node's box contains the current box of every live face below
 //! it (a moved face's new box is merged into its leaf and ancestors before the next query;
@@ -10,30 +12,29 @@
 //! rebuild only tightens boxes. Written here rather than reusing [`crate::mesh::Bvh`]: that
 //! one is immutable (built once for closest-point queries) and has no refit.
 
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 
 const NONE: u32 = u32::MAX;
 const LEAF_MAX: usize = 4;
 
 #[derive(Debug, Clone, Copy)]
 struct Node {
-    min: DVec3,
-    max: DVec3,
+    min: Vec3,
+    max: Vec3,
     /// Inner: right child (the left one follows); leaf: first slot in `items`.
     index: u32,
     /// Leaf: number of faces; inner: 0.
     count: u32,
-    parent: u32,
 }
 
-/// A face as the guard keeps it: its current box (exact, not grown) and its corners'
+/// A face as the guard keeps it: its current box (not grown; rounded outward) and its corners'
 /// vertices, so that a query keeps only the faces whose own box meets it and the caller
 /// can tell the faces sharing a vertex with a moved face without loading the face (a cache
 /// miss per face found was most of the check's time). A dead face has an empty box.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Item {
-    pub lo: DVec3,
-    pub hi: DVec3,
+    pub lo: Vec3,
+    pub hi: Vec3,
     pub ids: [u32; 3],
 }
 
@@ -41,6 +42,8 @@ pub(crate) struct Item {
 #[derive(Debug, Default)]
 pub(crate) struct Guard {
     nodes: Vec<Node>,
+    /// Per node: its parent (NONE at the root), apart: only a refit reads it.
+    parent: Vec<u32>,
     items: Vec<u32>,
     /// Per item: its face's record (see [`Item`]).
     boxes: Vec<Item>,
@@ -50,11 +53,35 @@ pub(crate) struct Guard {
     /// Live faces when last built.
     built_with: usize,
     stack: Vec<u32>,
-    scratch: Vec<(u32, DVec3, DVec3)>,
+    scratch: Vec<(u32, Vec3, Vec3)>,
 }
 
 /// The box a face has once dead: it meets no box.
-const DEAD: (DVec3, DVec3) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+const DEAD: (Vec3, Vec3) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+
+/// The f32 box holding the f64 box [lo, hi]: each bound rounded outward.
+fn outward(lo: DVec3, hi: DVec3) -> (Vec3, Vec3) {
+    let down = |x: f64| {
+        let f = x as f32;
+        if f as f64 > x {
+            f.next_down()
+        } else {
+            f
+        }
+    };
+    let up = |x: f64| {
+        let f = x as f32;
+        if (f as f64) < x {
+            f.next_up()
+        } else {
+            f
+        }
+    };
+    (
+        Vec3::new(down(lo.x), down(lo.y), down(lo.z)),
+        Vec3::new(up(hi.x), up(hi.y), up(hi.z)),
+    )
+}
 
 impl Guard {
     /// (Re)builds over the faces `live` says are alive, with boxes from `tri_box` and
@@ -67,6 +94,7 @@ impl Guard {
         corners: impl Fn(usize) -> [u32; 3],
     ) {
         self.nodes.clear();
+        self.parent.clear();
         self.leaf_of.clear();
         self.leaf_of.resize(faces, NONE);
         self.item_of.clear();
@@ -75,6 +103,7 @@ impl Guard {
         items.clear();
         items.extend((0..faces).filter(|&f| live(f)).map(|f| {
             let (lo, hi) = tri_box(f);
+            let (lo, hi) = outward(lo, hi);
             (f as u32, lo, hi)
         }));
         self.built_with = items.len();
@@ -102,9 +131,9 @@ impl Guard {
         self.scratch = items;
     }
 
-    fn split(&mut self, items: &mut [(u32, DVec3, DVec3)], first: u32, parent: u32) -> u32 {
+    fn split(&mut self, items: &mut [(u32, Vec3, Vec3)], first: u32, parent: u32) -> u32 {
         let me = self.nodes.len() as u32;
-        let (mut lo, mut hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
         for t in items.iter() {
             lo = lo.min(t.1);
             hi = hi.max(t.2);
@@ -114,8 +143,8 @@ impl Guard {
             max: hi,
             index: first,
             count: items.len() as u32,
-            parent,
         });
+        self.parent.push(parent);
         if items.len() <= LEAF_MAX {
             return me;
         }
@@ -151,6 +180,7 @@ impl Guard {
     /// Face `f` now spans [lo, hi] with corners `ids`: grow its leaf and the ancestors until
     /// one holds it.
     pub(crate) fn grow(&mut self, f: usize, lo: DVec3, hi: DVec3, ids: [u32; 3]) {
+        let (lo, hi) = outward(lo, hi);
         if let Some(&i) = self.item_of.get(f).filter(|&&i| i != NONE) {
             self.boxes[i as usize] = Item { lo, hi, ids };
         }
@@ -162,7 +192,7 @@ impl Guard {
             }
             node.min = node.min.min(lo);
             node.max = node.max.max(hi);
-            n = node.parent;
+            n = self.parent[n as usize];
         }
     }
 
@@ -170,6 +200,7 @@ impl Guard {
     /// first): one walk for a whole fan of moved faces instead of one per face.
     pub(crate) fn collect(&mut self, lo: DVec3, hi: DVec3, out: &mut Vec<(u32, Item)>) {
         out.clear();
+        let (lo, hi) = outward(lo, hi);
         let boxes = std::mem::take(&mut self.boxes);
         let items = std::mem::take(&mut self.items);
         self.any(lo, hi, |i| {
@@ -185,7 +216,7 @@ impl Guard {
 
     /// Calls `f` with the item index of every face in a leaf whose box meets [lo, hi] until
     /// `f` says stop (returns true); returns whether it stopped.
-    fn any(&mut self, lo: DVec3, hi: DVec3, mut f: impl FnMut(u32) -> bool) -> bool {
+    fn any(&mut self, lo: Vec3, hi: Vec3, mut f: impl FnMut(u32) -> bool) -> bool {
         if self.nodes.is_empty() {
             return false;
         }
