@@ -222,12 +222,15 @@ pub fn hierarchical(
     // read early (folded into `early`, which keeps the reads), in two stages, so that the
     // cache misses of the few splits ahead overlap one another and the work in between
     // instead of each stalling the split that needs it: `2 * AHEAD` splits ahead, the head
-    // of its restored slots and of the kept vertex's fan; `AHEAD` splits ahead, the
-    // triangles those list.
+    // of its restored slots and of the fans of both its vertices; `AHEAD` splits ahead,
+    // the triangles those list and the start of the restored vertex's fan (which the
+    // split fills).
     let mut early = 0u32;
     for (i, &(p, q)) in pairs.iter().enumerate().rev() {
         if let Some(&(r, k)) = i.checked_sub(2 * AHEAD).and_then(|j| pairs.get(j)) {
-            early ^= restore.get(r).first().copied().unwrap_or(0) ^ fans.head[k as usize][0];
+            early ^= restore.get(r).first().copied().unwrap_or(0)
+                ^ fans.head[k as usize][0]
+                ^ fans.head[r as usize][0];
         }
         if let Some(&(r, k)) = i.checked_sub(AHEAD).and_then(|j| pairs.get(j)) {
             for &s in restore.get(r) {
@@ -236,6 +239,11 @@ pub fn hierarchical(
             for &u in fans.get(k) {
                 early ^= lv.tri[u as usize].stamp;
             }
+            early ^= fans
+                .data
+                .get(fans.head[r as usize][0] as usize)
+                .copied()
+                .unwrap_or(0);
         }
         touched.clear();
         // Each triangle the split touches, whether it had distinct corners before (read at
@@ -272,10 +280,14 @@ pub fn hierarchical(
 
     std::hint::black_box(early);
     let mut seq: Vec<[u32; 3]> = Vec::with_capacity(n);
+    // Every split has been replayed: each triangle shows its own corners again, in the
+    // record the walk reads anyway.
     let mut t = lv.head;
     while t != NONE {
-        seq.push(tris[t as usize]);
-        t = lv.tri[t as usize].next;
+        let tri = &lv.tri[t as usize];
+        debug_assert_eq!(tri.c, tris[t as usize]);
+        seq.push(tri.c);
+        t = tri.next;
     }
     let mut out = Vec::with_capacity(2 * n);
     rebuild_into(&mut seq, join, 1, &mut out);

@@ -139,11 +139,21 @@ pub struct Progressive {
 /// The input with exact duplicate vertices (same position and attributes) merged, unused
 /// vertices dropped, and triangles with a repeated position left out (they draw nothing).
 fn canonical_mesh(mesh: &TriMesh) -> TriMesh {
+    // The key holds the position and the attributes the mesh has: 3 values for positions
+    // alone (the usual case: a quarter of the bytes to hash and store), else 12.
+    if mesh.normals.is_none() && mesh.colors.is_none() && mesh.uvs.is_none() {
+        merge_duplicates::<3>(mesh)
+    } else {
+        merge_duplicates::<12>(mesh)
+    }
+}
+
+/// [`canonical_mesh`] with keys of `N` values: the position and the attributes the mesh
+/// has, in a fixed array (the same attributes for every vertex, so the unused tail is zero
+/// for all): no allocation per vertex.
+fn merge_duplicates<const N: usize>(mesh: &TriMesh) -> TriMesh {
     let bits = |x: f32| (x + 0.0).to_bits();
-    // The key: the position and the attributes the mesh has, in a fixed array (the same
-    // attributes for every vertex, so the unused tail is zero for all): no allocation per
-    // vertex.
-    let mut first: FxHashMap<[u32; 12], u32> =
+    let mut first: FxHashMap<[u32; N], u32> =
         FxHashMap::with_capacity_and_hasher(mesh.vertex_count(), Default::default());
     let mut id = vec![u32::MAX; mesh.vertex_count()];
     let mut out = TriMesh {
@@ -161,7 +171,7 @@ fn canonical_mesh(mesh: &TriMesh) -> TriMesh {
         for (k, &v) in t.iter().enumerate() {
             let v = v as usize;
             if id[v] == u32::MAX {
-                let mut key = [0u32; 12];
+                let mut key = [0u32; N];
                 let mut at = 0;
                 let mut put = |xs: &[f32]| {
                     for &x in xs {

@@ -200,7 +200,12 @@ struct Stripper<'t> {
     used: Vec<bool>,
     /// Per vertex: unused triangles (the valence). Apart from `stamp` (the window's choice
     /// of a strip's first triangle reads only this, so it is kept small).
-    vert: Vec<u32>,
+    vert: Vec<u8>,
+    /// The exact valences, when some vertex has more than 255 triangles (`vert` then holds
+    /// them capped at 255 and the window's choice reads these); None otherwise, the usual
+    /// case, where the window's choice reads only `vert` (a quarter of the bytes, as
+    /// meshoptimizer's 8-bit counters, but exact).
+    big: Option<Vec<u32>>,
     /// Per vertex: when it last entered the simulated vertex cache (the number of cache
     /// misses then, 0 for never).
     stamp: Vec<u32>,
@@ -259,7 +264,8 @@ impl<'t> Stripper<'t> {
             edges,
             twin,
             used: vec![false; tris.len()],
-            vert,
+            vert: vert.iter().map(|&v| v.min(255) as u8).collect(),
+            big: vert.iter().any(|&v| v > 255).then_some(vert),
             stamp: vec![0; vertices],
             buffer: Vec::with_capacity(params.window),
             cursor: 0,
@@ -308,8 +314,18 @@ impl<'t> Stripper<'t> {
             }
         }
         let tri = self.tris[t as usize];
-        for v in tri {
-            self.vert[v as usize] -= 1;
+        match &mut self.big {
+            None => {
+                for v in tri {
+                    self.vert[v as usize] -= 1;
+                }
+            }
+            Some(big) => {
+                for v in tri {
+                    big[v as usize] -= 1;
+                    self.vert[v as usize] = big[v as usize].min(255) as u8;
+                }
+            }
         }
         if self.window == 0 {
             let [a, b, c] = tri;
@@ -433,16 +449,10 @@ impl<'t> Stripper<'t> {
     fn first(&mut self) -> Option<u32> {
         if self.window > 0 {
             // meshoptimizer's findStripFirst: least valence of a corner in the window.
-            let mut best: Option<(u32, u32)> = None;
-            for &[a, b, c, t] in &self.buffer {
-                let v = self.vert[a as usize]
-                    .min(self.vert[b as usize])
-                    .min(self.vert[c as usize]);
-                if best.is_none_or(|b| v < b.0) {
-                    best = Some((v, t));
-                }
-            }
-            return best.map(|b| b.1);
+            return match &self.big {
+                None => least(&self.buffer, &self.vert),
+                Some(big) => least(&self.buffer, big),
+            };
         }
         for k in 0..4 {
             while let Some(t) = self.buckets[k].pop() {
@@ -545,6 +555,22 @@ impl<'t> Stripper<'t> {
             }
         }
     }
+}
+
+/// meshoptimizer's findStripFirst: the triangle of `buffer` (`[a, b, c, t]`) with a corner
+/// of least valence, the first of them.
+#[inline]
+fn least<V: Copy + Ord>(buffer: &[[u32; 4]], valence: &[V]) -> Option<u32> {
+    let mut best: Option<(V, u32)> = None;
+    for &[a, b, c, t] in buffer {
+        let v = valence[a as usize]
+            .min(valence[b as usize])
+            .min(valence[c as usize]);
+        if best.is_none_or(|b| v < b.0) {
+            best = Some((v, t));
+        }
+    }
+    best.map(|b| b.1)
 }
 
 /// The triangles a strip draws (degenerate ones dropped), with their orientation;

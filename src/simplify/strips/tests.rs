@@ -94,6 +94,29 @@ proptest! {
     }
 }
 
+/// Three vertices of valence above 255 (where the window's choice reads the exact
+/// valences rather than the 8-bit ones) and triangles made of them alone, whose valences
+/// differ only above 255: the same strips as the slow twin.
+#[test]
+fn stripify_with_valences_above_255_equals_its_slow_twin() {
+    let mut tris = vec![[0, 1, 2], [2, 1, 0], [0, 2, 1], [1, 0, 2]];
+    for i in 0..300 {
+        tris.push([0, 1, 3 + i]);
+        tris.push([1, 2, 303 + i]);
+        if i < 280 {
+            tris.push([2, 0, 603 + i]);
+        }
+        if i % 50 == 0 {
+            tris.push([0, 1, 2]);
+        }
+    }
+    for p in all_params() {
+        let s = stripify(&tris, &p);
+        assert_eq!(s, super::stripify_twin::stripify_twin(&tris, &p), "{p:?}");
+        assert_eq!(triangle_set(unstripify(&s)), triangle_set(tris.clone()));
+    }
+}
+
 #[test]
 fn a_grid_strips_to_about_one_index_per_triangle() {
     let m = grid(20);
