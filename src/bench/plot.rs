@@ -12,8 +12,7 @@ use embedded_graphics::primitives::{Circle, Line, PrimitiveStyle, Rectangle, Tri
 use embedded_graphics::text::Text;
 use std::path::Path;
 
-/// The strips figure takes the canvas from here; it belongs to `chart`.
-pub(crate) use crate::chart::Canvas;
+use crate::chart::Canvas;
 
 const FRAME: Frame = Frame {
     w: 900,

@@ -1,24 +1,31 @@
 //! The progressive-strips paper's Fig. 4 redone: indices sent to the GPU against the level
 //! while a mesh refines from its base to the full mesh, for a triangle-list progressive mesh,
-//! the unfiltered strip, STSS and DTFS. Drawn with `embedded-graphics` into an `image`
-//! buffer written as PNG, like the bench plot (linear axes here).
+//! the unfiltered strip, STSS and DTFS. Drawn on a `chart::Frame`, like the bench plot
+//! (linear axes here).
 
 use super::measure::LevelIndices;
-use crate::bench::plot::Canvas;
-use crate::error::{Error, Result};
-use embedded_graphics::mono_font::{ascii::FONT_6X10, MonoTextStyle};
+use crate::chart::{Frame, Tick, TEXT};
+use crate::error::Result;
 use embedded_graphics::pixelcolor::Rgb888;
 use embedded_graphics::prelude::*;
-use embedded_graphics::primitives::{Line, PrimitiveStyle, Rectangle};
-use embedded_graphics::text::{Alignment, Text};
+use embedded_graphics::primitives::{Line, PrimitiveStyle};
+use embedded_graphics::text::Text;
 use std::path::Path;
 
-const W: i32 = 900;
-const H: i32 = 600;
-const LEFT: i32 = 80;
-const RIGHT: i32 = 30;
-const TOP: i32 = 50;
-const BOTTOM: i32 = 70;
+const FRAME: Frame = Frame {
+    w: 900,
+    h: 600,
+    left: 80,
+    right: 30,
+    top: 50,
+    bottom: 70,
+};
+const W: i32 = FRAME.w;
+const H: i32 = FRAME.h;
+const LEFT: i32 = FRAME.left;
+const RIGHT: i32 = FRAME.right;
+const TOP: i32 = FRAME.top;
+const BOTTOM: i32 = FRAME.bottom;
 
 /// The series: name, colour, and the value of a row.
 type Series = (&'static str, Rgb888, fn(&LevelIndices) -> usize);
@@ -64,11 +71,7 @@ const PAPER: Rgb888 = Rgb888::new(230, 140, 20);
 /// (may be empty): the same levels with the full mesh stripified on its own (the paper's
 /// order), whose DTFS curve is drawn too.
 pub fn fig4_png(rows: &[LevelIndices], paper: &[LevelIndices], name: &str) -> Result<Vec<u8>> {
-    let mut c = Canvas(image::RgbImage::from_pixel(
-        W as u32,
-        H as u32,
-        image::Rgb([255, 255, 255]),
-    ));
+    let mut c = FRAME.canvas();
     let xmax = rows.iter().map(|r| r.level).max().unwrap_or(0).max(1) as f64;
     let ymax = rows
         .iter()
@@ -83,53 +86,26 @@ pub fn fig4_png(rows: &[LevelIndices], paper: &[LevelIndices], name: &str) -> Re
     let (xtop, ytop) = (xmax, (ymax / ys).ceil() * ys);
     let px = |l: f64| LEFT + ((l / xtop) * (W - LEFT - RIGHT) as f64).round() as i32;
     let py = |v: f64| H - BOTTOM - ((v / ytop) * (H - TOP - BOTTOM) as f64).round() as i32;
-    let text = MonoTextStyle::new(&FONT_6X10, Rgb888::BLACK);
-    let thin = |col| PrimitiveStyle::with_stroke(col, 1);
-    let grey = Rgb888::new(215, 215, 215);
-    let mut x = 0.0;
-    while x <= xtop {
-        let p = px(x);
-        let _ = Line::new(Point::new(p, TOP), Point::new(p, H - BOTTOM))
-            .into_styled(thin(grey))
-            .draw(&mut c);
-        let _ = Text::with_alignment(
-            &label(x),
-            Point::new(p, H - BOTTOM + 16),
-            text,
-            Alignment::Center,
-        )
-        .draw(&mut c);
-        x += xs;
-    }
-    let mut y = 0.0;
-    while y <= ytop {
-        let p = py(y);
-        let _ = Line::new(Point::new(LEFT, p), Point::new(W - RIGHT, p))
-            .into_styled(thin(grey))
-            .draw(&mut c);
-        let _ = Text::with_alignment(
-            &label(y),
-            Point::new(LEFT - 6, p + 3),
-            text,
-            Alignment::Right,
-        )
-        .draw(&mut c);
-        y += ys;
-    }
-    let _ = Rectangle::with_corners(Point::new(LEFT, TOP), Point::new(W - RIGHT, H - BOTTOM))
-        .into_styled(thin(Rgb888::BLACK))
-        .draw(&mut c);
-    let _ = Text::with_alignment(
-        "level (vertex splits applied to the base mesh)",
-        Point::new((LEFT + W - RIGHT) / 2, H - 24),
-        text,
-        Alignment::Center,
-    )
-    .draw(&mut c);
-    let _ = Text::new("indices sent to the GPU", Point::new(8, TOP - 10), text).draw(&mut c);
-    let title = format!("Fig. 4 redone on {name}: indices per level, restarts counted");
-    let _ =
-        Text::with_alignment(&title, Point::new(W / 2, 22), text, Alignment::Center).draw(&mut c);
+    let ticks = |top: f64, step: f64, at: &dyn Fn(f64) -> i32| -> Vec<Tick> {
+        let mut v = 0.0;
+        let mut out = Vec::new();
+        while v <= top {
+            out.push((at(v), label(v)));
+            v += step;
+        }
+        out
+    };
+    let (xticks, yticks) = (ticks(xtop, xs, &px), ticks(ytop, ys, &py));
+    FRAME.draw(
+        &mut c,
+        Rgb888::new(215, 215, 215),
+        [&xticks, &yticks],
+        [
+            "level (vertex splits applied to the base mesh)",
+            "indices sent to the GPU",
+        ],
+        &format!("Fig. 4 redone on {name}: indices per level, restarts counted"),
+    );
     let paper_series: Series = (
         "strip, DTFS, the full mesh stripified on its own (paper's order)",
         PAPER,
@@ -154,12 +130,9 @@ pub fn fig4_png(rows: &[LevelIndices], paper: &[LevelIndices], name: &str) -> Re
         let _ = Line::new(p, p + Point::new(20, 0))
             .into_styled(PrimitiveStyle::with_stroke(*col, 2))
             .draw(&mut c);
-        let _ = Text::new(what, p + Point::new(28, 3), text).draw(&mut c);
+        let _ = Text::new(what, p + Point::new(28, 3), TEXT).draw(&mut c);
     }
-    let mut png = Vec::new();
-    c.0.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-        .map_err(|e| Error::Internal(format!("png: {e}")))?;
-    Ok(png)
+    c.png()
 }
 
 /// [`fig4_png`] written to `path` atomically.
