@@ -82,6 +82,21 @@ impl Files<'_> {
         &self,
         i: usize,
         cloud: &mut PointCloud,
+        each: impl FnMut(u64, f64, f64, f64),
+    ) -> Result<u64> {
+        let kept = self.decode_each_unchecked(i, cloud, each)?;
+        if kept != self.read[i] {
+            return Err(changed_during_run(&self.paths[i], kept, self.read[i]));
+        }
+        Ok(kept)
+    }
+
+    /// [`Self::decode_each`] without the check of the number of points: returns the points
+    /// kept, whatever the counting pass (or the header) said.
+    pub fn decode_each_unchecked(
+        &self,
+        i: usize,
+        cloud: &mut PointCloud,
         mut each: impl FnMut(u64, f64, f64, f64),
     ) -> Result<u64> {
         let path = &self.paths[i];
@@ -99,9 +114,6 @@ impl Files<'_> {
             }
             Ok(())
         })?;
-        if kept != self.read[i] {
-            return Err(changed_during_run(path, kept, self.read[i]));
-        }
         Ok(kept)
     }
 }

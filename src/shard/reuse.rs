@@ -24,11 +24,86 @@
 use super::bricks::BrickPoints;
 use super::direct::Files;
 use crate::error::{Error, Result};
-use crate::points::PointCloud;
+use crate::points::{Bounds, PointCloud};
 use rayon::prelude::*;
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Mutex;
+
+/// The inputs' header figures (points and box), taken for exact before any point is read,
+/// checked against the points as a pass decodes them: the streaming run's count from the
+/// headers (`stream`), which saves the counting pass's full read of the survey. A file
+/// checks when it gives exactly its header's number of points and its points' box (x, y, z,
+/// minimum and maximum, as `terrain::bounds_of` reduces them) has the very bits of its
+/// header's. A run whose check fails counts the points after all and starts the pass again.
+pub struct HeaderCheck {
+    /// Each file's header box and points.
+    header: Vec<(Bounds, u64)>,
+    /// Files decoded and found exact.
+    seen: Mutex<Vec<bool>>,
+    failed: AtomicBool,
+}
+
+impl HeaderCheck {
+    /// A check of the files whose headers give `header` (box, points), in input order.
+    pub fn new(header: Vec<(Bounds, u64)>) -> HeaderCheck {
+        let n = header.len();
+        HeaderCheck {
+            header,
+            seen: Mutex::new(vec![false; n]),
+            failed: AtomicBool::new(false),
+        }
+    }
+
+    /// True once some decoded file did not match its header.
+    pub fn failed(&self) -> bool {
+        self.failed.load(Ordering::SeqCst)
+    }
+
+    /// True when every file with points was decoded and matched its header.
+    pub fn passed(&self) -> bool {
+        !self.failed()
+            && self.seen.lock().is_ok_and(|seen| {
+                seen.iter()
+                    .zip(&self.header)
+                    .all(|(&s, (_, n))| s || *n == 0)
+            })
+    }
+
+    /// Decodes the files with points that no pass has checked yet (those a resumed run's
+    /// finished windows read) and checks them.
+    pub fn check_the_rest(&self, files: &Files<'_>) -> Result<()> {
+        let rest: Vec<usize> = {
+            let seen = self.seen.lock().map_err(|_| poisoned())?;
+            (0..seen.len())
+                .filter(|&f| !seen[f] && self.header[f].1 > 0)
+                .collect()
+        };
+        rest.into_iter().try_for_each(|f| self.check_file(files, f))
+    }
+
+    /// Decodes file `f` and checks it against its header.
+    pub fn check_file(&self, files: &Files<'_>, f: usize) -> Result<()> {
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        let kept = files.decode_each_unchecked(f, &mut PointCloud::default(), |_, x, y, z| {
+            lo = [lo[0].min(x), lo[1].min(y), lo[2].min(z)];
+            hi = [hi[0].max(x), hi[1].max(y), hi[2].max(z)];
+        })?;
+        self.record(f, &Bounds { min: lo, max: hi }, kept);
+        Ok(())
+    }
+
+    /// Records that file `f` gave `points` points in the box `b`.
+    fn record(&self, f: usize, b: &Bounds, points: u64) {
+        let (h, n) = &self.header[f];
+        let bits = |b: &Bounds| [b.min, b.max].map(|v| v.map(f64::to_bits));
+        if points != *n || (points > 0 && bits(b) != bits(h)) {
+            self.failed.store(true, Ordering::SeqCst);
+        } else if let Ok(mut seen) = self.seen.lock() {
+            seen[f] = true;
+        }
+    }
+}
 
 /// Bytes a stored point costs: x, y, z and its sequence number.
 pub const STORED_BYTES_PER_POINT: u64 = 32;
@@ -59,6 +134,7 @@ pub struct PassReader<'a, W> {
     store: Mutex<Store>,
     decoded: AtomicU64,
     stored_peak: AtomicU64,
+    check: Option<&'a HeaderCheck>,
 }
 
 /// The share of `[lo, hi]` (a box's extent along one axis) inside the range `r`.
@@ -114,7 +190,15 @@ where
             store: Mutex::new(Store::default()),
             decoded: AtomicU64::new(0),
             stored_peak: AtomicU64::new(0),
+            check: None,
         }
+    }
+
+    /// Checks the files against their headers as they are decoded: a file that does not
+    /// match stops the pass (an error; [`HeaderCheck::failed`] tells it from others).
+    pub fn with_check(mut self, check: Option<&'a HeaderCheck>) -> Self {
+        self.check = check;
+        self
     }
 
     /// Points decoded so far (every decode of a file counts all its kept points).
@@ -236,6 +320,10 @@ where
     /// range that it wants. A file that gives another number of points than the counting
     /// pass (changed since) is refused, naming it.
     fn decode(&self, f: usize, dest: &[usize]) -> Result<Vec<(usize, BrickPoints)>> {
+        if self.check.is_some_and(HeaderCheck::failed) {
+            // The pass starts again after a count: the files not started yet wait.
+            return Err(Error::Internal("a header did not match its points".into()));
+        }
         let mut cloud = PointCloud::default();
         let mut parts: Vec<(usize, BrickPoints)> =
             dest.iter().map(|&p| (p, BrickPoints::default())).collect();
@@ -243,7 +331,14 @@ where
             .iter()
             .map(|&p| (self.order[p], self.ranges[self.order[p]]))
             .collect();
-        let kept = self.files.decode_each(f, &mut cloud, |seq, px, py, pz| {
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        let checking = self.check.is_some();
+        let each = |seq, px: f64, py: f64, pz: f64| {
+            if checking {
+                // The same reduction as `terrain::bounds_of` (min and max of finite values).
+                lo = [lo[0].min(px), lo[1].min(py), lo[2].min(pz)];
+                hi = [hi[0].max(px), hi[1].max(py), hi[2].max(pz)];
+            }
             for ((w, (rx, ry)), (_, part)) in windows.iter().zip(parts.iter_mut()) {
                 // The range first (a few comparisons), then the window's own test.
                 if px >= rx[0]
@@ -255,7 +350,21 @@ where
                     part.push(px, py, pz, seq);
                 }
             }
-        })?;
+        };
+        let kept = match self.check {
+            None => self.files.decode_each(f, &mut cloud, each)?,
+            Some(c) => {
+                let kept = self.files.decode_each_unchecked(f, &mut cloud, each)?;
+                c.record(f, &Bounds { min: lo, max: hi }, kept);
+                if c.failed() {
+                    return Err(Error::Internal(format!(
+                        "{}: its points do not match its header's box and count",
+                        self.files.paths[f].display()
+                    )));
+                }
+                kept
+            }
+        };
         self.decoded.fetch_add(kept, Ordering::Relaxed);
         Ok(parts)
     }

@@ -496,6 +496,10 @@ struct Bucketed {
     /// Read by bounds: each file's kept points' box (empty: read through the bricks).
     #[serde(default)]
     boxes: Vec<FileBox>,
+    /// Points, boxes and bounds taken from the headers and not yet checked against the
+    /// points (see [`counts_from_headers`]).
+    #[serde(default)]
+    unchecked_headers: bool,
 }
 
 impl Bucketed {
@@ -659,7 +663,66 @@ fn bucket(
         points: seq,
         bytes,
         boxes: if direct { boxes } else { Vec::new() },
+        unchecked_headers: false,
     })
+}
+
+/// True when pass 2 may take each input's points and box from its header instead of
+/// counting them (read by bounds, every header given, no class filter or point cap: then a
+/// file keeps all its header's points): the noise-removal pass, which decodes every file
+/// anyway, checks the headers against the points ([`reuse::HeaderCheck`]), and the run
+/// counts after all when one does not match. Without noise removal there is no such pass.
+fn counts_from_headers(pipeline: &LoadedPipeline, sc: &Scan, direct: bool) -> bool {
+    let opts = pipeline.config.input.read_options();
+    direct
+        && pipeline.config.denoise.enabled
+        && !opts.classes.is_active()
+        && opts.max_points.is_none()
+        && sc.sources.iter().all(|s| s.header_bounds.is_some())
+}
+
+/// The bucket report's `counted` figure when a header did not match its points.
+const INEXACT: &str = "points (a header's box or count is not its points')";
+
+/// Pass 2 from the headers alone (see [`counts_from_headers`]): what [`bucket`] would give
+/// when every header is exact, and the check that tells whether they are.
+fn bucket_from_headers(scan: &Scan, sizing: &Sizing) -> (Bucketed, reuse::HeaderCheck) {
+    let brick_points = BRICK_POINTS.min(sizing.points / 16).max(1_000);
+    let target = (scan.points / brick_points).clamp(1, 1 << 16) as usize;
+    let lattice = BrickLattice::new(&scan.bounds, target);
+    let mut first = 0u64;
+    let mut sources = Vec::new();
+    let mut b = Bounds::EMPTY;
+    let mut header = Vec::new();
+    for s in &scan.sources {
+        let hb = s.header_bounds.unwrap_or(Bounds::EMPTY);
+        let hb = if s.points_in_file == 0 {
+            Bounds::EMPTY
+        } else {
+            hb
+        };
+        sources.push(SourceTransform {
+            first,
+            scale: s.scale.unwrap_or([1.0; 3]),
+            offset: s.offset.unwrap_or([0.0; 3]),
+        });
+        first += s.points_in_file;
+        b = b.union(hb);
+        header.push((hb, s.points_in_file));
+    }
+    let bk = Bucketed {
+        counts: vec![0; lattice.count()],
+        lattice,
+        sources,
+        read: header.iter().map(|h| h.1).collect(),
+        min: b.min,
+        max: b.max,
+        points: first,
+        bytes: 0,
+        boxes: header.iter().map(|h| FileBox::of(&h.0)).collect(),
+        unchecked_headers: true,
+    };
+    (bk, reuse::HeaderCheck::new(header))
 }
 
 /// Keep flags by sequence number.
@@ -746,6 +809,7 @@ fn read_keep(path: &Path) -> Option<(u64, u64, Bounds, Vec<u64>)> {
 /// in-memory run's choice and the pass is done (the common case). Otherwise the counts at
 /// every height are taken (`shard_counts`, one more read per window), the sums pick the
 /// height (`choose_steps`), and the windows are filtered again at that height.
+#[allow(clippy::too_many_arguments)]
 fn denoise_pass(
     pipeline: &LoadedPipeline,
     dir: &Path,
@@ -753,6 +817,7 @@ fn denoise_pass(
     files: &Files<'_>,
     mpu: f64,
     sizing: &Sizing,
+    check: Option<&reuse::HeaderCheck>,
     progress: &dyn Progress,
 ) -> Result<DenoisePass> {
     let params = &pipeline.config.denoise;
@@ -844,7 +909,8 @@ fn denoise_pass(
                 reuse_round(sizing),
                 reuse_cap(sizing),
                 wanted,
-            );
+            )
+            .with_check(check);
             let out = (0..reader.rounds()).try_for_each(|r| {
                 let pts = reader.load(r)?;
                 let ws = reader.round_windows(r);
@@ -1291,15 +1357,45 @@ fn stream_passes(
         .flatten()
         .and_then(|b| serde_json::from_slice(&b).ok());
     let resumed = previous.is_some();
-    let bk = match previous {
-        Some(b) => b,
+    let save = |b: &Bucketed| -> Result<()> {
+        let json = serde_json::to_vec(b).map_err(|e| Error::Internal(e.to_string()))?;
+        write_bytes_atomic(&done, &json)
+    };
+    let direct = reads_directly(pipeline, sc, sizing);
+    // The points counted from the headers are checked by the noise-removal pass (a resumed
+    // run checks them again: its finished windows' files separately). The first file with
+    // points is checked first, alone: writers that take the header's box from the points
+    // before they are rounded to the file's scale (the `las` crate's, so `terratile
+    // generate`'s) never match, and are counted at once.
+    let mut inexact = false;
+    let (mut bk, check) = match previous {
+        Some(b) if b.unchecked_headers => (b, Some(bucket_from_headers(sc, sizing).1)),
+        Some(b) => (b, None),
         None => {
             tmp.clear()?;
-            let direct = reads_directly(pipeline, sc, sizing);
-            let b = bucket(pipeline, sc, dir, sizing, direct, progress)?;
-            let json = serde_json::to_vec(&b).map_err(|e| Error::Internal(e.to_string()))?;
-            write_bytes_atomic(&done, &json)?;
-            b
+            let headers = counts_from_headers(pipeline, sc, direct)
+                .then(|| bucket_from_headers(sc, sizing))
+                .filter(|(b, c)| {
+                    let paths: Vec<PathBuf> = sc.sources.iter().map(|s| s.path.clone()).collect();
+                    let opts = cfg.input.read_options();
+                    let first = b.read.iter().position(|&n| n > 0);
+                    let exact = first.is_none_or(|f| {
+                        c.check_file(&b.files(&paths, &opts), f).is_ok() && !c.failed()
+                    });
+                    inexact = !exact;
+                    exact
+                });
+            match headers {
+                Some((b, c)) => {
+                    save(&b)?;
+                    (b, Some(c))
+                }
+                None => {
+                    let b = bucket(pipeline, sc, dir, sizing, direct, progress)?;
+                    save(&b)?;
+                    (b, None)
+                }
+            }
         }
     };
     if bk.points == 0 {
@@ -1331,12 +1427,21 @@ fn stream_passes(
             ),
             fig("temporary", crate::memory::human(bk.bytes)),
             fig("resumed", resumed),
+            fig(
+                "counted",
+                if check.is_some() {
+                    "from the headers"
+                } else if inexact {
+                    INEXACT
+                } else {
+                    "points"
+                },
+            ),
         ],
     ));
     let crs: Option<Crs> = sc.sources.iter().find_map(|s| s.crs.clone());
     let paths: Vec<PathBuf> = sc.sources.iter().map(|s| s.path.clone()).collect();
     let opts = cfg.input.read_options();
-    let files = bk.files(&paths, &opts);
     let mpu = crs.as_ref().map_or(1.0, |c| c.metres_per_unit());
     let all_bounds = Bounds {
         min: bk.min,
@@ -1344,7 +1449,38 @@ fn stream_passes(
     };
     let (keep, kept_bounds, kept) = if cfg.denoise.enabled {
         let t = Clock::start();
-        let d = denoise_pass(pipeline, dir, &bk, &files, mpu, sizing, progress)?;
+        let pass = |bk: &Bucketed, check| {
+            let files = bk.files(&paths, &opts);
+            denoise_pass(pipeline, dir, bk, &files, mpu, sizing, check, progress)
+        };
+        let first = pass(&bk, check.as_ref());
+        if let (Some(c), Ok(_)) = (&check, &first) {
+            c.check_the_rest(&bk.files(&paths, &opts))?;
+        }
+        let d = match &check {
+            Some(c) if c.failed() || (first.is_ok() && !c.passed()) => {
+                // A header did not match its points: count them, and run the pass again.
+                drop(first);
+                progress.finish();
+                let tc = Clock::start();
+                tmp.clear()?;
+                bk = bucket(pipeline, sc, dir, sizing, direct, progress)?;
+                save(&bk)?;
+                stages.push(report(
+                    "bucket",
+                    tc,
+                    vec![fig("points", bk.points), fig("counted", INEXACT)],
+                ));
+                pass(&bk, None)?
+            }
+            Some(_) => {
+                let d = first?;
+                bk.unchecked_headers = false;
+                save(&bk)?;
+                d
+            }
+            None => first?,
+        };
         let kept = d.keep.count();
         let b = d.bounds;
         stages.push(report(
@@ -1380,6 +1516,7 @@ fn stream_passes(
     }
     let spec = GridSpec::new(&cfg.resample, &kept_bounds, kept as usize)
         .map_err(|e| pipeline.param_error(e))?;
+    let files = bk.files(&paths, &opts);
     let t = Clock::start();
     // With only tile-by-tile outputs, the finished tiles leave memory shard by shard.
     let mut spilled =
