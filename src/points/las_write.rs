@@ -118,8 +118,14 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasWriteOptions) -> Res
     // written atomically.
     let buf = std::io::Cursor::new(Vec::with_capacity(cloud.len() * 20 + 4096));
     let mut writer = las::Writer::new(buf, header).map_err(|e| las_err(path, e))?;
+    // The stored integers' range per axis, as las-rs rounds them (see the header patch).
+    let mut stored = [[i64::MAX, i64::MIN]; 3];
     {
         for i in 0..cloud.len() {
+            for (k, v) in [cloud.x[i], cloud.y[i], cloud.z[i]].into_iter().enumerate() {
+                let n = ((v - offset[k]) / opts.scale[k]).round() as i64;
+                stored[k] = [stored[k][0].min(n), stored[k][1].max(n)];
+            }
             let class = opts
                 .classification
                 .or_else(|| cloud.classification.get(i).copied())
@@ -138,8 +144,29 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasWriteOptions) -> Res
             writer.write_point(p).map_err(|e| las_err(path, e))?;
         }
     }
-    let buf = writer.into_inner().map_err(|e| las_err(path, e))?;
-    crate::fsutil::write_bytes_atomic(path, buf.get_ref())
+    let mut buf = writer
+        .into_inner()
+        .map_err(|e| las_err(path, e))?
+        .into_inner();
+    // las-rs writes the header's box rounded outward (floor and ceiling of each bound on the
+    // lattice, in floating point), which can put a bound one step beyond the stored points
+    // (156.76 / 0.01 is 15675.999…, floored to 15675). The LAS specification asks for the
+    // points' actual extent, and a reader that trusts the box (the streamed run, which
+    // checks it against the decoded points) would have to count again: so the box is
+    // rewritten with the stored points' own, decoded as every reader decodes them. It lies
+    // at a fixed place in every LAS version's header (bytes 179..227: max x, min x, max y,
+    // min y, max z, min z); las-rs has no way to set it.
+    if !cloud.is_empty() {
+        let decoded = |k: usize, n: i64| opts.scale[k] * f64::from(n as i32) + offset[k];
+        let mut at = 179;
+        for k in 0..3 {
+            for n in [stored[k][1], stored[k][0]] {
+                buf[at..at + 8].copy_from_slice(&decoded(k, n).to_le_bytes());
+                at += 8;
+            }
+        }
+    }
+    crate::fsutil::write_bytes_atomic(path, &buf)
 }
 
 fn las_err(path: &Path, e: las::Error) -> Error {
@@ -366,4 +393,54 @@ fn write_records_with(
     };
     write_raw_las(path, &h, &out, &bounds)?;
     Ok(true)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The header's box is the stored points' own, to the bit, where las-rs would round a
+    /// bound outward (156.76 / 0.01 is 15675.999… in floating point).
+    #[test]
+    fn the_header_box_is_the_stored_points_extent() {
+        let mut cloud = PointCloud::default();
+        for (x, y, z) in [
+            (10.07, 5.03, 156.76),
+            (12.29, 7.71, 474.13),
+            (11.0, 6.0, 200.0),
+        ] {
+            cloud.x.push(x);
+            cloud.y.push(y);
+            cloud.z.push(z);
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("box.las");
+        write_las(&path, &cloud, &LasWriteOptions::default()).unwrap();
+        let b = std::fs::read(&path).unwrap();
+        let f64_at = |at: usize| f64::from_le_bytes(b[at..at + 8].try_into().unwrap());
+        let i32_at = |at: usize| i32::from_le_bytes(b[at..at + 4].try_into().unwrap());
+        let (scale, offset) = (
+            [f64_at(131), f64_at(139), f64_at(147)],
+            [f64_at(155), f64_at(163), f64_at(171)],
+        );
+        let data = u32::from_le_bytes(b[96..100].try_into().unwrap()) as usize;
+        let len = u16::from_le_bytes(b[105..107].try_into().unwrap()) as usize;
+        for k in 0..3 {
+            let decoded: Vec<f64> = (0..cloud.len())
+                .map(|p| scale[k] * f64::from(i32_at(data + p * len + 4 * k)) + offset[k])
+                .collect();
+            let max = decoded.iter().copied().fold(f64::MIN, f64::max);
+            let min = decoded.iter().copied().fold(f64::MAX, f64::min);
+            assert_eq!(
+                f64_at(179 + 16 * k).to_bits(),
+                max.to_bits(),
+                "max, axis {k}"
+            );
+            assert_eq!(
+                f64_at(187 + 16 * k).to_bits(),
+                min.to_bits(),
+                "min, axis {k}"
+            );
+        }
+    }
 }
