@@ -494,6 +494,14 @@ fn tin_level(src: &Source<'_>, r: &TileRange, tolerance: f64) -> Vec<TerrainTile
         })
         .collect();
     let point = |a: usize, b: usize| points[b * px + a];
+    // Tile (a, b)'s map: its points every 1/M of the tile.
+    let tile_map = |a: usize, b: usize| {
+        let mut pts = [[0.0; 2]; (tin::M + 1) * (tin::M + 1)];
+        for (q, p) in pts.iter_mut().enumerate() {
+            *p = point(a * m + q % (m + 1), b * m + q / (m + 1));
+        }
+        tin::TileMap::new(pts)
+    };
     // Dense tiles (see `cells`): the tiles whose footprint lies inside the grid and whose
     // grid bends beyond the tolerance at `DENSE_SHARE` of its nodes or more. The others (at
     // the survey's edge, or smooth enough for far fewer vertices) take the greedy path.
@@ -506,13 +514,7 @@ fn tin_level(src: &Source<'_>, r: &TileRange, tolerance: f64) -> Vec<TerrainTile
                 let p = point(a * m + da, b * m + db);
                 p[0] >= 4.0 && p[1] >= 4.0 && p[0] <= cols - 5.0 && p[1] <= rows - 5.0
             });
-            inside && {
-                let mut pts = [[0.0; 2]; (tin::M + 1) * (tin::M + 1)];
-                for (q, p) in pts.iter_mut().enumerate() {
-                    *p = point(a * m + q % (m + 1), b * m + q / (m + 1));
-                }
-                cells::roughness(src, &tin::TileMap::new(pts), tolerance) >= DENSE_SHARE
-            }
+            inside && cells::roughness(src, &tile_map(a, b), tolerance) >= DENSE_SHARE
         })
         .collect();
     let is_dense = |a: usize, b: usize| a < nx && b < ny && dense[b * nx + a];
@@ -552,11 +554,7 @@ fn tin_level(src: &Source<'_>, r: &TileRange, tolerance: f64) -> Vec<TerrainTile
             let (a, b) = (k % nx, k / nx);
             let (x, y) = (r.x[0] + a as u32, r.y[0] + b as u32);
             let bounds = tile_bounds(r.z, x, y);
-            let mut pts = [[0.0; 2]; (tin::M + 1) * (tin::M + 1)];
-            for (q, p) in pts.iter_mut().enumerate() {
-                *p = point(a * m + q % (m + 1), b * m + q / (m + 1));
-            }
-            let map = tin::TileMap::new(pts);
+            let map = tile_map(a, b);
             let aspect = (0.5 * (bounds[1] + bounds[3])).to_radians().cos();
             let tile_sides = [
                 east_run(a, b),
@@ -570,7 +568,8 @@ fn tin_level(src: &Source<'_>, r: &TileRange, tolerance: f64) -> Vec<TerrainTile
                 .unwrap_or_else(|| {
                     // The tile's area in grid cells bounds the vertices the grid's samples
                     // can need; the guard sits well above it.
-                    let c = [pts[0], pts[m], pts[m * (m + 1)], pts[(m + 1) * (m + 1) - 1]];
+                    let c = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
+                        .map(|(u, v)| map.grid(u, v));
                     let cross = |p: [f64; 2], q: [f64; 2], o: [f64; 2]| {
                         ((p[0] - o[0]) * (q[1] - o[1]) - (p[1] - o[1]) * (q[0] - o[0])).abs()
                     };
