@@ -37,8 +37,9 @@ use crate::geo::tin::{self, SideVertex, Surface, TileMap, TileTin, Q};
 const MERGE: u16 = 3;
 /// Distance from a side (quanta of that side) within which a grid node counts as on it.
 const NEAR: f64 = 1.5;
-/// Finest subdivision of a cell: 2^MAX_LEVEL sub-cells a side.
-const MAX_LEVEL: u32 = 6;
+/// Finest subdivision of a cell: 2^MAX_LEVEL sub-cells a side (a twist of 16 × 4^4 = 4096
+/// times the tolerance).
+const MAX_LEVEL: u32 = 4;
 /// Fine lattice units per cell (2^MAX_LEVEL).
 const FINE: i64 = 1 << MAX_LEVEL;
 /// Vertices a twisted cell may take by greedy refinement (a guard: the exact measure needs
@@ -907,10 +908,12 @@ pub fn dense_tile<S: Surface>(
             if c.iter().all(|&c| c & 15 == 15) {
                 kind[cell] = 2;
                 let (twist, margin) = t.twist(a, b, t.delta);
+                // Subdividing shrinks the twist's part only: where the slope's margin alone
+                // takes most of the tolerance (a spike of tens of metres within a cell), the
+                // twist's part is held to a quarter of it and the bound is not claimed.
+                let target = (tolerance - margin).max(0.25 * tolerance);
                 let mut level = 0;
-                while level < MAX_LEVEL
-                    && twist / (16.0 * 4f64.powi(level as i32)) + margin > tolerance
-                {
+                while level < MAX_LEVEL && twist / (16.0 * 4f64.powi(level as i32)) > target {
                     level += 1;
                 }
                 t.levels[cell] = level as u8;
