@@ -37,11 +37,6 @@ use crate::geo::tin::{self, SideVertex, Surface, TileMap, TileTin, Q};
 const MERGE: u16 = 3;
 /// Distance from a side (quanta of that side) within which a grid node counts as on it.
 const NEAR: f64 = 1.5;
-/// Finest subdivision of a cell: 2^MAX_LEVEL sub-cells a side (a twist of 16 × 4^4 = 4096
-/// times the tolerance).
-const MAX_LEVEL: u32 = 4;
-/// Fine lattice units per cell (2^MAX_LEVEL).
-const FINE: i64 = 1 << MAX_LEVEL;
 /// Vertices a twisted cell may take by greedy refinement (a guard: the exact measure needs
 /// far fewer).
 const CELL_VERTICES: usize = 256;
@@ -236,12 +231,6 @@ struct Tile<'a, S: Surface> {
     i0: i64,
     j0: i64,
     w: i64,
-    /// Rows of the node block.
-    w_rows: i64,
-    /// Per cell of the block (row stride `w`): its subdivision level.
-    levels: Vec<u8>,
-    /// Vertices at fine lattice positions that are not nodes.
-    fine_vertex: std::collections::HashMap<[i64; 2], u32>,
     /// Per node of the block: its vertex (u32::MAX: none yet).
     node_vertex: Vec<u32>,
     /// Per node of the block: the largest height step to a 4-neighbour, metres.
@@ -355,8 +344,13 @@ impl<S: Surface> Tile<'_, S> {
         (self.out.uv.len() - 1) as u32
     }
 
-    /// The quantized position of grid position `p` (inside the tile).
-    fn uv_of(&self, p: [f64; 2]) -> [u16; 2] {
+    /// The vertex of grid node (i, j) (inside the tile), made on first use.
+    fn node(&mut self, i: i64, j: i64) -> u32 {
+        let at = ((j - self.j0) * self.w + (i - self.i0)) as usize;
+        if self.node_vertex[at] != u32::MAX {
+            return self.node_vertex[at];
+        }
+        let p = [i as f64, j as f64];
         let affine = |p: [f64; 2]| {
             let r = [p[0] - self.centre[0], p[1] - self.centre[1]];
             [
@@ -374,50 +368,7 @@ impl<S: Surface> Tile<'_, S> {
             p[1] - back[1] + self.centre[1],
         ]);
         let q = f64::from(Q);
-        [uv0[0] + c[0], uv0[1] + c[1]].map(|t| (t * q).round().clamp(1.0, q - 1.0) as u16)
-    }
-
-    /// The vertex at fine lattice position `f` (units of 1/`FINE` cell; on a cell's edge or
-    /// inside it), made on first use.
-    fn fine(&mut self, f: [i64; 2]) -> u32 {
-        if f[0] % FINE == 0 && f[1] % FINE == 0 {
-            return self.node(f[0] / FINE, f[1] / FINE);
-        }
-        if let Some(&v) = self.fine_vertex.get(&f) {
-            return v;
-        }
-        let uv = self.uv_of(f.map(|c| c as f64 / FINE as f64));
-        let v = self.push(uv);
-        self.fine_vertex.insert(f, v);
-        v
-    }
-
-    /// Subdivision level of cell (i, j) (0 outside the block or the interior).
-    fn level(&self, i: i64, j: i64) -> u32 {
-        if i < self.i0 || j < self.j0 || i >= self.i0 + self.w - 1 || j >= self.j0 + self.w_rows - 1
-        {
-            return 0;
-        }
-        u32::from(self.levels[((j - self.j0) * self.w + i - self.i0) as usize])
-    }
-
-    /// Split level of the grid edge from node (i, j) one step along `axis` (0: x, 1: y): the
-    /// finer of its two cells'.
-    fn edge_level(&self, i: i64, j: i64, axis: usize) -> u32 {
-        if axis == 0 {
-            self.level(i, j - 1).max(self.level(i, j))
-        } else {
-            self.level(i - 1, j).max(self.level(i, j))
-        }
-    }
-
-    /// The vertex of grid node (i, j) (inside the tile), made on first use.
-    fn node(&mut self, i: i64, j: i64) -> u32 {
-        let at = ((j - self.j0) * self.w + (i - self.i0)) as usize;
-        if self.node_vertex[at] != u32::MAX {
-            return self.node_vertex[at];
-        }
-        let uv = self.uv_of([i as f64, j as f64]);
+        let uv = [uv0[0] + c[0], uv0[1] + c[1]].map(|t| (t * q).round().clamp(1.0, q - 1.0) as u16);
         let v = self.push(uv);
         self.node_vertex[at] = v;
         v
@@ -450,113 +401,52 @@ impl<S: Surface> Tile<'_, S> {
         self.out.triangles.push(t);
     }
 
-    /// The two triangles of the (sub-)cell with corners `v` (counter-clockwise in the grid
-    /// from its south-west one), split along the diagonal joining the nearer heights.
-    fn diagonal(&mut self, v: [u32; 4]) {
-        let h = v.map(|k| self.out.h[k as usize]);
-        if (h[0] - h[2]).abs() <= (h[1] - h[3]).abs() {
-            self.tri(v[0], v[1], v[2]);
-            self.tri(v[0], v[2], v[3]);
-        } else {
-            self.tri(v[0], v[1], v[3]);
-            self.tri(v[1], v[2], v[3]);
-        }
-    }
-
-    /// Twist and margin of cell (i, j).
-    fn twist(&self, i: i64, j: i64, delta: f64) -> (f64, f64) {
+    /// Interior cell (i, j): two triangles, four around its centre, or greedy refinement
+    /// (false when that failed).
+    fn cell(&mut self, i: i64, j: i64) -> bool {
         let z = [
             self.z(i, j),
             self.z(i + 1, j),
             self.z(i + 1, j + 1),
             self.z(i, j + 1),
         ];
-        (
-            (z[0] - z[1] - z[3] + z[2]).abs(),
-            2.0 * self.slope(i, j) * delta,
-        )
-    }
-
-    /// Interior cell (i, j) at its level L: 2^L × 2^L sub-cells (twist d/4^L each), each two
-    /// triangles when its |d|/4 bound holds and no finer neighbour splits its sides, else four
-    /// or more around its centre (the centre joined to every point on its sides: each such
-    /// triangle spans at most half a sub-cell each way, within |d|/16).
-    fn cell(&mut self, i: i64, j: i64) {
-        let (twist, margin) = self.twist(i, j, self.delta);
-        let level = self.level(i, j);
-        let n = 1i64 << level;
-        let unit = FINE / n;
-        let sub_twist = twist / (n * n) as f64;
-        // The split level of each of the cell's sides: south, east, north, west.
-        let sides = [
-            self.edge_level(i, j, 0),
-            self.edge_level(i + 1, j, 1),
-            self.edge_level(i, j + 1, 0),
-            self.edge_level(i, j, 1),
+        let twist = (z[0] - z[1] - z[3] + z[2]).abs();
+        let margin = 2.0 * self.slope(i, j) * self.delta;
+        let v = [
+            self.node(i, j),
+            self.node(i + 1, j),
+            self.node(i + 1, j + 1),
+            self.node(i, j + 1),
         ];
-        if level == 0 && sides == [0; 4] {
-            // The common case: the cell's own corners.
-            let v = [
-                self.node(i, j),
-                self.node(i + 1, j),
-                self.node(i + 1, j + 1),
-                self.node(i, j + 1),
-            ];
-            if twist / 4.0 + margin <= self.tolerance {
-                self.diagonal(v);
+        if twist / 4.0 + margin <= self.tolerance {
+            if (z[0] - z[2]).abs() <= (z[1] - z[3]).abs() {
+                self.tri(v[0], v[1], v[2]);
+                self.tri(v[0], v[2], v[3]);
             } else {
-                let uv = self.uv_of([i as f64 + 0.5, j as f64 + 0.5]);
-                let m = self.push(uv);
-                for e in 0..4 {
-                    self.tri(v[e], v[(e + 1) % 4], m);
-                }
+                self.tri(v[0], v[1], v[3]);
+                self.tri(v[1], v[2], v[3]);
             }
-            return;
-        }
-        let mut ring: Vec<[i64; 2]> = Vec::with_capacity(16);
-        let mut v: Vec<u32> = Vec::with_capacity(16);
-        for b in 0..n {
-            for a in 0..n {
-                let (x0, y0) = (i * FINE + a * unit, j * FINE + b * unit);
-                // The sub-cell's sides, counter-clockwise from its south-west corner, each
-                // with the steps of the side's split level where it lies on the cell's side.
-                ring.clear();
-                let walk = [
-                    ([x0, y0], [1, 0], (b == 0).then_some(sides[0])),
-                    ([x0 + unit, y0], [0, 1], (a == n - 1).then_some(sides[1])),
-                    (
-                        [x0 + unit, y0 + unit],
-                        [-1, 0],
-                        (b == n - 1).then_some(sides[2]),
-                    ),
-                    ([x0, y0 + unit], [0, -1], (a == 0).then_some(sides[3])),
-                ];
-                for (start, dir, split) in walk {
-                    let parts = 1i64 << (split.unwrap_or(level).max(level) - level);
-                    for k in 0..parts {
-                        let t = k * unit / parts;
-                        ring.push([start[0] + dir[0] * t, start[1] + dir[1] * t]);
-                    }
-                }
-                v.clear();
-                for &f in &ring {
-                    let k = self.fine(f);
-                    v.push(k);
-                }
-                if v.len() == 4 && sub_twist / 4.0 + margin <= self.tolerance {
-                    self.diagonal([v[0], v[1], v[2], v[3]]);
-                } else {
-                    let c = [
-                        (x0 * 2 + unit) as f64 / (2 * FINE) as f64,
-                        (y0 * 2 + unit) as f64 / (2 * FINE) as f64,
-                    ];
-                    let uv = self.uv_of(c);
-                    let m = self.push(uv);
-                    for e in 0..v.len() {
-                        self.tri(v[e], v[(e + 1) % v.len()], m);
-                    }
-                }
+            true
+        } else if twist / 16.0 + margin <= self.tolerance {
+            let uv = [0, 1].map(|c| {
+                let sum: u32 = v
+                    .iter()
+                    .map(|&k| u32::from(self.out.uv[k as usize][c]))
+                    .sum();
+                ((sum + 2) / 4) as u16
+            });
+            let m = self.push(uv);
+            for e in 0..4 {
+                self.tri(v[e], v[(e + 1) % 4], m);
             }
+            true
+        } else {
+            let poly = if self.flipped {
+                vec![v[0], v[3], v[2], v[1]]
+            } else {
+                v.to_vec()
+            };
+            self.refine(&poly)
         }
     }
 
@@ -648,31 +538,7 @@ impl<S: Surface> Tile<'_, S> {
                 }
             }
         }
-        // The points a finer interior neighbour puts on a grid edge the piece shares with it.
-        let mut split = Vec::with_capacity(full.len() + 8);
-        for k in 0..full.len() {
-            let (a, b) = (full[k], full[(k + 1) % full.len()]);
-            split.push(a);
-            if let (Id::Node(ai, aj), Id::Node(bi, bj)) = (a, b) {
-                let (di, dj) = (bi - ai, bj - aj);
-                if di.abs() + dj.abs() != 1 {
-                    continue;
-                }
-                let (axis, from) = if di != 0 {
-                    (0, [ai.min(bi), aj])
-                } else {
-                    (1, [ai, aj.min(bj)])
-                };
-                let e = self.edge_level(from[0], from[1], axis);
-                let parts = 1i64 << e;
-                for t in 1..parts {
-                    let t = t * FINE / parts;
-                    let f = [ai * FINE + di * t, aj * FINE + dj * t];
-                    split.push(Id::Free(f.map(|c| c as f64)));
-                }
-            }
-        }
-        let mut vs: Vec<u32> = split
+        let mut vs: Vec<u32> = full
             .iter()
             .map(|&v| match v {
                 Id::Node(i, j) => self.node(i, j),
@@ -682,8 +548,7 @@ impl<S: Surface> Tile<'_, S> {
                     let n = self.side_vertex[s].len();
                     self.side_vertex[s][if end == 0 { 0 } else { n - 1 }]
                 }
-                // Here a fine lattice position (a split point), in fine units.
-                Id::Free(f) => self.fine(f.map(|c| c as i64)),
+                Id::Free(_) => u32::MAX,
             })
             .collect();
         vs.dedup();
@@ -703,7 +568,14 @@ impl<S: Surface> Tile<'_, S> {
         if twice_area < 0 {
             vs.reverse();
         }
-        let (twist, margin) = self.twist(i, j, self.delta_side);
+        let z = [
+            self.z(i, j),
+            self.z(i + 1, j),
+            self.z(i + 1, j + 1),
+            self.z(i, j + 1),
+        ];
+        let twist = (z[0] - z[1] - z[3] + z[2]).abs();
+        let margin = 2.0 * self.slope(i, j) * self.delta_side;
         if twist / 4.0 + margin <= self.tolerance {
             // A fan from the first vertex whose triangles all turn the right way.
             let n = vs.len();
@@ -824,9 +696,6 @@ pub fn dense_tile<S: Surface>(
         i0,
         j0,
         w,
-        w_rows: h,
-        levels: vec![0; (w * h) as usize],
-        fine_vertex: std::collections::HashMap::new(),
         node_vertex: vec![u32::MAX; (w * h) as usize],
         step: vec![0.0; ((w + 2) * (h + 2)) as usize],
         centre: [0, 1].map(|c| 0.25 * corners.iter().map(|p| p[c]).sum::<f64>()),
@@ -896,38 +765,16 @@ pub fn dense_tile<S: Surface>(
             class[((b - j0) * w + a - i0) as usize] = bits;
         }
     }
-    // Each cell: 0 outside, 1 cut by a side, 2 inside; an inside cell's level, the least
-    // whose sub-cells' centre fans hold the tolerance (cut cells keep level 0 and take the
-    // greedy refinement when their bound fails).
-    let mut kind = vec![0u8; (w * h) as usize];
     for b in j0..j1 {
         for a in i0..i1 {
             let at = |x: i64, y: i64| class[((y - j0) * w + x - i0) as usize];
             let c = [at(a, b), at(a + 1, b), at(a + 1, b + 1), at(a, b + 1)];
-            let cell = ((b - j0) * w + a - i0) as usize;
             if c.iter().all(|&c| c & 15 == 15) {
-                kind[cell] = 2;
-                let (twist, margin) = t.twist(a, b, t.delta);
-                // Subdividing shrinks the twist's part only: where the slope's margin alone
-                // takes most of the tolerance (a spike of tens of metres within a cell), the
-                // twist's part is held to a quarter of it and the bound is not claimed.
-                let target = (tolerance - margin).max(0.25 * tolerance);
-                let mut level = 0;
-                while level < MAX_LEVEL && twist / (16.0 * 4f64.powi(level as i32)) > target {
-                    level += 1;
+                if !t.cell(a, b) {
+                    return None;
                 }
-                t.levels[cell] = level as u8;
-            } else if c.iter().fold(0xF0, |m, &c| m & c) == 0 {
-                kind[cell] = 1;
-            }
-        }
-    }
-    for b in j0..j1 {
-        for a in i0..i1 {
-            match kind[((b - j0) * w + a - i0) as usize] {
-                2 => t.cell(a, b),
-                1 if !t.cut_cell(a, b) => return None,
-                _ => {}
+            } else if c.iter().fold(0xF0, |m, &c| m & c) == 0 && !t.cut_cell(a, b) {
+                return None;
             }
         }
     }
