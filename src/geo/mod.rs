@@ -11,6 +11,7 @@
 //! for NAD83(CSRS) (see the reference data's notes). `geodesy` (Rust Geodesy) was the
 //! alternative; it has no EPSG table and no WKT reader, so every CRS would be ours to spell.
 
+pub mod cells;
 pub mod tin;
 pub mod tms;
 

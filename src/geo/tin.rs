@@ -134,6 +134,18 @@ pub struct SideVertex {
 /// as few quantized points between them as keep the piecewise-linear side within `tolerance`
 /// of the surface along it, sorted along the side.
 pub fn side_vertices<S: Surface>(s: &S, line: &[[f64; 2]], tolerance: f64) -> Vec<SideVertex> {
+    side_vertices_through(s, line, &[], tolerance)
+}
+
+/// [`side_vertices`] through the quantized positions `through` as well (the dense tiles'
+/// crossings of the side with the grid's lines, see `cells`): each piece between two of
+/// them is simplified alike.
+pub fn side_vertices_through<S: Surface>(
+    s: &S,
+    line: &[[f64; 2]],
+    through: &[u16],
+    tolerance: f64,
+) -> Vec<SideVertex> {
     let at = |k: u16| {
         let f = f64::from(k) / f64::from(Q) * M as f64;
         let a = (f as usize).min(M - 1);
@@ -146,21 +158,33 @@ pub fn side_vertices<S: Surface>(s: &S, line: &[[f64; 2]], tolerance: f64) -> Ve
         };
         SideVertex { k, p, h: s.at(p) }
     };
+    let mut marks: Vec<u16> = through
+        .iter()
+        .copied()
+        .filter(|&k| k > 0 && k < Q)
+        .collect();
+    marks.sort_unstable();
+    marks.dedup();
     let mut out = vec![at(0)];
     let mut cuts = Vec::new();
-    // Pieces still to measure, the next one along the side on top.
-    let mut todo = vec![(at(0), at(Q))];
-    while let Some((v0, v1)) = todo.pop() {
-        let (err, t) = edge_error(s, v0.p, v1.p, v0.h, v1.h, &mut cuts);
-        if err > tolerance && v1.k - v0.k >= 2 {
-            let k = (f64::from(v0.k) + t * f64::from(v1.k - v0.k)).round() as u16;
-            let k = k.clamp(v0.k + 1, v1.k - 1);
-            let m = at(k);
-            todo.push((m, v1));
-            todo.push((v0, m));
-        } else {
-            out.push(v1);
+    let mut prev = at(0);
+    for k in marks.into_iter().chain([Q]) {
+        let next = at(k);
+        // Pieces still to measure, the next one along the side on top.
+        let mut todo = vec![(prev, next)];
+        while let Some((v0, v1)) = todo.pop() {
+            let (err, t) = edge_error(s, v0.p, v1.p, v0.h, v1.h, &mut cuts);
+            if err > tolerance && v1.k - v0.k >= 2 {
+                let k = (f64::from(v0.k) + t * f64::from(v1.k - v0.k)).round() as u16;
+                let k = k.clamp(v0.k + 1, v1.k - 1);
+                let m = at(k);
+                todo.push((m, v1));
+                todo.push((v0, m));
+            } else {
+                out.push(v1);
+            }
         }
+        prev = next;
     }
     out
 }
@@ -403,6 +427,36 @@ pub fn triangulate<S: Surface>(
     tolerance: f64,
     max_vertices: usize,
 ) -> TileTin {
+    let [south, east, west, north] = sides;
+    let place: [fn(u16) -> [u16; 2]; 4] = [
+        |k: u16| [k, 0],
+        |k: u16| [Q, k],
+        |k: u16| [0, k],
+        |k: u16| [k, Q],
+    ];
+    let mut start = Vec::new();
+    for (side, place) in [south, east, west, north].iter().zip(place) {
+        for v in side.iter() {
+            // Corners come twice (two sides): the second insertion changes nothing.
+            start.push((place(v.k), v.p, v.h));
+        }
+    }
+    refine(s, map, &start, aspect, tolerance, max_vertices)
+}
+
+/// The greedy insertion of [`triangulate`] into the Delaunay triangulation of the points
+/// `start` (quantized u, v; grid position; height), which must hold every point it adds
+/// (their convex hull): points already there are skipped, so the result's first vertices
+/// are `start`'s distinct ones in order. Used for whole tiles and, by `cells`, for the few
+/// grid cells whose twist the closed-form cell triangulations cannot hold.
+pub fn refine<S: Surface>(
+    s: &S,
+    map: &TileMap,
+    start: &[([u16; 2], [f64; 2], f64)],
+    aspect: f64,
+    tolerance: f64,
+    max_vertices: usize,
+) -> TileTin {
     let q = f64::from(Q);
     let mut out = TileTin::default();
     let mut tri: DelaunayTriangulation<Point2<f64>> = DelaunayTriangulation::new();
@@ -427,18 +481,8 @@ pub fn triangulate<S: Surface>(
             v
         })
     };
-    let [south, east, west, north] = sides;
-    let place: [fn(u16) -> [u16; 2]; 4] = [
-        |k: u16| [k, 0],
-        |k: u16| [Q, k],
-        |k: u16| [0, k],
-        |k: u16| [k, Q],
-    ];
-    for (side, place) in [south, east, west, north].iter().zip(place) {
-        for v in side.iter() {
-            // Corners come twice (two sides): the second insertion changes nothing.
-            add(&mut tri, &mut out, place(v.k), v.p, v.h, None);
-        }
+    for &(uv, p, h) in start {
+        add(&mut tri, &mut out, uv, p, h, None);
     }
     let on_border = |uv: [u16; 2], w: [u16; 2]| {
         (uv[0] == w[0] && (uv[0] == 0 || uv[0] == Q))

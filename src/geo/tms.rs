@@ -29,13 +29,16 @@
 //! they are bit-identical in both tiles.
 
 use crate::error::{Error, Result};
-use crate::geo::{tin, ToWgs84};
+use crate::geo::{cells, tin, ToWgs84};
 use crate::terrain::extract::{self, Criterion, ExtractParams, Refiner, TileTriangulation};
 use crate::terrain::quadtree::{self, NodeValues, Quadtree};
 use crate::terrain::{Tile, TileSet};
 use ndarray::Array2;
 use rayon::prelude::*;
 
+/// Share of a tile's grid nodes bending beyond the tolerance (`cells::roughness`) from which
+/// its most detailed mesh is the grid's cells rather than a greedy insertion.
+pub const DENSE_SHARE: f64 = 0.2;
 /// Intervals per tileset tile side (65 samples, Cesium's own heightmap tiles' size).
 pub const TILE_INTERVALS: usize = 64;
 /// Projection lattice step (samples) on small tiles.
@@ -491,57 +494,96 @@ fn tin_level(src: &Source<'_>, r: &TileRange, tolerance: f64) -> Vec<TerrainTile
         })
         .collect();
     let point = |a: usize, b: usize| points[b * px + a];
-    // The sides running east (row b, column a at b·nx + a), then those running north
-    // (column a, row b at nx·(ny + 1) + a·ny + b), each simplified once for both its tiles.
-    let east_runs = nx * (ny + 1);
-    let sides: Vec<Vec<tin::SideVertex>> = (0..east_runs + (nx + 1) * ny)
+    // Tile (a, b)'s map: its points every 1/M of the tile.
+    let tile_map = |a: usize, b: usize| {
+        let mut pts = [[0.0; 2]; (tin::M + 1) * (tin::M + 1)];
+        for (q, p) in pts.iter_mut().enumerate() {
+            *p = point(a * m + q % (m + 1), b * m + q / (m + 1));
+        }
+        tin::TileMap::new(pts)
+    };
+    // Dense tiles (see `cells`): the tiles whose footprint lies inside the grid and whose
+    // grid bends beyond the tolerance at `DENSE_SHARE` of its nodes or more. The others (at
+    // the survey's edge, or smooth enough for far fewer vertices) take the greedy path.
+    let [cols, rows] = tin::Surface::size(src).map(|n| n as f64);
+    let dense: Vec<bool> = (0..nx * ny)
         .into_par_iter()
         .map(|k| {
-            let line: Vec<[f64; 2]> = if k < east_runs {
-                let (a, b) = (k % nx, k / nx);
-                (0..=m).map(|i| point(a * m + i, b * m)).collect()
-            } else {
-                let (a, b) = ((k - east_runs) / ny, (k - east_runs) % ny);
-                (0..=m).map(|j| point(a * m, b * m + j)).collect()
-            };
-            tin::side_vertices(src, &line, tolerance)
+            let (a, b) = (k % nx, k / nx);
+            let inside = [(0, 0), (m, 0), (0, m), (m, m)].iter().all(|&(da, db)| {
+                let p = point(a * m + da, b * m + db);
+                p[0] >= 4.0 && p[1] >= 4.0 && p[0] <= cols - 5.0 && p[1] <= rows - 5.0
+            });
+            inside && cells::roughness(src, &tile_map(a, b), tolerance) >= DENSE_SHARE
         })
         .collect();
-    let east_run = |a: usize, b: usize| &sides[b * nx + a][..];
-    let north_run = |a: usize, b: usize| &sides[east_runs + a * ny + b][..];
+    let is_dense = |a: usize, b: usize| a < nx && b < ny && dense[b * nx + a];
+    // The sides running east (row b, column a at b·nx + a), then those running north
+    // (column a, row b at nx·(ny + 1) + a·ny + b), each made once for both its tiles: with a
+    // vertex at every grid line it crosses when a dense tile has it, else simplified in one
+    // dimension.
+    let east_runs = nx * (ny + 1);
+    let sides: Vec<cells::DenseSide> = (0..east_runs + (nx + 1) * ny)
+        .into_par_iter()
+        .map(|k| {
+            let (line, dense): (Vec<[f64; 2]>, bool) = if k < east_runs {
+                let (a, b) = (k % nx, k / nx);
+                (
+                    (0..=m).map(|i| point(a * m + i, b * m)).collect(),
+                    is_dense(a, b) || (b > 0 && is_dense(a, b - 1)),
+                )
+            } else {
+                let (a, b) = ((k - east_runs) / ny, (k - east_runs) % ny);
+                (
+                    (0..=m).map(|j| point(a * m, b * m + j)).collect(),
+                    is_dense(a, b) || (a > 0 && is_dense(a - 1, b)),
+                )
+            };
+            if dense {
+                cells::DenseSide::dense(src, &line, tolerance)
+            } else {
+                cells::DenseSide::simple(src, &line, tolerance)
+            }
+        })
+        .collect();
+    let east_run = |a: usize, b: usize| &sides[b * nx + a];
+    let north_run = |a: usize, b: usize| &sides[east_runs + a * ny + b];
     (0..nx * ny)
         .into_par_iter()
         .map(|k| {
             let (a, b) = (k % nx, k / nx);
             let (x, y) = (r.x[0] + a as u32, r.y[0] + b as u32);
             let bounds = tile_bounds(r.z, x, y);
-            let mut pts = [[0.0; 2]; (tin::M + 1) * (tin::M + 1)];
-            for (q, p) in pts.iter_mut().enumerate() {
-                *p = point(a * m + q % (m + 1), b * m + q / (m + 1));
-            }
-            let map = tin::TileMap::new(pts);
-            // The tile's area in grid cells bounds the vertices the grid's samples can need;
-            // the guard sits well above it.
-            let c = [pts[0], pts[m], pts[m * (m + 1)], pts[(m + 1) * (m + 1) - 1]];
-            let cross = |p: [f64; 2], q: [f64; 2], o: [f64; 2]| {
-                ((p[0] - o[0]) * (q[1] - o[1]) - (p[1] - o[1]) * (q[0] - o[0])).abs()
-            };
-            let cells = 0.5 * (cross(c[1], c[2], c[0]) + cross(c[1], c[2], c[3]));
-            let max_vertices = 4 * cells as usize + 4096;
+            let map = tile_map(a, b);
             let aspect = (0.5 * (bounds[1] + bounds[3])).to_radians().cos();
-            let t = tin::triangulate(
-                src,
-                &map,
-                [
-                    east_run(a, b),
-                    north_run(a + 1, b),
-                    north_run(a, b),
-                    east_run(a, b + 1),
-                ],
-                aspect,
-                tolerance,
-                max_vertices,
-            );
+            let tile_sides = [
+                east_run(a, b),
+                north_run(a + 1, b),
+                north_run(a, b),
+                east_run(a, b + 1),
+            ];
+            let t = dense[k]
+                .then(|| cells::dense_tile(src, &map, tile_sides, aspect, tolerance))
+                .flatten()
+                .unwrap_or_else(|| {
+                    // The tile's area in grid cells bounds the vertices the grid's samples
+                    // can need; the guard sits well above it.
+                    let c = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
+                        .map(|(u, v)| map.grid(u, v));
+                    let cross = |p: [f64; 2], q: [f64; 2], o: [f64; 2]| {
+                        ((p[0] - o[0]) * (q[1] - o[1]) - (p[1] - o[1]) * (q[0] - o[0])).abs()
+                    };
+                    let cells = 0.5 * (cross(c[1], c[2], c[0]) + cross(c[1], c[2], c[3]));
+                    let max_vertices = 4 * cells as usize + 4096;
+                    tin::triangulate(
+                        src,
+                        &map,
+                        tile_sides.map(|s| &s.verts[..]),
+                        aspect,
+                        tolerance,
+                        max_vertices,
+                    )
+                });
             tin_tile(src, [r.z, x, y], bounds, &map, &t)
         })
         .collect()
@@ -557,24 +599,26 @@ fn tin_tile(
     map: &tin::TileMap,
     t: &tin::TileTin,
 ) -> TerrainTile {
-    let q = f64::from(tin::Q);
+    // The ellipsoid's frame at the tile's centre, and the map's Jacobian there: over a tile
+    // of tens of metres they turn by a few millionths of a radian, far below the normals'
+    // oct coding (and the per-vertex trigonometry was most of their time).
     let span = tile_degrees(zxy[0]).to_radians();
     let e2 = WGS84_F * (2.0 - WGS84_F);
+    let lon = 0.5 * (bounds[0] + bounds[2]);
+    let lat = 0.5 * (bounds[1] + bounds[3]);
+    let (sp, cp) = lat.to_radians().sin_cos();
+    let sl_cl = lon.to_radians().sin_cos();
+    let s2 = 1.0 - e2 * sp * sp;
+    let east = WGS84_A / s2.sqrt() * cp.max(1e-9) * span;
+    let north = WGS84_A * (1.0 - e2) / (s2 * s2.sqrt()) * span;
+    let [ju, jv] = map.jacobian(0.5, 0.5);
     let normal = |k: usize| {
-        let [u, v] = t.uv[k].map(|c| f64::from(c) / q);
-        let lon = bounds[0] + u * (bounds[2] - bounds[0]);
-        let lat = bounds[1] + v * (bounds[3] - bounds[1]);
-        let (sp, cp) = lat.to_radians().sin_cos();
-        let s2 = 1.0 - e2 * sp * sp;
-        let east = WGS84_A / s2.sqrt() * cp.max(1e-9) * span;
-        let north = WGS84_A * (1.0 - e2) / (s2 * s2.sqrt()) * span;
         let p = t.p[k];
         let gx = src.height([p[0] + 0.5, p[1]]) - src.height([p[0] - 0.5, p[1]]);
         let gy = src.height([p[0], p[1] + 0.5]) - src.height([p[0], p[1] - 0.5]);
-        let [ju, jv] = map.jacobian(u, v);
         let dx = (gx * ju[0] + gy * ju[1]) / east;
         let dy = (gx * jv[0] + gy * jv[1]) / north;
-        ecef_normal(lon.to_radians().sin_cos(), (sp, cp), dx, dy)
+        ecef_normal(sl_cl, (sp, cp), dx, dy)
     };
     let mut remap = vec![u32::MAX; t.uv.len()];
     let mut out = TerrainTile {
