@@ -159,8 +159,8 @@ pub fn write_las(path: &Path, cloud: &PointCloud, opts: &LasWriteOptions) -> Res
     if !cloud.is_empty() {
         let decoded = |k: usize, n: i64| opts.scale[k] * f64::from(n as i32) + offset[k];
         let mut at = 179;
-        for k in 0..3 {
-            for n in [stored[k][1], stored[k][0]] {
+        for (k, [lo, hi]) in stored.into_iter().enumerate() {
+            for n in [hi, lo] {
                 buf[at..at + 8].copy_from_slice(&decoded(k, n).to_le_bytes());
                 at += 8;
             }
