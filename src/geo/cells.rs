@@ -378,6 +378,16 @@ impl<S: Surface> Tile<'_, S> {
         self.s.node(i, j)
     }
 
+    /// The heights of cell (i, j)'s corners, counter-clockwise from (i, j).
+    fn corners(&self, i: i64, j: i64) -> [f64; 4] {
+        [
+            self.z(i, j),
+            self.z(i + 1, j),
+            self.z(i + 1, j + 1),
+            self.z(i, j + 1),
+        ]
+    }
+
     /// Largest slope of G (metres per grid unit) within a cell of cell (i, j).
     fn slope(&self, i: i64, j: i64) -> f64 {
         let mut g = 0.0f64;
@@ -404,13 +414,8 @@ impl<S: Surface> Tile<'_, S> {
     /// Interior cell (i, j): two triangles, four around its centre, or greedy refinement
     /// (false when that failed).
     fn cell(&mut self, i: i64, j: i64) -> bool {
-        let z = [
-            self.z(i, j),
-            self.z(i + 1, j),
-            self.z(i + 1, j + 1),
-            self.z(i, j + 1),
-        ];
-        let twist = (z[0] - z[1] - z[3] + z[2]).abs();
+        let z = self.corners(i, j);
+        let twist = twist(&z);
         let margin = 2.0 * self.slope(i, j) * self.delta;
         let v = [
             self.node(i, j),
@@ -568,13 +573,7 @@ impl<S: Surface> Tile<'_, S> {
         if twice_area < 0 {
             vs.reverse();
         }
-        let z = [
-            self.z(i, j),
-            self.z(i + 1, j),
-            self.z(i + 1, j + 1),
-            self.z(i, j + 1),
-        ];
-        let twist = (z[0] - z[1] - z[3] + z[2]).abs();
+        let twist = twist(&self.corners(i, j));
         let margin = 2.0 * self.slope(i, j) * self.delta_side;
         if twist / 4.0 + margin <= self.tolerance {
             // A fan from the first vertex whose triangles all turn the right way.
@@ -593,6 +592,13 @@ impl<S: Surface> Tile<'_, S> {
         }
         self.refine(&vs)
     }
+}
+
+/// A bilinear cell's twist |z00 − z10 − z01 + z11| from its corners (counter-clockwise): the
+/// two-triangle split of the cell is within a quarter of it of the bilinear surface, the fan
+/// around its centre within a sixteenth.
+fn twist(z: &[f64; 4]) -> f64 {
+    (z[0] - z[1] - z[3] + z[2]).abs()
 }
 
 /// Share of a tile's grid nodes where the grid bends by more than `tolerance` over two cells
@@ -789,10 +795,7 @@ mod tests {
     struct Rough;
     impl Surface for Rough {
         fn at(&self, p: [f64; 2]) -> f64 {
-            let (i0, j0) = (p[0].floor() as i64, p[1].floor() as i64);
-            let (di, dj) = (p[0] - i0 as f64, p[1] - j0 as f64);
-            (self.node(i0, j0) * (1.0 - di) + self.node(i0 + 1, j0) * di) * (1.0 - dj)
-                + (self.node(i0, j0 + 1) * (1.0 - di) + self.node(i0 + 1, j0 + 1) * di) * dj
+            crate::geo::tin::tests::bilinear(self, p)
         }
         fn node(&self, i: i64, j: i64) -> f64 {
             let (i, j) = (i.clamp(0, 79), j.clamp(0, 79));

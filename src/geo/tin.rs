@@ -546,17 +546,22 @@ pub fn refine<S: Surface>(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
+
+    /// The bilinear surface of a test grid's nodes at `p` (unit cells).
+    pub(crate) fn bilinear<S: Surface>(s: &S, p: [f64; 2]) -> f64 {
+        let (i0, j0) = (p[0].floor() as i64, p[1].floor() as i64);
+        let (di, dj) = (p[0] - i0 as f64, p[1] - j0 as f64);
+        (s.node(i0, j0) * (1.0 - di) + s.node(i0 + 1, j0) * di) * (1.0 - dj)
+            + (s.node(i0, j0 + 1) * (1.0 - di) + s.node(i0 + 1, j0 + 1) * di) * dj
+    }
 
     /// A grid of unit cells: 0 everywhere but a block of 3 m (a building) and a slope.
     struct Block;
     impl Surface for Block {
         fn at(&self, p: [f64; 2]) -> f64 {
-            let (i0, j0) = (p[0].floor() as i64, p[1].floor() as i64);
-            let (di, dj) = (p[0] - i0 as f64, p[1] - j0 as f64);
-            (self.node(i0, j0) * (1.0 - di) + self.node(i0 + 1, j0) * di) * (1.0 - dj)
-                + (self.node(i0, j0 + 1) * (1.0 - di) + self.node(i0 + 1, j0 + 1) * di) * dj
+            bilinear(self, p)
         }
         fn node(&self, i: i64, j: i64) -> f64 {
             let (i, j) = (i.clamp(0, 40), j.clamp(0, 40));
