@@ -298,7 +298,6 @@ fn inside(path: &Path) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::terrain::heightfield::CellState;
     use glam::Vec3;
 
     fn cube() -> TriMesh {
@@ -361,13 +360,7 @@ mod tests {
     fn ground_comes_from_the_heightfield() {
         let dir = tempfile::tempdir().unwrap();
         mesh::io::write(&cube(), &dir.path().join("c.obj")).unwrap();
-        let mut hf = Heightfield::empty(4, 4, [0.0, 0.0], [1.0, 1.0], 0.0, None);
-        for j in 0..4 {
-            for i in 0..4 {
-                hf.heights[[j, i]] = (i + 10 * j) as f32;
-                hf.state[[j, i]] = CellState::Measured;
-            }
-        }
+        let hf = crate::terrain::testutil::field(4, 4, |i, j| (i + 10 * j) as f32);
         let cfg = AssetConfig {
             input: "c.obj".into(),
             output: "out/c.ply".into(),

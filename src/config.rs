@@ -46,9 +46,9 @@ pub struct Pipeline {
     /// `[[assets]]`: model meshes simplified and placed on the terrain (see `assets`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub assets: Vec<crate::assets::AssetConfig>,
-    /// `[scale]`: in memory or streamed through temporary bricks (see `shard::stream`).
+    /// `[scale]`: in memory or streamed through temporary bricks (see `pipeline::stream`).
     #[serde(default)]
-    pub scale: crate::shard::stream::ScaleConfig,
+    pub scale: crate::shard::settings::ScaleConfig,
 }
 
 /// `[input]`

@@ -921,13 +921,13 @@ fn run(cli: Cli) -> Result<()> {
             shards,
             json,
         } => {
-            let p = terratile::shard::jobs::plan(&pipeline, &out, shards)?;
+            let p = terratile::pipeline::jobs::plan(&pipeline, &out, shards)?;
             if json {
                 print_json(&p)?;
             } else {
                 outln!(
                     "{}: {} points, {} jobs per phase ({}), then merge",
-                    out.join(terratile::shard::jobs::PLAN_FILE).display(),
+                    out.join(terratile::pipeline::jobs::PLAN_FILE).display(),
                     p.points,
                     p.jobs,
                     p.phases.join(", ")
@@ -935,13 +935,13 @@ fn run(cli: Cli) -> Result<()> {
             }
         }
         Command::Shard { plan, phase, index } => {
-            let phase = terratile::shard::jobs::Phase::parse(&phase)?;
-            let index = terratile::shard::jobs::job_index(index)?;
-            let r = terratile::shard::jobs::shard(&plan, phase, index)?;
+            let phase = terratile::pipeline::jobs::Phase::parse(&phase)?;
+            let index = terratile::pipeline::jobs::job_index(index)?;
+            let r = terratile::pipeline::jobs::shard(&plan, phase, index)?;
             outln!("{}", r.display());
         }
         Command::Merge { plan, json } => {
-            let m = terratile::shard::jobs::merge_run(&plan)?;
+            let m = terratile::pipeline::jobs::merge_run(&plan)?;
             if json {
                 print_json(&m)?;
             } else {

@@ -9,6 +9,7 @@ mod point_corpus;
 mod tiles_support;
 
 // The areas.
+mod architecture;
 mod baseline;
 mod cli_mesh;
 mod cli_read;

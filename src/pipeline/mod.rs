@@ -8,10 +8,13 @@
 //! - `report`: [`RunSummary`] and each stage's figures;
 //! - `memory`: the run's memory estimate and the probes of what it used.
 
+pub mod jobs;
 mod memory;
 mod plan;
 mod report;
 mod run;
+mod spill;
+pub mod stream;
 
 pub use crate::outnames::NOISE_FILE;
 pub use memory::{current_rss, empty_input, estimate_pipeline, peak_rss, reset_peak_rss};

@@ -53,7 +53,7 @@ pub struct RunOutput {
 /// Runs `pipeline`, reporting progress to `progress`, and returns the summary.
 pub fn run(pipeline: &LoadedPipeline, progress: &dyn Progress) -> Result<RunSummary> {
     // Streamed through temporary bricks when `[scale]` asks or the input would not fit.
-    if let Some(summary) = crate::shard::stream::run_if_streaming(pipeline, progress)? {
+    if let Some(summary) = super::stream::run_if_streaming(pipeline, progress)? {
         return Ok(summary);
     }
     run_with_context(pipeline, progress).map(|o| o.summary)

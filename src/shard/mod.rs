@@ -31,14 +31,12 @@ use std::ops::Range;
 
 pub mod bricks;
 pub mod direct;
-pub mod jobs;
 pub mod points;
 pub mod prepared_spill;
 pub mod reuse;
 pub mod scale_bench;
-pub mod spill;
+pub mod settings;
 pub mod store;
-pub mod stream;
 #[cfg(test)]
 mod tests;
 
@@ -195,7 +193,8 @@ pub fn fill_halo(p: &FillParams) -> usize {
     p.radius.floor().clamp(0.0, fill::MAX_RADIUS as f64) as usize
 }
 
-fn is_smooth(fill: Option<&FillParams>) -> bool {
+/// True when the fill runs and its fallback is the smooth push-pull pyramid.
+pub fn is_smooth(fill: Option<&FillParams>) -> bool {
     fill.is_some_and(|f| f.fallback == Fallback::Smooth)
 }
 

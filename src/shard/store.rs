@@ -262,6 +262,13 @@ impl Reader {
     }
 }
 
+/// True for `name` = `prefix`, a decimal shard index, `.bin`: a per-shard temporary file.
+pub(crate) fn is_numbered(name: &str, prefix: &str) -> bool {
+    name.strip_prefix(prefix)
+        .and_then(|r| r.strip_suffix(".bin"))
+        .is_some_and(|r| !r.is_empty() && r.bytes().all(|c| c.is_ascii_digit()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

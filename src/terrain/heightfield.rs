@@ -180,17 +180,16 @@ impl Heightfield {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::terrain::testutil::field_at;
 
     #[test]
     fn bilinear_reproduces_a_plane() {
-        let mut hf = Heightfield::empty(4, 3, [100.0, 200.0], [2.0, 1.0], 0.0, None);
-        for j in 0..3 {
-            for i in 0..4 {
-                let [x, y] = hf.centre(i, j);
-                hf.heights[[j, i]] = (0.5 * x - 0.25 * y) as f32;
-                hf.state[[j, i]] = CellState::Measured;
-            }
-        }
+        // Cell centres at 101 + 2i, 200.5 + j.
+        let hf = field_at(4, 3, [100.0, 200.0], [2.0, 1.0], |i, j| {
+            let (x, y) = (101.0 + 2.0 * i as f64, 200.5 + j as f64);
+            (0.5 * x - 0.25 * y) as f32
+        });
+        assert_eq!(hf.centre(1, 2), [103.0, 202.5]);
         let z = hf.sample_bilinear(103.3, 201.2).unwrap();
         assert!((z - (0.5 * 103.3 - 0.25 * 201.2)).abs() < 1e-4);
         assert_eq!(hf.cell_of(103.3, 201.2), Some((1, 1)));

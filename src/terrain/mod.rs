@@ -88,7 +88,18 @@ pub(crate) mod testutil {
 
     /// A `cols` × `rows` grid of unit cells at the origin, every cell measured at `f(i, j)`.
     pub(crate) fn field(cols: usize, rows: usize, f: impl Fn(usize, usize) -> f32) -> Heightfield {
-        let mut hf = Heightfield::empty(cols, rows, [0.0, 0.0], [1.0, 1.0], 0.0, None);
+        field_at(cols, rows, [0.0, 0.0], [1.0, 1.0], f)
+    }
+
+    /// As [`field`], with the grid's south-west corner at `corner` and cells of `cell_size`.
+    pub(crate) fn field_at(
+        cols: usize,
+        rows: usize,
+        corner: [f64; 2],
+        cell_size: [f64; 2],
+        f: impl Fn(usize, usize) -> f32,
+    ) -> Heightfield {
+        let mut hf = Heightfield::empty(cols, rows, corner, cell_size, 0.0, None);
         for j in 0..rows {
             for i in 0..cols {
                 hf.heights[[j, i]] = f(i, j);

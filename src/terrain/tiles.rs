@@ -385,6 +385,7 @@ pub fn resample_to(hf: &Heightfield, cols: usize, rows: usize) -> Heightfield {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::terrain::testutil::field_at;
 
     /// `hf` tiled at `size` with no preset.
     fn tile_at(hf: &Heightfield, size: usize) -> TileSet {
@@ -399,14 +400,9 @@ mod tests {
     }
 
     fn ramp(cols: usize, rows: usize) -> Heightfield {
-        let mut hf = Heightfield::empty(cols, rows, [1000.0, 2000.0], [0.5, 0.5], 0.0, None);
-        for j in 0..rows {
-            for i in 0..cols {
-                hf.heights[[j, i]] = (i * 1000 + j) as f32;
-                hf.state[[j, i]] = CellState::Measured;
-            }
-        }
-        hf
+        field_at(cols, rows, [1000.0, 2000.0], [0.5, 0.5], |i, j| {
+            (i * 1000 + j) as f32
+        })
     }
 
     #[test]

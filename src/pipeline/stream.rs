@@ -5,15 +5,15 @@
 //!    fits the memory budget in memory (`[scale] mode = "auto"`).
 //! 2. **Bucket**: one read of every input in file order (LAS from its memory map, LAZ
 //!    through the chunk decoder, batch by batch), each point appended to its brick
-//!    ([`super::bricks`]) through fixed-size buffers; the exact bounds and number of the
+//!    ([`crate::shard::bricks`]) through fixed-size buffers; the exact bounds and number of the
 //!    points are reduced on the way (noise removal's lattice).
 //! 3. **Denoise windows**: square windows of low-layer columns, each reading the bricks its
 //!    columns and halo overlap: the counts at every voxel height (summed, the height
 //!    chosen), then the keep flags of its own points ([`denoise::shard_counts`],
 //!    [`denoise::shard_denoise`]); the kept points' bounds and number fix the grid.
 //! 4. **Grid shards**: blocks of tiles, each resampling the kept points of the bricks its
-//!    cells and halo overlap ([`resample::resample_window`]), then [`super::prepare`],
-//!    [`super::complete_coarse`], [`super::finish`] and [`super::merge`]; the tiles are
+//!    cells and halo overlap ([`resample::resample_window`]), then [`crate::shard::prepare`],
+//!    [`crate::shard::complete_coarse`], [`crate::shard::finish`] and [`crate::shard::merge`]; the tiles are
 //!    written by the in-memory run's own output stages.
 //!
 //! Windows and shards run in parallel, as many at once as the budget allows. Temporary
@@ -25,97 +25,28 @@
 //! present) and every finished denoise window (its `keep-…` file present: files are written
 //! under a temporary name and renamed when complete) are not redone.
 
-use super::bricks::{self, BrickLattice, BrickPoints, BrickWriter, SourceTransform};
-use super::direct::{self, FileBox, Files};
-use super::reuse;
-use super::{complete_coarse, finish_with, merge, prepare, prepared_spill};
-use super::{ShardLayout, ShardOutput};
+use super::spill;
 use crate::config::LoadedPipeline;
 use crate::error::{Error, Result};
 use crate::fsutil::write_bytes_atomic;
 use crate::pipeline::{peak_rss, Plan, RunSummary, StageReport};
 use crate::points::{self, Bounds, Crs, PointCloud, SourceInfo};
 use crate::progress::Progress;
-use crate::terrain::denoise::{self, ColumnWindow, Frame};
-use crate::terrain::fill::{Fallback, FillReport};
+use crate::shard::bricks::{self, BrickLattice, BrickPoints, BrickWriter, SourceTransform};
+use crate::shard::direct::{self, FileBox, Files};
+use crate::shard::reuse;
+use crate::shard::settings::{Mode, ReadMode, DIRECT_MAX_READS};
+use crate::shard::{complete_coarse, finish_with, merge, prepare, prepared_spill};
+use crate::shard::{Merged, Prepared, ShardLayout, ShardOutput};
+use crate::terrain::denoise::{self, ColumnWindow, DenoiseSettings, Frame};
+use crate::terrain::fill::{Fallback, FillParams, FillReport};
 use crate::terrain::resample::{self, GridSpec};
 use crate::terrain::Heightfield;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::time::Instant;
-
-/// How `terratile run` holds the points.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Mode {
-    /// In memory when the estimate fits the budget, else streamed.
-    #[default]
-    Auto,
-    /// Always in memory.
-    Memory,
-    /// Always streamed.
-    Stream,
-}
-
-/// How the streamed run's windows and shards get their points.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ReadMode {
-    /// Directly from the files when the inputs are uncompressed LAS tiles small enough that
-    /// each point is decoded at most [`DIRECT_MAX_READS`] times, else through bricks.
-    #[default]
-    Auto,
-    /// Always through temporary bricks.
-    Bricks,
-    /// Always directly from the input files, by their points' bounds.
-    Direct,
-}
-
-/// Reads per point (estimated from the headers) up to which `read = "auto"` reads LAS tiles
-/// directly: decoding a LAS record costs about what reading a brick record back costs, and
-/// the bricks cost one write and at least two reads of every point.
-pub const DIRECT_MAX_READS: f64 = 8.0;
-
-/// `[scale]`
-#[derive(Debug, Clone, Default, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct ScaleConfig {
-    /// `auto` (default), `memory` or `stream`.
-    #[serde(default)]
-    pub mode: Mode,
-    /// The memory budget of the choice and of the streaming run, e.g. `"4GiB"` (default:
-    /// `--max-memory`, else half of the machine's memory). `--max-memory` wins.
-    #[serde(default)]
-    pub memory_budget: Option<String>,
-    /// Directory for the temporary files (default: beside the output directory).
-    #[serde(default)]
-    pub temp_dir: Option<PathBuf>,
-    /// `auto` (default), `bricks` or `direct`: how windows and shards read their points.
-    #[serde(default)]
-    pub read: ReadMode,
-}
-
-impl ScaleConfig {
-    /// Checks `memory_budget`.
-    pub fn validate(&self) -> Result<()> {
-        if let Some(s) = &self.memory_budget {
-            crate::memory::parse_size(s)
-                .map_err(|e| Error::param("scale", "memory_budget", s, e))?;
-        }
-        Ok(())
-    }
-
-    /// The budget in bytes: `--max-memory`, else `memory_budget`, else the default.
-    pub fn budget(&self) -> u64 {
-        match &self.memory_budget {
-            Some(s) if !crate::memory::budget_is_set() => {
-                crate::memory::parse_size(s).unwrap_or_else(|_| crate::memory::budget())
-            }
-            _ => crate::memory::budget(),
-        }
-    }
-}
 
 /// Bytes a point costs inside a window or shard: its record read back (20), coordinates
 /// and sequence number (32), the sort into input order (12), noise removal's key and flags
@@ -386,8 +317,8 @@ fn is_ours(name: &str) -> bool {
         || bricks::is_brick_name(name)
         || window("counts-")
         || window("keep-")
-        || super::spill::is_spill_name(name)
-        || super::prepared_spill::is_prepared_name(name)
+        || spill::is_spill_name(name)
+        || prepared_spill::is_prepared_name(name)
 }
 
 impl TempDir {
@@ -800,6 +731,298 @@ fn read_keep(path: &Path) -> Option<(u64, u64, Bounds, Vec<u64>)> {
     Some((q, failing, b, v))
 }
 
+/// The windows of the denoise pass: squares of `groups` × `groups` low-layer column groups,
+/// each read with its halo, and what they read from.
+struct DenoiseWindows<'a> {
+    params: &'a denoise::DenoiseParams,
+    dir: &'a Path,
+    bk: &'a Bucketed,
+    files: Files<'a>,
+    mpu: f64,
+    sizing: &'a Sizing,
+    check: Option<&'a reuse::HeaderCheck>,
+    progress: &'a dyn Progress,
+    frame: Frame,
+    s: DenoiseSettings,
+    /// Low-layer columns of the survey in x and y.
+    columns: [u64; 2],
+    halo: u64,
+    groups: u64,
+    /// Columns per window side.
+    side: u64,
+    /// Windows in x and y, and all of them.
+    n: [u64; 2],
+    count: usize,
+    decoded: AtomicU64,
+    stored: AtomicU64,
+    crash_after: Option<usize>,
+    written: AtomicUsize,
+}
+
+impl<'a> DenoiseWindows<'a> {
+    /// Windows holding about `sizing.points` points with their halo.
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        pipeline: &'a LoadedPipeline,
+        dir: &'a Path,
+        bk: &'a Bucketed,
+        files: &Files<'a>,
+        mpu: f64,
+        sizing: &'a Sizing,
+        check: Option<&'a reuse::HeaderCheck>,
+        progress: &'a dyn Progress,
+    ) -> Result<Self> {
+        let params = &pipeline.config.denoise;
+        let frame = Frame {
+            bounds: Bounds {
+                min: bk.min,
+                max: bk.max,
+            },
+            points: bk.points as usize,
+        };
+        let s = frame
+            .settings(params, mpu)
+            .map_err(|e| pipeline.param_error(e))?;
+        let [cx, cy] = frame.columns(&s);
+        let group = frame.group(&s);
+        let halo = frame.halo(&s);
+        let area = (frame.bounds.size()[0] * frame.bounds.size()[1]).max(1e-9);
+        let density = bk.points as f64 / area;
+        let side_world = (sizing.points as f64 / density.max(1e-12)).sqrt();
+        let group_world = group as f64 * s.voxel_size;
+        let groups = ((side_world / group_world).floor() as u64)
+            .saturating_sub(2 * halo.div_ceil(group))
+            .max(1);
+        let side = groups * group;
+        let n = [cx.div_ceil(side), cy.div_ceil(side)];
+        Ok(DenoiseWindows {
+            params,
+            dir,
+            bk,
+            files: *files,
+            mpu,
+            sizing,
+            check,
+            progress,
+            frame,
+            s,
+            columns: [cx, cy],
+            halo,
+            groups,
+            side,
+            n,
+            count: (n[0] * n[1]) as usize,
+            decoded: AtomicU64::new(0),
+            stored: AtomicU64::new(0),
+            crash_after: std::env::var("TERRATILE_STREAM_CRASH_AFTER")
+                .ok()
+                .and_then(|v| v.parse().ok()),
+            written: AtomicUsize::new(0),
+        })
+    }
+
+    /// Window `k`'s own columns.
+    fn window(&self, k: usize) -> ColumnWindow {
+        let ([cx, cy], n, side) = (self.columns, self.n, self.side);
+        let (wx, wy) = (k as u64 % n[0], k as u64 / n[0]);
+        ColumnWindow {
+            x: wx * side..((wx + 1) * side).min(cx),
+            y: wy * side..((wy + 1) * side).min(cy),
+        }
+    }
+
+    /// The columns window `k` reads: its own and the halo, as `denoise_sharded` buckets them
+    /// (in brick order: noise removal does not depend on the order of its points).
+    fn read_columns(&self, k: usize) -> (std::ops::Range<u64>, std::ops::Range<u64>) {
+        let ([cx, cy], halo) = (self.columns, self.halo);
+        let own = self.window(k);
+        let rx = own.x.start.saturating_sub(halo)..(own.x.end + halo).min(cx);
+        let ry = own.y.start.saturating_sub(halo)..(own.y.end + halo).min(cy);
+        (rx, ry)
+    }
+
+    /// The world range that holds window `k`'s points (one column of margin for rounding).
+    fn range(&self, k: usize) -> reuse::Range2 {
+        let (rx, ry) = self.read_columns(k);
+        let inv = self.s.voxel_size;
+        let world = |r: &std::ops::Range<u64>, a: usize, c: u64| {
+            let lo = self.frame.bounds.min[a] + (r.start as f64 - 1.0) * inv;
+            let hi = if r.end >= c {
+                f64::INFINITY
+            } else {
+                self.frame.bounds.min[a] + (r.end as f64 + 1.0) * inv
+            };
+            [lo, hi]
+        };
+        (
+            world(&rx, 0, self.columns[0]),
+            world(&ry, 1, self.columns[1]),
+        )
+    }
+
+    /// True when window `k` reads the point at (`x`, `y`).
+    fn wanted(&self, k: usize, x: f64, y: f64) -> bool {
+        let (rx, ry) = self.read_columns(k);
+        let (a, b) = self.frame.column(&self.s, x, y);
+        rx.contains(&a) && ry.contains(&b)
+    }
+
+    /// Window `k`'s points from the bricks.
+    fn load(&self, k: usize) -> Result<BrickPoints> {
+        let (x, y) = self.range(k);
+        let files = self.files;
+        self.bk
+            .load(self.dir, &files, x, y, bricks::Order::Bricks, |_, x, y| {
+                self.wanted(k, x, y)
+            })
+    }
+
+    /// Window `k`'s file of `kind`.
+    fn name(&self, kind: &str, k: usize) -> PathBuf {
+        self.dir.join(format!("{kind}-{}-{k:07}.bin", self.groups))
+    }
+
+    /// Runs `f` on each window of `ks` with its points, `sizing.parallel` at a time: from the
+    /// bricks, or by bounds with each file decoded about once for the whole list.
+    fn run_batch(
+        &self,
+        ks: &[usize],
+        f: &(dyn Fn(usize, BrickPoints) -> Result<()> + Sync),
+    ) -> Result<()> {
+        if self.bk.boxes.is_empty() {
+            for chunk in ks.chunks(self.sizing.parallel) {
+                chunk.par_iter().try_for_each(|&k| f(k, self.load(k)?))?;
+                self.progress.advance(chunk.len() as u64);
+            }
+            return Ok(());
+        }
+        let ranges = (0..self.count).map(|k| self.range(k)).collect();
+        let reader = reuse::PassReader::new(
+            self.files,
+            ranges,
+            ks.to_vec(),
+            reuse_round(self.sizing),
+            reuse_cap(self.sizing),
+            |k: usize, _: u64, x: f64, y: f64| self.wanted(k, x, y),
+        )
+        .with_check(self.check);
+        let out = (0..reader.rounds()).try_for_each(|r| {
+            let pts = reader.load(r)?;
+            let ws = reader.round_windows(r);
+            ws.par_iter().zip(pts).try_for_each(|(&k, p)| f(k, p))?;
+            self.progress.advance(ws.len() as u64);
+            Ok(())
+        });
+        self.decoded.fetch_add(reader.decoded(), Ordering::Relaxed);
+        self.stored
+            .fetch_max(reader.stored_peak(), Ordering::Relaxed);
+        out
+    }
+
+    /// Window `k` filtered at `q` from its points `p`: its keep file (saved: resumable).
+    fn keep_of(&self, k: usize, q: u32, p: BrickPoints) -> Result<()> {
+        let own = self.window(k);
+        let mut out = vec![q as u64, 0];
+        let mut kept = Bounds::EMPTY;
+        let mut seqs = Vec::new();
+        if !p.is_empty() {
+            let input = p.shard_input(&self.frame, self.params, self.mpu, &own);
+            let d = denoise::shard_denoise(&input, q)?;
+            out[1] = d.removed_sparse as u64;
+            kept = crate::terrain::bounds_of(&p.x, &p.y, &p.z, Some(&d.keep)).0;
+            // The removed points of its own columns (about 1 % of them: a small file where
+            // the kept ones would be most of the input); the windows' own columns partition
+            // the points, so every point not removed by its window is kept.
+            for (i, &k) in d.keep.iter().enumerate() {
+                if !k {
+                    let (a, b) = self.frame.column(&self.s, p.x[i], p.y[i]);
+                    if own.x.contains(&a) && own.y.contains(&b) {
+                        seqs.push(p.seq[i]);
+                    }
+                }
+            }
+        }
+        out.extend(kept.min.iter().chain(&kept.max).map(|v| v.to_bits()));
+        out.extend(seqs);
+        write_u64s(&self.name("keep", k), &out)?;
+        let w = self.written.fetch_add(1, Ordering::SeqCst) + 1;
+        if self.crash_after.is_some_and(|c| w >= c) {
+            // A test's stand-in for the process being killed outright: no clean-up at all.
+            eprintln!("terratile: TERRATILE_STREAM_CRASH_AFTER={w}: stopping without clean-up");
+            std::process::exit(101);
+        }
+        Ok(())
+    }
+
+    /// Every window filtered at `q`; returns how many were resumed: windows whose keep file
+    /// at `q` is already there (a resumed run) are not redone.
+    fn keep_at(&self, q: u32, label: &str) -> Result<usize> {
+        let done = |k: &usize| read_keep(&self.name("keep", *k)).is_some_and(|v| v.0 == q as u64);
+        let todo: Vec<usize> = (0..self.count).filter(|k| !done(k)).collect();
+        self.progress.start(label, todo.len() as u64);
+        self.run_batch(&todo, &|k, p| self.keep_of(k, q, p))?;
+        self.progress.finish();
+        Ok(self.count - todo.len())
+    }
+
+    /// Window `k`'s counts at every voxel height from its points `p`, saved.
+    fn counts_of(&self, k: usize, p: BrickPoints) -> Result<()> {
+        let path = self.name("counts", k);
+        let own = self.window(k);
+        let c = if p.is_empty() {
+            Vec::new()
+        } else {
+            let input = p.shard_input(&self.frame, self.params, self.mpu, &own);
+            denoise::shard_counts(&input)?
+        };
+        let flat: Vec<u64> = c.iter().flat_map(|c| c.map(|v| v as u64)).collect();
+        write_u64s(&path, &flat)
+    }
+
+    /// The counts at every voxel height summed over all windows (windows whose counts are
+    /// already there, in a resumed run, are not redone).
+    fn summed_counts(&self) -> Result<Vec<[usize; 3]>> {
+        let todo: Vec<usize> = (0..self.count)
+            .filter(|&k| read_u64s(&self.name("counts", k)).is_none())
+            .collect();
+        self.progress.start("denoise: counts", todo.len() as u64);
+        self.run_batch(&todo, &|k, p| self.counts_of(k, p))?;
+        self.progress.finish();
+        let mut sums: Vec<[usize; 3]> = Vec::new();
+        for k in 0..self.count {
+            let flat = read_u64s(&self.name("counts", k))
+                .ok_or_else(|| Error::Internal(format!("denoise window {k}: counts missing")))?;
+            let c: Vec<[usize; 3]> = flat
+                .chunks_exact(3)
+                .map(|c| [c[0] as usize, c[1] as usize, c[2] as usize])
+                .collect();
+            sums.resize(sums.len().max(c.len()), [0; 3]);
+            for (acc, c) in sums.iter_mut().zip(&c) {
+                for i in 0..3 {
+                    acc[i] += c[i];
+                }
+            }
+        }
+        Ok(sums)
+    }
+
+    /// The keep flags of all points and the kept points' bounds, from the windows' files.
+    fn gather(&self) -> Result<(KeepBits, Bounds)> {
+        let mut keep = KeepBits::all(self.bk.points);
+        let mut bounds = Bounds::EMPTY;
+        for k in 0..self.count {
+            let (_, _, b, seqs) = read_keep(&self.name("keep", k)).ok_or_else(|| {
+                Error::Internal(format!("denoise window {k}: keep flags missing"))
+            })?;
+            bounds = bounds.union(b);
+            for s in seqs {
+                keep.clear(s);
+            }
+        }
+        Ok((keep, bounds))
+    }
+}
+
 /// Pass 3a: noise removal by windows of low-layer columns read from the bricks.
 ///
 /// Each window is read once and filtered at voxel height steps 1 (the height the
@@ -820,219 +1043,29 @@ fn denoise_pass(
     check: Option<&reuse::HeaderCheck>,
     progress: &dyn Progress,
 ) -> Result<DenoisePass> {
-    let params = &pipeline.config.denoise;
-    let frame = Frame {
-        bounds: Bounds {
-            min: bk.min,
-            max: bk.max,
-        },
-        points: bk.points as usize,
-    };
-    let s = frame
-        .settings(params, mpu)
-        .map_err(|e| pipeline.param_error(e))?;
-    let [cx, cy] = frame.columns(&s);
-    let group = frame.group(&s);
-    let halo = frame.halo(&s);
-    // Windows of `groups` × `groups` low-layer columns holding about `sizing.points` points
-    // with their halo.
-    let area = (frame.bounds.size()[0] * frame.bounds.size()[1]).max(1e-9);
-    let density = bk.points as f64 / area;
-    let side_world = (sizing.points as f64 / density.max(1e-12)).sqrt();
-    let group_world = group as f64 * s.voxel_size;
-    let groups = ((side_world / group_world).floor() as u64)
-        .saturating_sub(2 * halo.div_ceil(group))
-        .max(1);
-    let side = groups * group;
-    let n = [cx.div_ceil(side), cy.div_ceil(side)];
-    let count = (n[0] * n[1]) as usize;
-    let window = |k: usize| {
-        let (wx, wy) = (k as u64 % n[0], k as u64 / n[0]);
-        ColumnWindow {
-            x: wx * side..((wx + 1) * side).min(cx),
-            y: wy * side..((wy + 1) * side).min(cy),
-        }
-    };
-    let inv = s.voxel_size;
-    // The points a window reads: its columns and the halo, as `denoise_sharded` buckets them
-    // (in brick order: noise removal does not depend on the order of its points), and the
-    // world range that holds them (one column of margin for rounding).
-    let columns = |k: usize| {
-        let own = window(k);
-        let rx = own.x.start.saturating_sub(halo)..(own.x.end + halo).min(cx);
-        let ry = own.y.start.saturating_sub(halo)..(own.y.end + halo).min(cy);
-        (rx, ry)
-    };
-    let range = |k: usize| -> reuse::Range2 {
-        let (rx, ry) = columns(k);
-        let world = |r: &std::ops::Range<u64>, a: usize, c: u64| {
-            let lo = frame.bounds.min[a] + (r.start as f64 - 1.0) * inv;
-            let hi = if r.end >= c {
-                f64::INFINITY
-            } else {
-                frame.bounds.min[a] + (r.end as f64 + 1.0) * inv
-            };
-            [lo, hi]
-        };
-        (world(&rx, 0, cx), world(&ry, 1, cy))
-    };
-    let wanted = |k: usize, _: u64, x: f64, y: f64| {
-        let (rx, ry) = columns(k);
-        let (a, b) = frame.column(&s, x, y);
-        rx.contains(&a) && ry.contains(&b)
-    };
-    let load = |k: usize| -> Result<BrickPoints> {
-        let (x, y) = range(k);
-        bk.load(dir, files, x, y, bricks::Order::Bricks, |q, x, y| {
-            wanted(k, q, x, y)
-        })
-    };
-    let decoded = std::sync::atomic::AtomicU64::new(0);
-    let stored = std::sync::atomic::AtomicU64::new(0);
-    let name = |kind: &str, k: usize| dir.join(format!("{kind}-{groups}-{k:07}.bin"));
-    // Runs `f` on each window of `ks` with its points, `sizing.parallel` at a time: from the
-    // bricks, or by bounds with each file decoded about once for the whole list.
-    let run_batch =
-        |ks: &[usize], f: &(dyn Fn(usize, BrickPoints) -> Result<()> + Sync)| -> Result<()> {
-            if bk.boxes.is_empty() {
-                for chunk in ks.chunks(sizing.parallel) {
-                    chunk.par_iter().try_for_each(|&k| f(k, load(k)?))?;
-                    progress.advance(chunk.len() as u64);
-                }
-                return Ok(());
-            }
-            let ranges = (0..count).map(range).collect();
-            let reader = reuse::PassReader::new(
-                *files,
-                ranges,
-                ks.to_vec(),
-                reuse_round(sizing),
-                reuse_cap(sizing),
-                wanted,
-            )
-            .with_check(check);
-            let out = (0..reader.rounds()).try_for_each(|r| {
-                let pts = reader.load(r)?;
-                let ws = reader.round_windows(r);
-                ws.par_iter().zip(pts).try_for_each(|(&k, p)| f(k, p))?;
-                progress.advance(ws.len() as u64);
-                Ok(())
-            });
-            decoded.fetch_add(reader.decoded(), std::sync::atomic::Ordering::Relaxed);
-            stored.fetch_max(reader.stored_peak(), std::sync::atomic::Ordering::Relaxed);
-            out
-        };
-    let crash_after: Option<usize> = std::env::var("TERRATILE_STREAM_CRASH_AFTER")
-        .ok()
-        .and_then(|v| v.parse().ok());
-    let written = std::sync::atomic::AtomicUsize::new(0);
-    // One window filtered at `q`: its keep file (saved: resumable).
-    let keep_of = |k: usize, q: u32, p: BrickPoints| -> Result<()> {
-        let own = window(k);
-        let mut out = vec![q as u64, 0];
-        let mut kept = Bounds::EMPTY;
-        let mut seqs = Vec::new();
-        if !p.is_empty() {
-            let input = p.shard_input(&frame, params, mpu, &own);
-            let d = denoise::shard_denoise(&input, q)?;
-            out[1] = d.removed_sparse as u64;
-            kept = crate::terrain::bounds_of(&p.x, &p.y, &p.z, Some(&d.keep)).0;
-            // The removed points of its own columns (about 1 % of them: a small file where
-            // the kept ones would be most of the input); the windows' own columns partition
-            // the points, so every point not removed by its window is kept.
-            for (i, &k) in d.keep.iter().enumerate() {
-                if !k {
-                    let (a, b) = frame.column(&s, p.x[i], p.y[i]);
-                    if own.x.contains(&a) && own.y.contains(&b) {
-                        seqs.push(p.seq[i]);
-                    }
-                }
-            }
-        }
-        out.extend(kept.min.iter().chain(&kept.max).map(|v| v.to_bits()));
-        out.extend(seqs);
-        write_u64s(&name("keep", k), &out)?;
-        let w = written.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
-        if crash_after.is_some_and(|c| w >= c) {
-            // A test's stand-in for the process being killed outright: no clean-up at all.
-            eprintln!("terratile: TERRATILE_STREAM_CRASH_AFTER={w}: stopping without clean-up");
-            std::process::exit(101);
-        }
-        Ok(())
-    };
-    // Windows whose keep file at `q` is already there (a resumed run) are not redone.
-    let keep_at = |q: u32, label: &str| -> Result<usize> {
-        let done = |k: &usize| read_keep(&name("keep", *k)).is_some_and(|v| v.0 == q as u64);
-        let todo: Vec<usize> = (0..count).filter(|k| !done(k)).collect();
-        progress.start(label, todo.len() as u64);
-        run_batch(&todo, &|k, p| keep_of(k, q, p))?;
-        progress.finish();
-        Ok(count - todo.len())
-    };
-    let mut resumed = keep_at(1, "denoise")?;
-    let failing: u64 = (0..count)
-        .map(|k| read_keep(&name("keep", k)).map_or(0, |v| v.1))
+    let w = DenoiseWindows::new(pipeline, dir, bk, files, mpu, sizing, check, progress)?;
+    let mut resumed = w.keep_at(1, "denoise")?;
+    let failing: u64 = (0..w.count)
+        .map(|k| read_keep(&w.name("keep", k)).map_or(0, |v| v.1))
         .sum();
     let mut q = 1;
-    if denoise::choose_steps(params, &[[failing as usize; 3]], frame.points) != 1 {
+    if denoise::choose_steps(w.params, &[[failing as usize; 3]], w.frame.points) != 1 {
         // More than the budget fails at q = 1: the counts at every height decide.
-        let counts_of = |k: usize, p: BrickPoints| -> Result<()> {
-            let path = name("counts", k);
-            let own = window(k);
-            let c = if p.is_empty() {
-                Vec::new()
-            } else {
-                let input = p.shard_input(&frame, params, mpu, &own);
-                denoise::shard_counts(&input)?
-            };
-            let flat: Vec<u64> = c.iter().flat_map(|c| c.map(|v| v as u64)).collect();
-            write_u64s(&path, &flat)
-        };
-        // Windows whose counts are already there (a resumed run) are not redone.
-        let todo: Vec<usize> = (0..count)
-            .filter(|&k| read_u64s(&name("counts", k)).is_none())
-            .collect();
-        progress.start("denoise: counts", todo.len() as u64);
-        run_batch(&todo, &counts_of)?;
-        progress.finish();
-        let mut sums: Vec<[usize; 3]> = Vec::new();
-        for k in 0..count {
-            let flat = read_u64s(&name("counts", k))
-                .ok_or_else(|| Error::Internal(format!("denoise window {k}: counts missing")))?;
-            let c: Vec<[usize; 3]> = flat
-                .chunks_exact(3)
-                .map(|c| [c[0] as usize, c[1] as usize, c[2] as usize])
-                .collect();
-            sums.resize(sums.len().max(c.len()), [0; 3]);
-            for (acc, c) in sums.iter_mut().zip(&c) {
-                for i in 0..3 {
-                    acc[i] += c[i];
-                }
-            }
-        }
-        q = denoise::choose_steps(params, &sums, frame.points);
+        let sums = w.summed_counts()?;
+        q = denoise::choose_steps(w.params, &sums, w.frame.points);
         if q != 1 {
-            resumed = keep_at(q, "denoise: keep flags")?;
+            resumed = w.keep_at(q, "denoise: keep flags")?;
         }
     }
-    let mut keep = KeepBits::all(bk.points);
-    let mut bounds = Bounds::EMPTY;
-    for k in 0..count {
-        let (_, _, b, seqs) = read_keep(&name("keep", k))
-            .ok_or_else(|| Error::Internal(format!("denoise window {k}: keep flags missing")))?;
-        bounds = bounds.union(b);
-        for s in seqs {
-            keep.clear(s);
-        }
-    }
+    let (keep, bounds) = w.gather()?;
     Ok(DenoisePass {
         keep,
         bounds,
-        windows: count,
+        windows: w.count,
         resumed,
         steps: q,
-        decoded: decoded.into_inner(),
-        stored: stored.into_inner(),
+        decoded: w.decoded.into_inner(),
+        stored: w.stored.into_inner(),
     })
 }
 
@@ -1048,7 +1081,216 @@ fn block_for(sizing: &Sizing, tile_step: usize) -> usize {
 /// What the grid pass leaves: the layout, the merged tiles, whether the prepared shards were
 /// kept in memory, the bytes of prepared shards spilled (when they were), and the points
 /// decoded by bounds with the most bytes of decoded points kept waiting.
-type GridPass = (ShardLayout, super::Merged, bool, Option<u64>, [u64; 2]);
+type GridPass = (ShardLayout, Merged, bool, Option<u64>, [u64; 2]);
+
+/// The grid shards of the streamed run: their layout over the grid, and where each reads its
+/// kept points from.
+struct GridShards<'a> {
+    cfg: &'a crate::config::Pipeline,
+    dir: &'a Path,
+    bk: &'a Bucketed,
+    files: Files<'a>,
+    keep: Option<&'a KeepBits>,
+    spec: &'a GridSpec,
+    crs: Option<Crs>,
+    sizing: &'a Sizing,
+    progress: &'a dyn Progress,
+    fill: Option<&'a FillParams>,
+    layout: ShardLayout,
+    /// Tiles per shard side.
+    block: usize,
+}
+
+impl GridShards<'_> {
+    /// Shard `i`'s input cells (its region with the fill's halo).
+    fn input_cells(&self, i: usize) -> (std::ops::Range<usize>, std::ops::Range<usize>) {
+        let shard = self.layout.shard(i);
+        (
+            shard.input(&self.layout, 0, self.fill),
+            shard.input(&self.layout, 1, self.fill),
+        )
+    }
+
+    /// The world range that holds shard `i`'s points (one cell of margin for rounding).
+    fn range(&self, i: usize) -> reuse::Range2 {
+        let spec = self.spec;
+        let (ci, cj) = self.input_cells(i);
+        let world = |r: &std::ops::Range<usize>, a: usize, n: usize| {
+            let lo = spec.corner[a] + (r.start as f64 - 1.0) * spec.cell_size[a];
+            let hi = if r.end >= n {
+                f64::INFINITY
+            } else {
+                spec.corner[a] + (r.end as f64 + 1.0) * spec.cell_size[a]
+            };
+            [lo, hi]
+        };
+        (world(&ci, 0, spec.cols), world(&cj, 1, spec.rows))
+    }
+
+    /// True when shard `i` reads the point with sequence number `s` at (`x`, `y`): kept, and
+    /// in one of its input cells.
+    fn wanted(&self, i: usize, s: u64, x: f64, y: f64) -> bool {
+        let (ci, cj) = self.input_cells(i);
+        self.keep.is_none_or(|k| k.get(s))
+            && ci.contains(&self.spec.col(x))
+            && cj.contains(&self.spec.row(y))
+    }
+
+    /// Shard `i` prepared from its points (`None`: read from the bricks now): the unfilled
+    /// cells of its input from the kept points (in input order: the resampling sums in it).
+    fn prepared_of(&self, i: usize, p: Option<BrickPoints>) -> Result<Prepared> {
+        let shard = self.layout.shard(i);
+        let (ci, cj) = self.input_cells(i);
+        let offset = [ci.start, cj.start];
+        let p = match p {
+            Some(p) => p,
+            None => {
+                let (x, y) = self.range(i);
+                let files = self.files;
+                self.bk
+                    .load(self.dir, &files, x, y, bricks::Order::Input, |s, x, y| {
+                        self.wanted(i, s, x, y)
+                    })?
+            }
+        };
+        let cells = resample::resample_window(
+            [&p.x, &p.y, &p.z],
+            None,
+            self.spec,
+            [ci, cj],
+            self.cfg.resample.method,
+            self.crs.clone(),
+        );
+        drop(p);
+        prepare(&self.layout, &shard, &cells, offset, self.fill)
+    }
+
+    /// The points of round `r` (`len` shards), when a reader by bounds serves them.
+    fn points_of<W: Fn(usize, u64, f64, f64) -> bool + Sync>(
+        &self,
+        reader: Option<&reuse::PassReader<'_, W>>,
+        r: usize,
+        len: usize,
+    ) -> Result<Vec<Option<BrickPoints>>> {
+        match reader {
+            Some(rd) if rd.round() == self.sizing.parallel => {
+                Ok(rd.load(r)?.into_iter().map(Some).collect())
+            }
+            // Reuse off: one shard a round.
+            Some(rd) => (0..len)
+                .map(|j| Ok(rd.load(r * self.sizing.parallel + j)?.pop()))
+                .collect(),
+            None => Ok((0..len).map(|_| None).collect()),
+        }
+    }
+
+    /// True when the prepared shards of the smooth fill fit half the budget and wait for its
+    /// second step in memory.
+    fn keeps_prepared(&self) -> bool {
+        let b = self.block;
+        let [w, h] = self.layout.samples;
+        let ring = (b + 2) * (b + 2);
+        (w * h) as u64 * PREPARED_BYTES_PER_CELL * ring as u64 / (b * b) as u64
+            <= self.sizing.budget / 2
+    }
+
+    /// The smooth fill's first step: every shard prepared once, its coarse cells completed
+    /// into the global coarse level; each prepared shard left in `kept` (when it is kept in
+    /// memory) or in its temporary file (its bytes added to `spilled`).
+    fn coarse_level<W: Fn(usize, u64, f64, f64) -> bool + Sync>(
+        &self,
+        reader: Option<&reuse::PassReader<'_, W>>,
+        keep_prepared: bool,
+        kept: &mut [Option<Prepared>],
+        spilled: &AtomicU64,
+    ) -> Result<Vec<f32>> {
+        let n = self.layout.count();
+        let all: Vec<usize> = (0..n).collect();
+        self.progress.start("grid shards: coarse level", n as u64);
+        let mut cells = Vec::new();
+        for (r, chunk) in all.chunks(self.sizing.parallel).enumerate() {
+            let pts = self.points_of(reader, r, chunk.len())?;
+            let got = chunk
+                .par_iter()
+                .zip(pts)
+                .map(|(&i, pts)| {
+                    let p = self.prepared_of(i, pts)?;
+                    let c = p.coarse(&self.layout);
+                    if keep_prepared {
+                        return Ok((c, Some(p)));
+                    }
+                    let bytes = prepared_spill::put(self.dir, &p)?;
+                    spilled.fetch_add(bytes, Ordering::Relaxed);
+                    Ok((c, None))
+                })
+                .collect::<Result<Vec<_>>>()?;
+            for ((c, p), &i) in got.into_iter().zip(chunk) {
+                cells.extend(c);
+                kept[i] = p;
+            }
+            self.progress.advance(chunk.len() as u64);
+        }
+        self.progress.finish();
+        complete_coarse(&self.layout, &cells)
+    }
+
+    /// Every shard finished (tiles, d2) from its prepared region: kept in `kept`, spilled
+    /// (`spill_prepared`), or prepared now from its points; the final heights go to `spill`
+    /// when the outputs are written tile by tile.
+    fn finish_all<W: Fn(usize, u64, f64, f64) -> bool + Sync>(
+        &self,
+        reader: Option<&reuse::PassReader<'_, W>>,
+        kept: &mut [Option<Prepared>],
+        coarse: &[f32],
+        (smooth, spill_prepared): (bool, bool),
+        mut spill: Option<&mut spill::Spilled>,
+    ) -> Result<Vec<ShardOutput>> {
+        let n = self.layout.count();
+        let all: Vec<usize> = (0..n).collect();
+        self.progress.start("grid shards", n as u64);
+        let mut outputs: Vec<ShardOutput> = Vec::with_capacity(n);
+        for (r, chunk) in all.chunks(self.sizing.parallel).enumerate() {
+            let taken: Vec<Option<Prepared>> = chunk.iter().map(|&i| kept[i].take()).collect();
+            // Without the smooth fill this loop is the one that reads the points.
+            let pts = if smooth {
+                (0..chunk.len()).map(|_| None).collect()
+            } else {
+                self.points_of(reader, r, chunk.len())?
+            };
+            let got: Vec<ShardOutput> = chunk
+                .par_iter()
+                .zip(taken)
+                .zip(pts)
+                .map(|((&i, p), pts)| {
+                    let p = match p {
+                        Some(p) => p,
+                        None if spill_prepared => prepared_spill::take(
+                            self.dir,
+                            &self.layout,
+                            i,
+                            self.fill,
+                            self.crs.as_ref(),
+                        )?,
+                        None => self.prepared_of(i, pts)?,
+                    };
+                    // The extraction builds its own vertical error from the merged tiles.
+                    let (tiles, quadtree) = (&self.cfg.tiles, &self.cfg.quadtree);
+                    finish_with(&self.layout, p, coarse, tiles, quadtree, false)
+                })
+                .collect::<Result<_>>()?;
+            for (mut out, &i) in got.into_iter().zip(chunk) {
+                if let Some(s) = spill.as_deref_mut() {
+                    // Final heights: to disk until the writers take them, shard by shard.
+                    s.put(self.dir, i, &mut out, self.layout.tiles)?;
+                }
+                outputs.push(out);
+            }
+            self.progress.advance(chunk.len() as u64);
+        }
+        self.progress.finish();
+        Ok(outputs)
+    }
+}
 
 /// Runs the grid shards over the kept points of the bricks and merges them.
 #[allow(clippy::too_many_arguments)]
@@ -1061,7 +1303,7 @@ fn grid_pass(
     spec: &GridSpec,
     crs: Option<Crs>,
     sizing: &Sizing,
-    mut spill: Option<&mut super::spill::Spilled>,
+    spill: Option<&mut spill::Spilled>,
     progress: &dyn Progress,
 ) -> Result<GridPass> {
     let cfg = &pipeline.config;
@@ -1078,161 +1320,53 @@ fn grid_pass(
         spec.z_offset,
         crs.clone(),
     );
-    // The unfilled cells `ci` × `cj` of the grid, from the kept points of the bricks they
-    // overlap (in input order: the resampling sums in it).
-    // A shard's input cells, the world range that holds their points (one cell of margin
-    // for rounding) and the test of each point: kept, and in one of the cells.
-    let input_cells = |i: usize| {
-        let shard = layout.shard(i);
-        (shard.input(&layout, 0, fill), shard.input(&layout, 1, fill))
-    };
-    let range = |i: usize| -> reuse::Range2 {
-        let (ci, cj) = input_cells(i);
-        let world = |r: &std::ops::Range<usize>, a: usize, n: usize| {
-            let lo = spec.corner[a] + (r.start as f64 - 1.0) * spec.cell_size[a];
-            let hi = if r.end >= n {
-                f64::INFINITY
-            } else {
-                spec.corner[a] + (r.end as f64 + 1.0) * spec.cell_size[a]
-            };
-            [lo, hi]
-        };
-        (world(&ci, 0, spec.cols), world(&cj, 1, spec.rows))
-    };
-    let wanted = |i: usize, s: u64, x: f64, y: f64| {
-        let (ci, cj) = input_cells(i);
-        keep.is_none_or(|k| k.get(s)) && ci.contains(&spec.col(x)) && cj.contains(&spec.row(y))
-    };
-    // Shard `i` prepared from its points (`None`: read from the bricks now): the unfilled
-    // cells of its input from the kept points (in input order: the resampling sums in it).
-    let prepared_of = |i: usize, p: Option<BrickPoints>| -> Result<super::Prepared> {
-        let shard = layout.shard(i);
-        let (ci, cj) = input_cells(i);
-        let offset = [ci.start, cj.start];
-        let p = match p {
-            Some(p) => p,
-            None => {
-                let (x, y) = range(i);
-                bk.load(dir, files, x, y, bricks::Order::Input, |s, x, y| {
-                    wanted(i, s, x, y)
-                })?
-            }
-        };
-        let cells = resample::resample_window(
-            [&p.x, &p.y, &p.z],
-            None,
-            spec,
-            [ci, cj],
-            cfg.resample.method,
-            crs.clone(),
-        );
-        drop(p);
-        prepare(&layout, &shard, &cells, offset, fill)
+    let g = GridShards {
+        cfg,
+        dir,
+        bk,
+        files: *files,
+        keep,
+        spec,
+        crs,
+        sizing,
+        progress,
+        fill,
+        layout,
+        block: b,
     };
     let smooth = fill.is_some_and(|f| f.fallback == Fallback::Smooth);
     let n = layout.count();
-    let all: Vec<usize> = (0..n).collect();
-    // Read by bounds: each input decoded about once for all shards, in the chunks below.
+    // Read by bounds: each input decoded about once for all shards, in rounds of
+    // `sizing.parallel` shards.
     let reader = (!bk.boxes.is_empty()).then(|| {
         reuse::PassReader::new(
             *files,
-            (0..n).map(range).collect(),
-            all.clone(),
+            (0..n).map(|i| g.range(i)).collect(),
+            (0..n).collect(),
             reuse_round(sizing),
             reuse_cap(sizing),
-            wanted,
+            |i: usize, s: u64, x: f64, y: f64| g.wanted(i, s, x, y),
         )
     });
-    // The points of chunk `r` of `all`, when the reader serves them.
-    let points_of = |r: usize, len: usize| -> Result<Vec<Option<BrickPoints>>> {
-        match &reader {
-            Some(rd) if rd.round() == sizing.parallel => {
-                Ok(rd.load(r)?.into_iter().map(Some).collect())
-            }
-            // Reuse off: one shard a round.
-            Some(rd) => (0..len)
-                .map(|j| Ok(rd.load(r * sizing.parallel + j)?.pop()))
-                .collect(),
-            None => Ok((0..len).map(|_| None).collect()),
-        }
-    };
     // With the smooth fill every shard's coarse cells come first; the prepared shards wait
     // for the second step in memory when they fit the budget, else each in its own
     // temporary file (`prepared_spill`): either way every shard is prepared once.
-    let keep_prepared = {
-        let [w, h] = layout.samples;
-        let ring = (b + 2) * (b + 2);
-        (w * h) as u64 * PREPARED_BYTES_PER_CELL * ring as u64 / (b * b) as u64 <= sizing.budget / 2
-    };
-    let mut kept: Vec<Option<super::Prepared>> = (0..n).map(|_| None).collect();
-    let spilled = std::sync::atomic::AtomicU64::new(0);
+    let keep_prepared = g.keeps_prepared();
+    let mut kept: Vec<Option<Prepared>> = (0..n).map(|_| None).collect();
+    let spilled = AtomicU64::new(0);
     let coarse = if smooth {
-        progress.start("grid shards: coarse level", n as u64);
-        let mut cells = Vec::new();
-        for (r, chunk) in all.chunks(sizing.parallel).enumerate() {
-            let pts = points_of(r, chunk.len())?;
-            let got = chunk
-                .par_iter()
-                .zip(pts)
-                .map(|(&i, pts)| {
-                    let p = prepared_of(i, pts)?;
-                    let c = p.coarse(&layout);
-                    if keep_prepared {
-                        return Ok((c, Some(p)));
-                    }
-                    let bytes = prepared_spill::put(dir, &p)?;
-                    spilled.fetch_add(bytes, std::sync::atomic::Ordering::Relaxed);
-                    Ok((c, None))
-                })
-                .collect::<Result<Vec<_>>>()?;
-            for ((c, p), &i) in got.into_iter().zip(chunk) {
-                cells.extend(c);
-                kept[i] = p;
-            }
-            progress.advance(chunk.len() as u64);
-        }
-        progress.finish();
-        complete_coarse(&layout, &cells)?
+        g.coarse_level(reader.as_ref(), keep_prepared, &mut kept, &spilled)?
     } else {
         Vec::new()
     };
     let spill_prepared = smooth && !keep_prepared;
-    progress.start("grid shards", n as u64);
-    let mut outputs: Vec<ShardOutput> = Vec::with_capacity(n);
-    for (r, chunk) in all.chunks(sizing.parallel).enumerate() {
-        let taken: Vec<Option<super::Prepared>> = chunk.iter().map(|&i| kept[i].take()).collect();
-        // Without the smooth fill this loop is the one that reads the points.
-        let pts = if smooth {
-            (0..chunk.len()).map(|_| None).collect()
-        } else {
-            points_of(r, chunk.len())?
-        };
-        let got: Vec<ShardOutput> = chunk
-            .par_iter()
-            .zip(taken)
-            .zip(pts)
-            .map(|((&i, p), pts)| {
-                let p = match p {
-                    Some(p) => p,
-                    None if spill_prepared => {
-                        prepared_spill::take(dir, &layout, i, fill, crs.as_ref())?
-                    }
-                    None => prepared_of(i, pts)?,
-                };
-                // The extraction builds its own vertical error from the merged tiles.
-                finish_with(&layout, p, &coarse, &cfg.tiles, &cfg.quadtree, false)
-            })
-            .collect::<Result<_>>()?;
-        for (mut out, &i) in got.into_iter().zip(chunk) {
-            if let Some(s) = spill.as_deref_mut() {
-                // Final heights: to disk until the writers take them, shard by shard.
-                s.put(dir, i, &mut out, layout.tiles)?;
-            }
-            outputs.push(out);
-        }
-        progress.advance(chunk.len() as u64);
-    }
-    progress.finish();
+    let outputs = g.finish_all(
+        reader.as_ref(),
+        &mut kept,
+        &coarse,
+        (smooth, spill_prepared),
+        spill,
+    )?;
     let merged = merge(&layout, &geo, &cfg.tiles, &cfg.quadtree, outputs)?;
     let spilled = spill_prepared.then(|| spilled.into_inner());
     let reads = reader.map_or([0, 0], |r| [r.decoded(), r.stored_peak()]);
@@ -1337,76 +1471,19 @@ pub fn run_streaming(plan: &Plan<'_>, budget: u64, progress: &dyn Progress) -> R
     })
 }
 
-/// Passes 2 to 4 and the outputs, into `staged`; returns the files written and the buckets.
-fn stream_passes(
-    pipeline: &LoadedPipeline,
-    sc: &Scan,
-    tmp: &TempDir,
-    sizing: &Sizing,
-    staged: &crate::fsutil::StagedDir,
-    stages: &mut Vec<StageReport>,
-    progress: &dyn Progress,
-) -> Result<(Vec<String>, Bucketed)> {
-    let cfg = &pipeline.config;
-    let dir = &tmp.path;
-    let t = Clock::start();
-    let done = dir.join(BRICKS_FILE);
-    let previous: Option<Bucketed> = tmp
-        .resumed
-        .then(|| std::fs::read(&done).ok())
-        .flatten()
-        .and_then(|b| serde_json::from_slice(&b).ok());
-    let resumed = previous.is_some();
-    let save = |b: &Bucketed| -> Result<()> {
-        let json = serde_json::to_vec(b).map_err(|e| Error::Internal(e.to_string()))?;
-        write_bytes_atomic(&done, &json)
-    };
-    let direct = reads_directly(pipeline, sc, sizing);
-    // The points counted from the headers are checked by the noise-removal pass (a resumed
-    // run checks them again: its finished windows' files separately). The first file with
-    // points is checked first, alone: writers that take the header's box from the points
-    // before they are rounded to the file's scale (the `las` crate's, so `terratile
-    // generate`'s) never match, and are counted at once.
-    let mut inexact = false;
-    let (mut bk, check) = match previous {
-        Some(b) if b.unchecked_headers => (b, Some(bucket_from_headers(sc, sizing).1)),
-        Some(b) => (b, None),
-        None => {
-            tmp.clear()?;
-            let headers = counts_from_headers(pipeline, sc, direct)
-                .then(|| bucket_from_headers(sc, sizing))
-                .filter(|(b, c)| {
-                    let paths: Vec<PathBuf> = sc.sources.iter().map(|s| s.path.clone()).collect();
-                    let opts = cfg.input.read_options();
-                    let first = b.read.iter().position(|&n| n > 0);
-                    let exact = first.is_none_or(|f| {
-                        c.check_file(&b.files(&paths, &opts), f).is_ok() && !c.failed()
-                    });
-                    inexact = !exact;
-                    exact
-                });
-            match headers {
-                Some((b, c)) => {
-                    save(&b)?;
-                    (b, Some(c))
-                }
-                None => {
-                    let b = bucket(pipeline, sc, dir, sizing, direct, progress)?;
-                    save(&b)?;
-                    (b, None)
-                }
-            }
-        }
-    };
-    if bk.points == 0 {
-        return Err(pipeline.key_error(
-            "input.paths",
-            "the inputs hold no points (after the class filter)",
-        ));
-    }
-    stages.push(report(
-        "bucket",
-        t,
+/// What bucketing leaves besides the buckets: the check of the headers' counts (when the
+/// points were counted from the headers), whether the first file's header failed it, and
+/// whether a finished bucketing was resumed.
+struct Bucketing {
+    bk: Bucketed,
+    check: Option<reuse::HeaderCheck>,
+    inexact: bool,
+    resumed: bool,
+}
+
+impl Bucketing {
+    fn figures(&self) -> Vec<(String, String)> {
+        let bk = &self.bk;
         vec![
             fig("points", bk.points),
             fig(
@@ -1426,88 +1503,306 @@ fn stream_passes(
                 },
             ),
             fig("temporary", crate::memory::human(bk.bytes)),
-            fig("resumed", resumed),
+            fig("resumed", self.resumed),
             fig(
                 "counted",
-                if check.is_some() {
+                if self.check.is_some() {
                     "from the headers"
-                } else if inexact {
+                } else if self.inexact {
                     INEXACT
                 } else {
                     "points"
                 },
             ),
-        ],
-    ));
-    let crs: Option<Crs> = sc.sources.iter().find_map(|s| s.crs.clone());
-    let paths: Vec<PathBuf> = sc.sources.iter().map(|s| s.path.clone()).collect();
-    let opts = cfg.input.read_options();
-    let mpu = crs.as_ref().map_or(1.0, |c| c.metres_per_unit());
-    let all_bounds = Bounds {
-        min: bk.min,
-        max: bk.max,
-    };
-    let (keep, kept_bounds, kept) = if cfg.denoise.enabled {
+        ]
+    }
+}
+
+/// What the passes of one streamed run share.
+struct Passes<'a> {
+    pipeline: &'a LoadedPipeline,
+    sc: &'a Scan,
+    tmp: &'a TempDir,
+    sizing: &'a Sizing,
+    progress: &'a dyn Progress,
+    /// Read by bounds from the inputs (else through bricks).
+    direct: bool,
+    paths: Vec<PathBuf>,
+    opts: points::ReadOptions,
+}
+
+impl Passes<'_> {
+    /// Saves the buckets (`bricks.json`): a resumed run starts after them.
+    fn save(&self, b: &Bucketed) -> Result<()> {
+        let json = serde_json::to_vec(b).map_err(|e| Error::Internal(e.to_string()))?;
+        write_bytes_atomic(&self.tmp.path.join(BRICKS_FILE), &json)
+    }
+
+    /// The points counted, every one into its brick.
+    fn count_points(&self) -> Result<Bucketed> {
+        let (pipeline, sc, sizing) = (self.pipeline, self.sc, self.sizing);
+        let b = bucket(
+            pipeline,
+            sc,
+            &self.tmp.path,
+            sizing,
+            self.direct,
+            self.progress,
+        )?;
+        self.save(&b)?;
+        Ok(b)
+    }
+
+    /// Pass 2: the buckets of a finished earlier run, or from the headers, or counted.
+    ///
+    /// The points counted from the headers are checked by the noise-removal pass (a resumed
+    /// run checks them again: its finished windows' files separately). The first file with
+    /// points is checked first, alone: writers that take the header's box from the points
+    /// before they are rounded to the file's scale (the `las` crate's, so `terratile
+    /// generate`'s) never match, and are counted at once.
+    fn bucket(&self) -> Result<Bucketing> {
+        let (sc, tmp) = (self.sc, self.tmp);
+        let previous: Option<Bucketed> = tmp
+            .resumed
+            .then(|| std::fs::read(tmp.path.join(BRICKS_FILE)).ok())
+            .flatten()
+            .and_then(|b| serde_json::from_slice(&b).ok());
+        let resumed = previous.is_some();
+        let mut inexact = false;
+        let (bk, check) = match previous {
+            Some(b) if b.unchecked_headers => (b, Some(bucket_from_headers(sc, self.sizing).1)),
+            Some(b) => (b, None),
+            None => {
+                tmp.clear()?;
+                let headers = counts_from_headers(self.pipeline, sc, self.direct)
+                    .then(|| bucket_from_headers(sc, self.sizing))
+                    .filter(|(b, c)| {
+                        let first = b.read.iter().position(|&n| n > 0);
+                        let exact = first.is_none_or(|f| {
+                            c.check_file(&b.files(&self.paths, &self.opts), f).is_ok()
+                                && !c.failed()
+                        });
+                        inexact = !exact;
+                        exact
+                    });
+                match headers {
+                    Some((b, c)) => {
+                        self.save(&b)?;
+                        (b, Some(c))
+                    }
+                    None => (self.count_points()?, None),
+                }
+            }
+        };
+        Ok(Bucketing {
+            bk,
+            check,
+            inexact,
+            resumed,
+        })
+    }
+
+    /// Pass 3a with its report: the keep flags, the kept points' bounds and their number.
+    /// Points counted from headers that do not match them are counted again, and the pass
+    /// runs again.
+    fn denoise(
+        &self,
+        b: &mut Bucketing,
+        mpu: f64,
+        stages: &mut Vec<StageReport>,
+    ) -> Result<(Option<KeepBits>, Bounds, u64)> {
+        let (pipeline, sizing, progress) = (self.pipeline, self.sizing, self.progress);
+        let dir = &self.tmp.path;
         let t = Clock::start();
         let pass = |bk: &Bucketed, check| {
-            let files = bk.files(&paths, &opts);
+            let files = bk.files(&self.paths, &self.opts);
             denoise_pass(pipeline, dir, bk, &files, mpu, sizing, check, progress)
         };
-        let first = pass(&bk, check.as_ref());
-        if let (Some(c), Ok(_)) = (&check, &first) {
-            c.check_the_rest(&bk.files(&paths, &opts))?;
+        let check = &b.check;
+        let first = pass(&b.bk, check.as_ref());
+        if let (Some(c), Ok(_)) = (check, &first) {
+            c.check_the_rest(&b.bk.files(&self.paths, &self.opts))?;
         }
-        let d = match &check {
+        let d = match check {
             Some(c) if c.failed() || (first.is_ok() && !c.passed()) => {
                 // A header did not match its points: count them, and run the pass again.
                 drop(first);
                 progress.finish();
                 let tc = Clock::start();
-                tmp.clear()?;
-                bk = bucket(pipeline, sc, dir, sizing, direct, progress)?;
-                save(&bk)?;
+                self.tmp.clear()?;
+                b.bk = self.count_points()?;
                 stages.push(report(
                     "bucket",
                     tc,
-                    vec![fig("points", bk.points), fig("counted", INEXACT)],
+                    vec![fig("points", b.bk.points), fig("counted", INEXACT)],
                 ));
-                pass(&bk, None)?
+                pass(&b.bk, None)?
             }
             Some(_) => {
                 let d = first?;
-                bk.unchecked_headers = false;
-                save(&bk)?;
+                b.bk.unchecked_headers = false;
+                self.save(&b.bk)?;
                 d
             }
             None => first?,
         };
+        let bk = &b.bk;
         let kept = d.keep.count();
-        let b = d.bounds;
-        stages.push(report(
-            "denoise",
-            t,
-            vec![
-                fig("points in", bk.points),
-                fig("points out", kept),
-                fig("removed", bk.points - kept),
-                fig("windows", d.windows),
-                fig("windows resumed", d.resumed),
-                fig("voxel height steps", d.steps),
-            ],
-        ));
+        let figures = vec![
+            fig("points in", bk.points),
+            fig("points out", kept),
+            fig("removed", bk.points - kept),
+            fig("windows", d.windows),
+            fig("windows resumed", d.resumed),
+            fig("voxel height steps", d.steps),
+        ];
+        let mut r = report("denoise", t, figures);
         if !bk.boxes.is_empty() {
-            let f = &mut stages.last_mut().expect("just pushed").figures;
-            f.push(fig("points decoded", d.decoded));
-            f.push(fig(
-                "decoded per point",
-                format!("{:.2}", d.decoded as f64 / bk.points as f64),
-            ));
-            f.push(fig("decoded kept waiting", crate::memory::human(d.stored)));
+            // After the CPU time and peak memory, as the report has always listed them.
+            r.figures
+                .extend(decoded_figures(d.decoded, d.stored, bk.points));
         }
-        (Some(d.keep), b, kept)
-    } else {
-        (None, all_bounds, bk.points)
+        stages.push(r);
+        Ok((Some(d.keep), d.bounds, kept))
+    }
+}
+
+/// The figures of a pass read by bounds: points decoded, per point, and the most bytes of
+/// decoded points kept waiting.
+fn decoded_figures(decoded: u64, stored: u64, points: u64) -> Vec<(String, String)> {
+    vec![
+        fig("points decoded", decoded),
+        fig(
+            "decoded per point",
+            format!("{:.2}", decoded as f64 / points as f64),
+        ),
+        fig("decoded kept waiting", crate::memory::human(stored)),
+    ]
+}
+
+/// The grid pass's figures.
+fn grid_figures(
+    spec: &GridSpec,
+    bk: &Bucketed,
+    pass: &GridPass,
+    fill: Option<&FillReport>,
+) -> Vec<(String, String)> {
+    let (layout, _, kept_prepared, spilled_prepared, reads) = pass;
+    let mut figures = vec![
+        fig("grid", format!("{}×{}", spec.cols, spec.rows)),
+        fig("shards", layout.count()),
+        fig(
+            "tiles per shard",
+            format!("{}×{}", layout.block[0], layout.block[1]),
+        ),
+        fig("prepared shards kept", kept_prepared),
+        fig("prepared shards spilled", spilled_prepared.is_some()),
+    ];
+    if !bk.boxes.is_empty() {
+        figures.extend(decoded_figures(reads[0], reads[1], bk.points));
+    }
+    if let Some(b) = spilled_prepared {
+        figures.push(fig("prepared spill", crate::memory::human(*b)));
+    }
+    if let Some(f) = fill {
+        figures.extend(fill_figures(f));
+    }
+    figures
+}
+
+/// The outputs of the merged tiles into `staged`, with the reports of the tiling, the
+/// quadtree and the writing; returns the files written.
+fn write_outputs(
+    pipeline: &LoadedPipeline,
+    dir: &Path,
+    merged: Merged,
+    spilled: Option<spill::Spilled>,
+    staged: &crate::fsutil::StagedDir,
+    stages: &mut Vec<StageReport>,
+    progress: &dyn Progress,
+) -> Result<Vec<String>> {
+    let cfg = &pipeline.config;
+    let Merged {
+        mut set, quadtree, ..
+    } = merged;
+    crate::pipeline::with_input_crs(cfg, &mut set);
+    let Some(sp) = spilled else {
+        let reports = vec![
+            crate::pipeline::tiles_report(&set, 0.0),
+            crate::pipeline::quadtree_report(&quadtree, 0.0),
+        ];
+        let ts =
+            crate::pipeline::product_stages(cfg, set, quadtree, reports, staged.path(), progress)?;
+        stages.extend(ts.reports);
+        return Ok(ts.files);
     };
+    stages.push(crate::pipeline::tiles_report_with(&set, sp.holes, 0.0));
+    stages.push(crate::pipeline::quadtree_report(&quadtree, 0.0));
+    let t = Clock::start();
+    let tiles = set.tiles.len();
+    let written = spill::write_spilled(
+        dir,
+        staged.path(),
+        set,
+        &quadtree,
+        &sp,
+        &cfg.output,
+        progress,
+    )?;
+    stages.push(report(
+        "write",
+        t,
+        vec![
+            fig("files", written.len()),
+            fig("tiles written by shard", tiles),
+        ],
+    ));
+    Ok(written)
+}
+
+/// Passes 2 to 4 and the outputs, into `staged`; returns the files written and the buckets.
+fn stream_passes(
+    pipeline: &LoadedPipeline,
+    sc: &Scan,
+    tmp: &TempDir,
+    sizing: &Sizing,
+    staged: &crate::fsutil::StagedDir,
+    stages: &mut Vec<StageReport>,
+    progress: &dyn Progress,
+) -> Result<(Vec<String>, Bucketed)> {
+    let cfg = &pipeline.config;
+    let dir = &tmp.path;
+    let t = Clock::start();
+    let ps = Passes {
+        pipeline,
+        sc,
+        tmp,
+        sizing,
+        progress,
+        direct: reads_directly(pipeline, sc, sizing),
+        paths: sc.sources.iter().map(|s| s.path.clone()).collect(),
+        opts: cfg.input.read_options(),
+    };
+    let mut b = ps.bucket()?;
+    if b.bk.points == 0 {
+        return Err(pipeline.key_error(
+            "input.paths",
+            "the inputs hold no points (after the class filter)",
+        ));
+    }
+    stages.push(report("bucket", t, b.figures()));
+    let crs: Option<Crs> = sc.sources.iter().find_map(|s| s.crs.clone());
+    let mpu = crs.as_ref().map_or(1.0, |c| c.metres_per_unit());
+    let all_bounds = Bounds {
+        min: b.bk.min,
+        max: b.bk.max,
+    };
+    let (keep, kept_bounds, kept) = if cfg.denoise.enabled {
+        ps.denoise(&mut b, mpu, stages)?
+    } else {
+        (None, all_bounds, b.bk.points)
+    };
+    let bk = b.bk;
     if kept == 0 {
         return Err(Error::Data {
             stage: "resample",
@@ -1516,12 +1811,11 @@ fn stream_passes(
     }
     let spec = GridSpec::new(&cfg.resample, &kept_bounds, kept as usize)
         .map_err(|e| pipeline.param_error(e))?;
-    let files = bk.files(&paths, &opts);
+    let files = bk.files(&ps.paths, &ps.opts);
     let t = Clock::start();
     // With only tile-by-tile outputs, the finished tiles leave memory shard by shard.
-    let mut spilled =
-        crate::output::writes_tile_by_tile(&cfg.output).then(super::spill::Spilled::default);
-    let (layout, merged, kept_prepared, spilled_prepared, reads) = grid_pass(
+    let mut spilled = crate::output::writes_tile_by_tile(&cfg.output).then(spill::Spilled::default);
+    let pass = grid_pass(
         pipeline,
         dir,
         &bk,
@@ -1534,77 +1828,9 @@ fn stream_passes(
         progress,
     )?;
     drop(keep);
-    let mut figures = vec![
-        fig("grid", format!("{}×{}", spec.cols, spec.rows)),
-        fig("shards", layout.count()),
-        fig(
-            "tiles per shard",
-            format!("{}×{}", layout.block[0], layout.block[1]),
-        ),
-        fig("prepared shards kept", kept_prepared),
-        fig("prepared shards spilled", spilled_prepared.is_some()),
-    ];
-    if !bk.boxes.is_empty() {
-        figures.push(fig("points decoded", reads[0]));
-        figures.push(fig(
-            "decoded per point",
-            format!("{:.2}", reads[0] as f64 / bk.points as f64),
-        ));
-        figures.push(fig("decoded kept waiting", crate::memory::human(reads[1])));
-    }
-    if let Some(b) = spilled_prepared {
-        figures.push(fig("prepared spill", crate::memory::human(b)));
-    }
-    if let Some(f) = &merged.fill {
-        figures.extend(fill_figures(f));
-    }
+    let figures = grid_figures(&spec, &bk, &pass, pass.1.fill.as_ref());
     stages.push(report("grid shards", t, figures));
-    let super::Merged {
-        mut set, quadtree, ..
-    } = merged;
-    crate::pipeline::with_input_crs(cfg, &mut set);
-    let files = match &spilled {
-        Some(sp) => {
-            stages.push(crate::pipeline::tiles_report_with(&set, sp.holes, 0.0));
-            stages.push(crate::pipeline::quadtree_report(&quadtree, 0.0));
-            let t = Clock::start();
-            let tiles = set.tiles.len();
-            let written = super::spill::write_spilled(
-                dir,
-                staged.path(),
-                set,
-                &quadtree,
-                sp,
-                &cfg.output,
-                progress,
-            )?;
-            stages.push(report(
-                "write",
-                t,
-                vec![
-                    fig("files", written.len()),
-                    fig("tiles written by shard", tiles),
-                ],
-            ));
-            written
-        }
-        None => {
-            let reports = vec![
-                crate::pipeline::tiles_report(&set, 0.0),
-                crate::pipeline::quadtree_report(&quadtree, 0.0),
-            ];
-            let ts = crate::pipeline::product_stages(
-                cfg,
-                set,
-                quadtree,
-                reports,
-                staged.path(),
-                progress,
-            )?;
-            stages.extend(ts.reports);
-            ts.files
-        }
-    };
+    let files = write_outputs(pipeline, dir, pass.1, spilled, staged, stages, progress)?;
     stages.push(StageReport {
         stage: "stream".into(),
         seconds: 0.0,

@@ -5,9 +5,9 @@
 //! inputs (with their sizes and modification times, so a job refuses inputs changed since),
 //! the number of all points and their bounds (the noise-removal lattice, from a counting
 //! pass), and a grid of `sx × sy` shards. Every job then runs the very functions of the
-//! in-process sharded run ([`super::points`], [`super::prepare`], [`super::finish`],
-//! [`super::merge`]) on its part and writes its result to `DIR/shards/K/PHASE.bin`
-//! ([`super::store`]), atomically.
+//! in-process sharded run ([`crate::shard::points`], [`crate::shard::prepare`], [`crate::shard::finish`],
+//! [`crate::shard::merge`]) on its part and writes its result to `DIR/shards/K/PHASE.bin`
+//! ([`crate::shard::store`]), atomically.
 //!
 //! The job graph has four phases of `jobs = sx · sy` jobs each and a merge, because the run
 //! has three global reductions that a job cannot compute alone (see `docs/scale.md`):
@@ -30,19 +30,20 @@
 //! Each job reads its inputs one file at a time and keeps only the points its window or
 //! block needs: its memory is one input file plus its own points, not the survey.
 
-use super::points::Stages;
-use super::store::{Reader, Writer};
-use super::{complete_coarse, finish, is_smooth, merge, prepare, Prepared, ShardLayout};
-use super::{Shard, ShardOutput};
 use crate::config::LoadedPipeline;
 use crate::error::{Error, Result};
 use crate::points::{self, Bounds, PointCloud, ReadOptions};
+use crate::shard::points::Stages;
+use crate::shard::prepared_spill::{read_prepared_from, write_prepared};
+use crate::shard::store::{Reader, Writer};
+use crate::shard::{complete_coarse, finish, is_smooth, merge, prepare, Prepared, ShardLayout};
+use crate::shard::{Shard, ShardOutput};
 use crate::terrain::denoise::{self, ColumnWindow, DenoiseSettings, Frame};
 use crate::terrain::fill::FillReport;
 use crate::terrain::quadtree::NodeValues;
 use crate::terrain::resample::{self, GridSpec};
 use crate::terrain::tiles::{Preset, Tile};
-use crate::terrain::{CellState, Fallback, Heightfield};
+use crate::terrain::{Fallback, Heightfield};
 use crate::NoProgress;
 use ndarray::Array2;
 use serde::{Deserialize, Serialize};
@@ -484,7 +485,7 @@ impl Run {
         for (i, p) in self.inputs.iter().enumerate() {
             if known {
                 let b = self.plan.input_boxes[i].map(f64::from_bits);
-                let fb = super::direct::FileBox {
+                let fb = crate::shard::direct::FileBox {
                     min: [b[0], b[1]],
                     max: [b[2], b[3]],
                 };
@@ -946,61 +947,6 @@ fn block_of(run: &Run, layout: &ShardLayout, k: usize) -> Option<Shard> {
     (c < sx && r < sy).then(|| layout.shard(r * sx + c))
 }
 
-fn put_heightfield(w: &mut Writer, hf: &Heightfield) {
-    let (rows, cols) = hf.heights.dim();
-    w.u64(rows as u64);
-    w.u64(cols as u64);
-    w.f32s(hf.heights.iter().copied());
-    w.u32s(hf.counts.iter().copied());
-    w.bytes(&hf.state.iter().map(|s| *s as u8).collect::<Vec<_>>());
-    for v in [hf.corner, hf.cell_size].iter().flatten() {
-        w.f64(*v);
-    }
-    w.f64(hf.z_offset);
-}
-
-fn get_heightfield(r: &mut Reader, max_cells: usize) -> Result<Heightfield> {
-    let rows = r.usize(max_cells, "rows")?;
-    let cols = r.usize(max_cells, "columns")?;
-    let shape = |r: &Reader, n: usize| -> Result<()> {
-        if n != rows * cols {
-            return Err(r.invalid(format!("{n} cells for {rows}×{cols}")));
-        }
-        Ok(())
-    };
-    let heights = r.f32s()?;
-    shape(r, heights.len())?;
-    let counts = r.u32s()?;
-    shape(r, counts.len())?;
-    let state = r.bytes()?;
-    shape(r, state.len())?;
-    let state = state
-        .into_iter()
-        .map(|s| match s {
-            0 => Ok(CellState::Empty),
-            1 => Ok(CellState::Measured),
-            2 => Ok(CellState::Interpolated),
-            3 => Ok(CellState::Fallback),
-            _ => Err(r.invalid(format!("cell state {s}"))),
-        })
-        .collect::<Result<Vec<_>>>()?;
-    let mut f = [0.0; 5];
-    for v in &mut f {
-        *v = r.f64()?;
-    }
-    let arr = |v| Array2::from_shape_vec((rows, cols), v);
-    let bad = |_| r.invalid("cells do not fit their shape");
-    Ok(Heightfield {
-        heights: arr(heights).map_err(bad)?,
-        counts: Array2::from_shape_vec((rows, cols), counts).map_err(bad)?,
-        state: Array2::from_shape_vec((rows, cols), state).map_err(bad)?,
-        corner: [f[0], f[1]],
-        cell_size: [f[2], f[3]],
-        z_offset: f[4],
-        crs: None,
-    })
-}
-
 /// The result of `prepare`: the block's region interpolated and its fill pyramid (as
 /// [`prepare`] leaves them) and the coarse cells it owns.
 fn job_prepare(run: &Run, k: usize) -> Result<Writer> {
@@ -1089,50 +1035,6 @@ fn job_prepare(run: &Run, k: usize) -> Result<Writer> {
     w.f32s(coarse.iter().map(|c| c.1));
     write_prepared(&mut w, &p);
     Ok(w)
-}
-
-/// A prepared shard's region and fill pyramid, as [`read_prepared_from`] reads them back
-/// bit for bit.
-pub(crate) fn write_prepared(w: &mut Writer, p: &Prepared) {
-    put_heightfield(w, &p.local);
-    w.u64(p.offset[0] as u64);
-    w.u64(p.offset[1] as u64);
-    w.u64(p.pyramid.len() as u64);
-    for (v, h, wd) in &p.pyramid {
-        w.u64(*h as u64);
-        w.u64(*wd as u64);
-        w.f32s(v.iter().copied());
-    }
-}
-
-/// A prepared shard written by [`write_prepared`], for `shard` of `layout` with the fill
-/// `fill` (every length checked against the layout and the bytes left).
-pub(crate) fn read_prepared_from(
-    r: &mut Reader,
-    layout: &ShardLayout,
-    shard: Shard,
-    fill: Option<crate::terrain::fill::FillParams>,
-) -> Result<Prepared> {
-    let max_cells = layout.samples[0].max(layout.samples[1]);
-    let local = get_heightfield(r, max_cells)?;
-    let offset = [r.usize(max_cells, "offset")?, r.usize(max_cells, "offset")?];
-    let levels = r.usize(64, "pyramid levels")?;
-    let mut pyramid = Vec::with_capacity(levels);
-    for _ in 0..levels {
-        let (h, wd) = (r.usize(max_cells, "rows")?, r.usize(max_cells, "columns")?);
-        let v = r.f32s()?;
-        if v.len() != h * wd {
-            return Err(r.invalid("pyramid level does not fit its shape"));
-        }
-        pyramid.push((v, h, wd));
-    }
-    Ok(Prepared {
-        shard,
-        local,
-        offset,
-        pyramid,
-        fill,
-    })
 }
 
 /// A block's coarse cells: (index into the layout's coarse grid, value).

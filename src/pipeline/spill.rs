@@ -8,11 +8,12 @@
 //! Used only when every output is written tile by tile (`output::writes_tile_by_tile`):
 //! meshes, previews, `dem.tif` and the quantized-mesh tileset read the whole set.
 
-use super::ShardOutput;
 use crate::error::{Error, Result};
 use crate::fsutil::write_bytes_atomic;
 use crate::output::{SetSummary, TerrainProducts, TileWriter};
 use crate::progress::Progress;
+use crate::shard::store::is_numbered;
+use crate::shard::ShardOutput;
 use crate::terrain::{Quadtree, TileSet};
 use ndarray::Array2;
 use std::path::{Path, PathBuf};
@@ -25,13 +26,6 @@ fn path_of(dir: &Path, i: usize) -> PathBuf {
 /// True for the names of the files this module writes.
 pub fn is_spill_name(name: &str) -> bool {
     is_numbered(name, "tiles-")
-}
-
-/// True for `name` = `prefix`, a decimal shard index, `.bin`: a per-shard temporary file.
-pub(super) fn is_numbered(name: &str, prefix: &str) -> bool {
-    name.strip_prefix(prefix)
-        .and_then(|r| r.strip_suffix(".bin"))
-        .is_some_and(|r| !r.is_empty() && r.bytes().all(|c| c.is_ascii_digit()))
 }
 
 /// The tiles the run has written to disk: per shard, the set indices of its tiles in the
