@@ -23,23 +23,28 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
     }
 }
 
-/// The production part of a source file: comment lines dropped, and nothing from the first
-/// `#[cfg(test)]` that opens a module (test modules stand at the end of a file).
-fn production_code(text: &str) -> String {
+/// The production lines of a source file: everything before the first `#[cfg(test)]` that
+/// opens a module (test modules stand at the end of a file).
+fn production_lines(text: &str) -> Vec<&str> {
     let lines: Vec<&str> = text.lines().collect();
+    let end = (0..lines.len())
+        .find(|&i| {
+            lines[i].trim_start().starts_with("#[cfg(test)]")
+                && lines[i + 1..]
+                    .iter()
+                    .map(|l| l.trim_start())
+                    .find(|l| !l.starts_with("#["))
+                    .is_some_and(|l| l.starts_with("mod ") || l.starts_with("pub mod "))
+        })
+        .unwrap_or(lines.len());
+    lines[..end].to_vec()
+}
+
+/// The production code of a source file without its comment lines.
+fn production_code(text: &str) -> String {
     let mut code = String::new();
-    for (i, line) in lines.iter().enumerate() {
-        let t = line.trim_start();
-        let opens_test_module = t.starts_with("#[cfg(test)]")
-            && lines[i + 1..]
-                .iter()
-                .map(|l| l.trim_start())
-                .find(|l| !l.starts_with("#["))
-                .is_some_and(|l| l.starts_with("mod ") || l.starts_with("pub mod "));
-        if opens_test_module {
-            break;
-        }
-        if !t.starts_with("//") {
+    for line in production_lines(text) {
+        if !line.trim_start().starts_with("//") {
             code.push_str(line);
             code.push('\n');
         }
@@ -237,4 +242,71 @@ fn the_encoders_call_no_stage() {
         vec!["terrain::fill", "terrain::extract"]
     );
     assert!(stage_calls("crate::terrain::extract::DEFAULT_TOLERANCE_M").is_empty());
+}
+
+/// The functions of `lines` longer than `limit` lines, as (name, first line, lines): from a
+/// line opening `fn` to the first later line that closes a block at the same indentation
+/// (rustfmt's layout).
+fn long_functions(lines: &[&str], limit: usize) -> Vec<(String, usize, usize)> {
+    let mut found = Vec::new();
+    for (i, line) in lines.iter().enumerate() {
+        let t = line.trim_start();
+        let indent = &line[..line.len() - t.len()];
+        let mut words = t
+            .split_whitespace()
+            .skip_while(|w| w.starts_with("pub") || ["const", "async", "unsafe"].contains(w));
+        // One-line functions and declarations without a body are short.
+        if words.next() != Some("fn") || t.ends_with('}') || t.ends_with(';') {
+            continue;
+        }
+        let name: String = words
+            .next()
+            .unwrap_or("")
+            .chars()
+            .take_while(|c| c.is_alphanumeric() || *c == '_')
+            .collect();
+        let close = |l: &&str| {
+            l.strip_prefix(indent)
+                .is_some_and(|r| ["}", "};", "})", "},"].contains(&r.trim_end()))
+        };
+        if let Some(end) = lines[i + 1..].iter().position(close) {
+            let n = end + 2;
+            if n > limit {
+                found.push((name, i + 1, n));
+            }
+        }
+    }
+    found
+}
+
+#[test]
+fn no_function_over_150_lines_outside_tests() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let mut long = Vec::new();
+    for file in files {
+        if file.file_name().is_some_and(|n| n == "tests.rs") {
+            continue;
+        }
+        let text = fs::read_to_string(&file).unwrap();
+        for (name, line, n) in long_functions(&production_lines(&text), 150) {
+            long.push(format!("{}:{line} {name}: {n} lines", file.display()));
+        }
+    }
+    assert!(
+        long.is_empty(),
+        "functions over 150 lines:\n{}",
+        long.join("\n")
+    );
+    let body: Vec<String> = (0..151).map(|i| format!("    let a{i} = {i};")).collect();
+    let text = format!(
+        "pub(crate) fn long() {{\n{}\n}}\nfn short() {{\n}}\n",
+        body.join("\n")
+    );
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(
+        long_functions(&lines, 150),
+        vec![("long".to_string(), 1, 153)]
+    );
 }
