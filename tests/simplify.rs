@@ -853,13 +853,17 @@ fn qem_runs_as_an_asset_and_its_keys_are_checked() {
 /// SALIENCY_CACHE=DIR keeps the maps between trials ([`cached_maps`]); SALIENCY_PHASES
 /// sets the two phases' share (0: one weighted run), SALIENCY_CARRY=max their weight
 /// carried from phase 1 to phase 2 ([`phases::Carry`]) and SALIENCY_MERGE=mean merges the
-/// weighted rows' quadrics by An's eq. 4.3. The last column is each simplification's seconds (weights known), for the speed
+/// weighted rows' quadrics by An's eq. 4.3; SALIENCY_CURVATURE (class A's curvature
+/// averaged over σ in ε first), SALIENCY_SHARES (four class bounds) and SALIENCY_RANGES
+/// (ten numbers, the classes' output ranges) make the hybrid with other classes, which
+/// moves the measured salient fifth with it unless SALIENCY_MEASURE=default (the fifth of
+/// the default hybrid, the weights of the other one). The last column is each simplification's seconds (weights known), for the speed
 /// ratio of weighted to plain QEM.
 #[test]
 #[ignore]
 fn saliency_table() {
     use terratile::simplify::qem::{self, WeightRule};
-    use terratile::simplify::saliency::{phases, texture, Weighting};
+    use terratile::simplify::saliency::{hybrid, phases, texture, Weighting};
     let env = |k: &str| std::env::var(k).ok().and_then(|s| s.parse::<f64>().ok());
     let d = Weighting::default();
     let w = Weighting {
@@ -901,6 +905,26 @@ fn saliency_table() {
         Ok("max") => phases::Carry::Max,
         _ => phases::Carry::default(),
     };
+    // SALIENCY_CURVATURE (σ in ε of class A's curvature), SALIENCY_SHARES=a,b,c,d and
+    // SALIENCY_RANGES=lo,hi,... (ten numbers): other hybrid classes, for the measure's
+    // salient fifth too unless SALIENCY_MEASURE=default.
+    let classes_smooth = env("SALIENCY_CURVATURE").unwrap_or(hybrid::CURVATURE_SMOOTH);
+    let list = |k: &str| {
+        std::env::var(k).ok().map(|s| {
+            s.split(',')
+                .map(|x| x.trim().parse::<f64>().unwrap())
+                .collect::<Vec<_>>()
+        })
+    };
+    let mut classes = hybrid::Classes::default();
+    if let Some(v) = list("SALIENCY_SHARES") {
+        classes.shares = (v[0], v[1], v[2], v[3]);
+    }
+    if let Some(v) = list("SALIENCY_RANGES") {
+        for (k, r) in classes.ranges.iter_mut().enumerate() {
+            *r = (v[2 * k], v[2 * k + 1]);
+        }
+    }
     let only = std::env::var("SALIENCY_MESHES").ok();
     let wanted = |n: &str| {
         only.as_deref()
@@ -929,14 +953,26 @@ fn saliency_table() {
         let t = m.triangle_count() as u64;
         cases.push((name.into(), m, vec![t / 10, t / 50]));
     }
-    println!("{w:?} {rule} area_norm {area_norm} merge {merge} carry {carry:?}");
+    println!(
+        "{w:?} {rule} area_norm {area_norm} merge {merge} carry {carry:?} \
+         class curvature σ {classes_smooth} ε {classes:?}"
+    );
     println!("| mesh | triangles | weights | whole (%) | salient 20 % (%) | salient vs plain | whole vs plain | QEM s |");
     println!("|---|---|---|---|---|---|---|---|");
     for (name, m, targets) in cases {
         let t = std::time::Instant::now();
-        let [hybrid, mesh_saliency, image_mean] = cached_maps(&name, &m);
+        let maps = cached_maps(&name, &m);
+        let [_, mesh_saliency, _, _, image_mean] = maps.clone();
+        let hybrid = hybrid_of(&m, &maps, classes_smooth, &classes);
         eprintln!("{name}: maps in {:.2} s", t.elapsed().as_secs_f64());
-        let salient = salient_fifth(&m, &hybrid);
+        // SALIENCY_MEASURE=default: the salient fifth of the default hybrid whatever the
+        // classes the weights are made from.
+        let salient = if std::env::var("SALIENCY_MEASURE").as_deref() == Ok("default") {
+            let d = hybrid_of(&m, &maps, hybrid::CURVATURE_SMOOTH, &Default::default());
+            salient_fifth(&m, &d)
+        } else {
+            salient_fifth(&m, &hybrid)
+        };
         let diag = m.diagonal();
         let hp = HausdorffParams { samples: 0 };
         // Each map's weights and the weighting's salient vertices (for the two phases).
@@ -1181,29 +1217,49 @@ fn qem_keeps_spot_uv_seams_unless_told() {
 /// The hybrid, mesh saliency and mean image saliency of `m` ([`saliency::maps`] with the
 /// default views); with SALIENCY_CACHE=DIR read from or written to DIR/NAME.maps (raw f64
 /// little endian, for repeated trials of the weighting: the maps do not depend on it).
-fn cached_maps(name: &str, m: &TriMesh) -> [Vec<f64>; 3] {
+fn cached_maps(name: &str, m: &TriMesh) -> [Vec<f64>; 5] {
     use terratile::simplify::saliency::{self, image::ViewParams};
     let n = m.vertex_count();
     let file = std::env::var("SALIENCY_CACHE")
         .ok()
-        .map(|d| std::path::Path::new(&d).join(format!("{name}.maps")));
+        .map(|d| std::path::Path::new(&d).join(format!("{name}.maps5")));
     if let Some(bytes) = file.as_ref().and_then(|f| std::fs::read(f).ok()) {
-        if bytes.len() == 3 * 8 * n {
+        if bytes.len() == 5 * 8 * n {
             let v: Vec<f64> = bytes
                 .chunks_exact(8)
                 .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
                 .collect();
-            return [0, 1, 2].map(|k| v[k * n..(k + 1) * n].to_vec());
+            return [0, 1, 2, 3, 4].map(|k| v[k * n..(k + 1) * n].to_vec());
         }
     }
     let maps = saliency::maps(m, &ViewParams::default()).unwrap();
-    let out = [maps.hybrid, maps.mesh_saliency, maps.image.mean];
+    let out = [
+        maps.curvature,
+        maps.mesh_saliency,
+        maps.image.max,
+        maps.image.min,
+        maps.image.mean,
+    ];
     if let Some(f) = file {
         let bytes: Vec<u8> = out.iter().flatten().flat_map(|x| x.to_le_bytes()).collect();
         std::fs::create_dir_all(f.parent().unwrap()).unwrap();
         std::fs::write(f, bytes).unwrap();
     }
     out
+}
+
+/// The hybrid of `maps` ([`cached_maps`]) with class A's curvature smoothed over σ =
+/// `smooth` ε and `classes`.
+fn hybrid_of(
+    m: &TriMesh,
+    maps: &[Vec<f64>; 5],
+    smooth: f64,
+    classes: &terratile::simplify::saliency::hybrid::Classes,
+) -> Vec<f64> {
+    use terratile::simplify::saliency::hybrid;
+    let c = hybrid::class_curvature(m, &maps[0], smooth);
+    let [_, ms, max, min, mean] = maps;
+    hybrid::hybrid_with([&c, ms, max, min, mean], classes).0
 }
 
 /// A third of each triangle's area at each of its corners.

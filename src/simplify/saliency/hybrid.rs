@@ -81,7 +81,41 @@ pub fn ranks(values: &[f64]) -> Vec<f64> {
     out
 }
 
-/// The hybrid saliency in [0, 1] and the class (0–4 for A–E) of every vertex.
+/// σ in ε of the Gaussian over which class A's curvature is averaged before it is ranked
+/// ([`class_curvature`]; 0: each vertex's own curvature).
+pub const CURVATURE_SMOOTH: f64 = 0.0;
+
+/// The curvature class A ranks: `curvature` averaged over σ = `sigma_eps` · ε
+/// ([`super::mesh::smooth`]), or itself for `sigma_eps` = 0.
+pub fn class_curvature(mesh: &crate::mesh::TriMesh, curvature: &[f64], sigma_eps: f64) -> Vec<f64> {
+    if sigma_eps > 0.0 {
+        super::mesh::smooth(mesh, curvature, sigma_eps)
+    } else {
+        curvature.to_vec()
+    }
+}
+
+/// The classes' bounds and output ranges (defaults [`SHARES`], [`RANGES`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Classes {
+    /// (A top share of curvature, B top share of mesh saliency, C top share of min image
+    /// saliency, D bottom share of max image saliency).
+    pub shares: (f64, f64, f64, f64),
+    /// Output ranges of A–E.
+    pub ranges: [(f64, f64); 5],
+}
+
+impl Default for Classes {
+    fn default() -> Self {
+        Classes {
+            shares: SHARES,
+            ranges: RANGES,
+        }
+    }
+}
+
+/// The hybrid saliency in [0, 1] and the class (0–4 for A–E) of every vertex (the default
+/// [`Classes`]).
 pub fn hybrid(
     curvature: &[f64],
     mesh: &[f64],
@@ -89,10 +123,17 @@ pub fn hybrid(
     image_min: &[f64],
     image_mean: &[f64],
 ) -> (Vec<f64>, Vec<u8>) {
+    let maps = [curvature, mesh, image_max, image_min, image_mean];
+    hybrid_with(maps, &Classes::default())
+}
+
+/// [`hybrid`] of the maps (curvature, mesh saliency, image max, min, mean) with `classes`.
+pub fn hybrid_with(maps: [&[f64]; 5], classes: &Classes) -> (Vec<f64>, Vec<u8>) {
+    let [curvature, mesh, image_max, image_min, image_mean] = maps;
     let n = curvature.len();
     let (rc, rm) = (ranks(curvature), ranks(mesh));
     let (rmax, rmin, rmean) = (ranks(image_max), ranks(image_min), ranks(image_mean));
-    let (a, b, c, d) = SHARES;
+    let (a, b, c, d) = classes.shares;
     let mut class = vec![4u8; n];
     let mut value = vec![0.0f64; n];
     for v in 0..n {
@@ -109,7 +150,7 @@ pub fn hybrid(
         };
     }
     let mut h = vec![0.0f64; n];
-    for (k, &(lo, hi)) in RANGES.iter().enumerate() {
+    for (k, &(lo, hi)) in classes.ranges.iter().enumerate() {
         let members: Vec<usize> = (0..n).filter(|&v| class[v] == k as u8).collect();
         let vals: Vec<f64> = members.iter().map(|&v| value[v]).collect();
         let r = ranks(&vals);
@@ -246,7 +287,25 @@ mod tests {
             let (lo, hi) = RANGES[class[v] as usize];
             assert!(h[v] >= lo && h[v] <= hi);
         }
-        assert_eq!(h[99], 0.925); // a class of one sits mid-range
+        // A class of one sits mid-range.
+        assert_eq!(h[99], 0.925);
+        // Other classes: B's bound at the top fifth, E remapped onto [0.2, 0.3].
+        let mut c = Classes {
+            shares: (0.05, 0.2, 0.1, 0.1),
+            ..Classes::default()
+        };
+        c.ranges[4] = (0.2, 0.3);
+        let (h2, class2) = hybrid_with([&curvature, &mesh, &max, &zeros, &mean], &c);
+        assert_eq!(class2[99], 0);
+        assert!((80..99).all(|v| class2[v] == 1), "{class2:?}");
+        assert!((10..80).all(|v| class2[v] == 4 && (0.2..=0.3).contains(&h2[v])));
+        assert!((h2[80] - 0.6).abs() < 1e-12 && (h2[98] - 0.9).abs() < 1e-12);
+        // The defaults are `hybrid`'s.
+        let d = hybrid_with(
+            [&curvature, &mesh, &max, &zeros, &mean],
+            &Classes::default(),
+        );
+        assert_eq!(d, (h, class));
     }
 
     #[test]

@@ -78,18 +78,15 @@ pub struct Maps {
 /// All maps of `mesh` (which must be valid and have triangles).
 pub fn maps(mesh: &TriMesh, views: &image::ViewParams) -> Result<Maps> {
     let m = mesh::mesh_saliency(mesh);
-    Ok(assemble(m, image::image_saliency(mesh, views)?))
+    Ok(assemble(mesh, m, image::image_saliency(mesh, views)?))
 }
 
-/// The maps with the hybrid (the thesis' classes, [`hybrid::hybrid`]) of `m` and `image`.
-fn assemble(m: mesh::MeshSaliency, image: image::ImageSaliency) -> Maps {
-    let (hybrid, class) = hybrid::hybrid(
-        &m.curvature,
-        &m.saliency,
-        &image.max,
-        &image.min,
-        &image.mean,
-    );
+/// The maps with the hybrid (the thesis' classes, [`hybrid::hybrid`], class A on
+/// [`hybrid::class_curvature`]) of `m` and `image` on `mesh`.
+fn assemble(mesh: &TriMesh, m: mesh::MeshSaliency, image: image::ImageSaliency) -> Maps {
+    let curvature = hybrid::class_curvature(mesh, &m.curvature, hybrid::CURVATURE_SMOOTH);
+    let (hybrid, class) =
+        hybrid::hybrid(&curvature, &m.saliency, &image.max, &image.min, &image.mean);
     Maps {
         curvature: m.curvature,
         mesh_saliency: m.saliency,
@@ -381,7 +378,7 @@ pub fn saliency_file(
     let t = std::time::Instant::now();
     let img = image::image_saliency(&m, views)?;
     let image_seconds = t.elapsed().as_secs_f64();
-    let maps = assemble(ms, img);
+    let maps = assemble(&m, ms, img);
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let mut files = vec![out.join("saliency.ply")];
     pictures::write_ply(&m, &maps, &files[0])?;
