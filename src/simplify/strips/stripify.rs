@@ -64,7 +64,7 @@ impl Default for StripParams {
 /// the half-edges (v, w) with w > v, row 2v + 1 those (w, v) with w > v, each as (w, the
 /// apex of its triangle, its corner 3t + k where t[k] is its first vertex). A directed
 /// edge and its reverse are thus in the two rows of the same vertex, a few entries each.
-/// Built by a counting sort ([`EdgeMap::new`]).
+/// Built by a counting sort (two passes over the corners, no hashing).
 struct EdgeMap {
     /// Row r: `rows[start[r]..start[r + 1]]`.
     start: Vec<u32>,
@@ -83,62 +83,31 @@ fn key(a: u32, b: u32) -> (usize, u32) {
 }
 
 impl EdgeMap {
-    /// The rows and, per corner 3t + k, the triangle across edge (t[k], t[k + 1]), that
-    /// is the one with the directed edge (t[k + 1], t[k]), and its apex; [`NONE`] if there
-    /// is none, [`MANY`] if there are several (a non-manifold or doubly covered edge: those
-    /// are looked up in the rows). The valences are counted into `valence`. The apex saves
-    /// the strip a read of the triangle across, scattered in memory, for every edge it
-    /// tries.
-    ///
-    /// Built by a counting sort (two passes over the corners, no hashing), and the twins
-    /// paired while the rows fill: a half-edge's reverse is in the other row of its lower
-    /// vertex, so each half-edge is compared with the part of that row already filled
-    /// (about 1.5 entries on a closed mesh, next to the row it is written to) and a match
-    /// sets the twins of both. Each pair is found once, when the later of its two is
-    /// written, where pairing the rows afterwards read all of them again and compared
-    /// every pair from both sides.
-    fn new(tris: &[[u32; 3]], vertices: usize, valence: &mut [u32]) -> (EdgeMap, Vec<[u32; 2]>) {
+    fn new(tris: &[[u32; 3]], vertices: usize, valence: &mut [u32]) -> EdgeMap {
         let mut start = vec![0u32; 2 * vertices + 1];
         for &[a, b, c] in tris {
             for (x, y) in [(a, b), (b, c), (c, a)] {
-                start[key(x, y).0 + 1] += 1;
+                start[key(x, y).0] += 1;
                 valence[x as usize] += 1;
             }
         }
-        // Exclusive sums: `start[r]` is row r's first entry; `fill[r]` its next free one.
+        // Inclusive sums, then filled from the back: each row ends ascending and `start[r]`
+        // ends at the row's first entry.
         let mut sum = 0u32;
         for s in start.iter_mut() {
             sum += *s;
             *s = sum;
         }
-        let mut fill = start.clone();
         let mut rows = vec![[0u32; 3]; tris.len() * 3];
-        let mut twin = vec![[NONE, 0]; tris.len() * 3];
-        for (t, &[a, b, c]) in tris.iter().enumerate() {
-            for (k, x, y, z) in [(0, a, b, c), (1, b, c, a), (2, c, a, b)] {
+        for (t, &[a, b, c]) in tris.iter().enumerate().rev() {
+            for (k, x, y, z) in [(2, c, a, b), (1, b, c, a), (0, a, b, c)] {
                 let (r, w) = key(x, y);
-                let corner = 3 * t as u32 + k;
-                // The reverse row's filled part (rows r and r ^ 1 of one vertex).
-                let o = r ^ 1;
-                for m in start[o] as usize..fill[o] as usize {
-                    let [x2, z2, c2] = rows[m];
-                    if x2 == w {
-                        twin[corner as usize] = match twin[corner as usize][0] {
-                            NONE => [c2 / 3, z2],
-                            _ => [MANY, 0],
-                        };
-                        twin[c2 as usize] = match twin[c2 as usize][0] {
-                            NONE => [t as u32, z],
-                            _ => [MANY, 0],
-                        };
-                    }
-                }
-                let f = &mut fill[r];
-                rows[*f as usize] = [w, z, corner];
-                *f += 1;
+                let s = &mut start[r];
+                *s -= 1;
+                rows[*s as usize] = [w, z, 3 * t as u32 + k];
             }
         }
-        (EdgeMap { start, rows }, twin)
+        EdgeMap { start, rows }
     }
 
     #[inline]
@@ -155,6 +124,39 @@ impl EdgeMap {
             .find(|&&[x, _, c]| x == w && !used[c as usize / 3])
             .map(|&[_, _, c]| c / 3)
     }
+
+    /// Per corner 3t + k: the triangle across edge (t[k], t[k + 1]), that is the one with
+    /// the directed edge (t[k + 1], t[k]), and its apex; [`NONE`] if there is none,
+    /// [`MANY`] if there are several (a non-manifold or doubly covered edge: those are
+    /// looked up in the rows). An edge's reverse is in the other row of its lower vertex:
+    /// one pass over the rows in order, each read once from memory, each entry compared
+    /// with the few of the other row (about 3 on a closed mesh, where the rows by vertex
+    /// held all 6 corners of both directions). The apex saves the strip a read of the
+    /// triangle across, scattered in memory, for every edge it tries.
+    fn twins(&self) -> Vec<[u32; 2]> {
+        let mut twin = vec![[NONE, 0]; self.rows.len()];
+        for v in 0..(self.start.len() - 1) / 2 {
+            let (lo, hi) = (self.row(2 * v), self.row(2 * v + 1));
+            for (this, other) in [(lo, hi), (hi, lo)] {
+                for &[w, _, c] in this {
+                    // Without branches in the loop (a match is unpredictable): the position
+                    // of the last match and the number of them.
+                    let (mut found, mut count) = (0usize, 0u32);
+                    for (j, &[x, _, _]) in other.iter().enumerate() {
+                        let m = x == w;
+                        count += m as u32;
+                        found = if m { j } else { found };
+                    }
+                    twin[c as usize] = match count {
+                        0 => [NONE, 0],
+                        1 => [other[found][2] / 3, other[found][1]],
+                        _ => [MANY, 0],
+                    };
+                }
+            }
+        }
+        twin
+    }
 }
 
 /// No triangle across the edge.
@@ -167,7 +169,7 @@ const MANY: u32 = u32::MAX - 1;
 pub fn stripify(triangles: &[[u32; 3]], params: &StripParams) -> Vec<u32> {
     let distinct = |t: &[u32; 3]| t[0] != t[1] && t[1] != t[2] && t[0] != t[2];
     let kept: Vec<[u32; 3]>;
-    // Triangle ids must stay below the markers of [`EdgeMap::new`]'s twins and the simulated
+    // Triangle ids must stay below the markers of [`EdgeMap::twins`] and the simulated
     // cache's miss count (at most 5 per triangle) within a u32; so many triangles (10 GiB
     // of indices) are out of reach of this greedy anyway.
     assert!(
@@ -193,7 +195,7 @@ struct Stripper<'t> {
     join: Join,
     window: usize,
     edges: EdgeMap,
-    /// Per corner, the triangle across and its apex ([`EdgeMap::new`]).
+    /// [`EdgeMap::twins`].
     twin: Vec<[u32; 2]>,
     used: Vec<bool>,
     /// Per vertex: unused triangles (the valence). Apart from `stamp` (the window's choice
@@ -253,7 +255,8 @@ impl<'t> Stripper<'t> {
             "a vertex index equals RESTART"
         );
         let mut vert = vec![0u32; vertices];
-        let (edges, twin) = EdgeMap::new(tris, vertices, &mut vert);
+        let edges = EdgeMap::new(tris, vertices, &mut vert);
+        let twin = edges.twins();
         let mut s = Stripper {
             tris,
             join: params.join,
