@@ -305,7 +305,9 @@ impl<'t> Stripper<'t> {
     }
 
     /// Marks `t` used: out of the window, valences and neighbour counts down.
-    #[inline]
+    // Always inlined: the compiler otherwise calls it (a few times per triangle, each
+    // call reloading the state it reads).
+    #[inline(always)]
     fn take(&mut self, t: u32) {
         self.used[t as usize] = true;
         if (t as usize) < self.cursor {
@@ -370,7 +372,9 @@ impl<'t> Stripper<'t> {
     /// the window is the first unused one overall when it is below the cursor, and the
     /// edge's twin (or, for an edge with several, its row) gives that without scanning the
     /// window.
-    #[inline]
+    // Always inlined: the compiler otherwise calls it (a few times per triangle, each
+    // call reloading the state it reads).
+    #[inline(always)]
     fn find(&self, t: u32, e0: u32, e1: u32) -> Option<(u32, u32, u32)> {
         let [a, b, c] = self.tris[t as usize];
         let k = if a == e1 && b == e0 {
