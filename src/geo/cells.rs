@@ -525,14 +525,8 @@ impl<S: Surface> Tile<'_, S> {
                 // The diamond: the inner midpoints alone, the corners' triangles between
                 // two of them (edge (a/2 − e)²), the diamond split north–south.
                 for k in 0..4 {
-                    let (c0, c1) = (outer[2 * k], outer[(2 * k + 2) % 8]);
-                    if mids {
-                        self.tri(c0, outer[2 * k + 1], m[k]);
-                        self.tri(outer[2 * k + 1], c1, m[k]);
-                    } else {
-                        self.tri(c0, c1, m[k]);
-                    }
-                    self.tri(c0, m[k], m[(k + 3) % 4]);
+                    self.side_to(&outer, mids, k, m[k]);
+                    self.tri(outer[2 * k], m[k], m[(k + 3) % 4]);
                 }
                 self.tri(m[0], m[1], m[2]);
                 self.tri(m[0], m[2], m[3]);
@@ -540,15 +534,9 @@ impl<S: Surface> Tile<'_, S> {
             }
             let q = [at(l, l), at(h, l), at(h, h), at(l, h)].map(|p| self.point(p));
             for k in 0..4 {
-                let (c0, c1) = (outer[2 * k], outer[(2 * k + 2) % 8]);
-                if mids {
-                    self.tri(c0, outer[2 * k + 1], m[k]);
-                    self.tri(outer[2 * k + 1], c1, m[k]);
-                } else {
-                    self.tri(c0, c1, m[k]);
-                }
-                self.tri(c0, m[k], q[k]);
-                self.tri(c1, q[(k + 1) % 4], m[k]);
+                self.side_to(&outer, mids, k, m[k]);
+                self.tri(outer[2 * k], m[k], q[k]);
+                self.tri(outer[(2 * k + 2) % 8], q[(k + 1) % 4], m[k]);
             }
             outer = [q[0], m[0], q[1], m[1], q[2], m[2], q[3], m[3]];
             (lo, a, mids) = (l, a - 2.0 * e, true);
@@ -558,6 +546,18 @@ impl<S: Surface> Tile<'_, S> {
             self.tri(outer[k], outer[(k + 1) % 8], c);
         }
         self.keep_if_held(nv, nt)
+    }
+
+    /// The triangles from side `k` of the square `outer` (corners at even places, side
+    /// midpoints at odd ones when `mids`) to the vertex `apex` inside it.
+    fn side_to(&mut self, outer: &[u32; 8], mids: bool, k: usize, apex: u32) {
+        let (c0, c1) = (outer[2 * k], outer[(2 * k + 2) % 8]);
+        if mids {
+            self.tri(c0, outer[2 * k + 1], apex);
+            self.tri(outer[2 * k + 1], c1, apex);
+        } else {
+            self.tri(c0, c1, apex);
+        }
     }
 
     /// True when every triangle from `nt` on is counter-clockwise after quantisation and
