@@ -9,8 +9,24 @@
 //! - the two triangles of a cell (either diagonal) are within |d|/4 of G; the diagonal taken
 //!   joins the two corners of nearer heights (it follows a ridge or a valley);
 //! - four triangles around the cell's centre (on G: the mean of its corners) are within |d|/16;
-//! - a cell twisted more than that is refined by the greedy insertion of `tin::refine` on the
-//!   cell alone, with the exact measure (rare: a few cells of tree cover at fine tolerances).
+//! - a cell twisted more than that takes concentric rings. In general a triangle inside the
+//!   cell is within |d|·max|ΔxΔy|/4 of G, the largest over its three edges (on an edge
+//!   G − L = d·ΔxΔy·t(1 − t)): edges along the grid's axes cost nothing. So for edges within
+//!   s = 4·tolerance/|d|, a ring of width e = 2s/a inside a square of side a (the cell,
+//!   a = 1, first) joins the square to the one inside it, whose corners and side midpoints
+//!   are the ring's eight new vertices: per side a triangle from the side (or its two halves)
+//!   to the inner midpoint (edges a/2 × e) and two to the inner corners (e × e, and an axis
+//!   edge); rings follow until the inner square's fan around its centre holds (a²/4 ≤ s).
+//!   A square whose inner midpoints alone hold, with triangles from each corner to the two
+//!   nearest of them ((a/2 − e)² ≤ s), ends in that diamond (split north–south) instead.
+//!   The cell's sides stay whole (no T-junctions) and the pattern is chosen by the closed
+//!   form, no search: a twist of up to 40 times the tolerance takes 4 vertices (the
+//!   diamond), of 64 times 12 (a ring and a diamond). Such a cell's triangles are then
+//!   measured exactly at their quantized vertices (the greedy insertion's measure) instead
+//!   of carrying the margin below, which on steep cells (tree edges: 20 m over a cell) is
+//!   nearly half of a 0.5 m tolerance; the fan around the centre too, for a cell whose fan
+//!   failed only by its margin. Beyond `MAX_RINGS`, or when a triangle fails that measure
+//!   or quantisation turns it, the greedy insertion of `tin::refine` takes the cell alone.
 //!
 //! Vertices sit on the tile's quantized positions (1/32767 of the tile), each at G's height
 //! there, so a vertex is up to δ (about a thousandth of a cell) from its grid node. A triangle
@@ -40,6 +56,12 @@ const NEAR: f64 = 1.5;
 /// Vertices a twisted cell may take by greedy refinement (a guard: the exact measure needs
 /// far fewer).
 const CELL_VERTICES: usize = 256;
+/// Rings a twisted cell may take (see `Tile::rings`) before the greedy refinement takes it:
+/// eight vertices each; a twist of 200 times the tolerance needs 6.
+const MAX_RINGS: usize = 12;
+/// Share of the closed-form budget a twisted cell's pattern is chosen for: the rest is left
+/// for the vertices' quantisation, and the pattern is then measured exactly.
+const SLACK: f64 = 0.95;
 
 /// A side of the dense tiles: its vertices and how to find the one a crossing merged into.
 #[derive(Debug, Clone)]
@@ -350,7 +372,14 @@ impl<S: Surface> Tile<'_, S> {
         if self.node_vertex[at] != u32::MAX {
             return self.node_vertex[at];
         }
-        let p = [i as f64, j as f64];
+        let v = self.point([i as f64, j as f64]);
+        self.node_vertex[at] = v;
+        v
+    }
+
+    /// A new vertex at the quantized position nearest grid position `p` (inside the tile),
+    /// at the surface's height there.
+    fn point(&mut self, p: [f64; 2]) -> u32 {
         let affine = |p: [f64; 2]| {
             let r = [p[0] - self.centre[0], p[1] - self.centre[1]];
             [
@@ -369,9 +398,7 @@ impl<S: Surface> Tile<'_, S> {
         ]);
         let q = f64::from(Q);
         let uv = [uv0[0] + c[0], uv0[1] + c[1]].map(|t| (t * q).round().clamp(1.0, q - 1.0) as u16);
-        let v = self.push(uv);
-        self.node_vertex[at] = v;
-        v
+        self.push(uv)
     }
 
     fn z(&self, i: i64, j: i64) -> f64 {
@@ -446,6 +473,12 @@ impl<S: Surface> Tile<'_, S> {
             }
             true
         } else {
+            // Each edge of a triangle in the cell must have |ΔxΔy| ≤ s (cell units); with
+            // some slack for the vertices' quantisation, and then measured exactly.
+            let s = 4.0 * self.tolerance / twist * SLACK;
+            if self.rings(i, j, v, s) {
+                return true;
+            }
             let poly = if self.flipped {
                 vec![v[0], v[3], v[2], v[1]]
             } else {
@@ -453,6 +486,107 @@ impl<S: Surface> Tile<'_, S> {
             };
             self.refine(&poly)
         }
+    }
+
+    /// Interior cell (i, j) with corner vertices `v` (counter-clockwise in the grid) whose
+    /// fan around its centre did not hold with the margin: that fan, or concentric rings and
+    /// a diamond (see the module's notes), whose triangle edges all have |ΔxΔy| ≤ `s` in
+    /// cell units, so every triangle is within |d|·s/4 of the surface at the ideal
+    /// positions. False, with nothing added, when it would take more than `MAX_RINGS` rings
+    /// or a triangle at the quantized positions is not counter-clockwise or not within the
+    /// tolerance (exact measure).
+    fn rings(&mut self, i: i64, j: i64, v: [u32; 4], s: f64) -> bool {
+        let (nv, nt) = (self.out.uv.len(), self.out.triangles.len());
+        let at = |x: f64, y: f64| [i as f64 + x, j as f64 + y];
+        // The current square's boundary counter-clockwise from its south-west corner:
+        // corners at even places, the midpoints of its sides (after the first ring) at odd.
+        let mut outer = [v[0], 0, v[1], 0, v[2], 0, v[3], 0];
+        let (mut lo, mut a, mut mids) = (0.0, 1.0, false);
+        let mut rings = 0;
+        if a * a <= 4.0 * s {
+            // The fan around the centre, measured exactly (its closed form did not hold
+            // with the margin).
+            let c = self.point(at(0.5, 0.5));
+            for k in 0..4 {
+                self.tri(v[k], v[(k + 1) % 4], c);
+            }
+            return self.keep_if_held(nv, nt);
+        }
+        while a * a > 4.0 * s {
+            rings += 1;
+            if rings > MAX_RINGS {
+                self.truncate(nv, nt);
+                return false;
+            }
+            let e = 2.0 * s / a;
+            let (l, h) = (lo + e, lo + a - e);
+            let m = [at(0.5, l), at(h, 0.5), at(0.5, h), at(l, 0.5)].map(|p| self.point(p));
+            if 0.5 * a - e <= s.sqrt() {
+                // The diamond: the inner midpoints alone, the corners' triangles between
+                // two of them (edge (a/2 − e)²), the diamond split north–south.
+                for k in 0..4 {
+                    self.side_to(&outer, mids, k, m[k]);
+                    self.tri(outer[2 * k], m[k], m[(k + 3) % 4]);
+                }
+                self.tri(m[0], m[1], m[2]);
+                self.tri(m[0], m[2], m[3]);
+                return self.keep_if_held(nv, nt);
+            }
+            let q = [at(l, l), at(h, l), at(h, h), at(l, h)].map(|p| self.point(p));
+            for k in 0..4 {
+                self.side_to(&outer, mids, k, m[k]);
+                self.tri(outer[2 * k], m[k], q[k]);
+                self.tri(outer[(2 * k + 2) % 8], q[(k + 1) % 4], m[k]);
+            }
+            outer = [q[0], m[0], q[1], m[1], q[2], m[2], q[3], m[3]];
+            (lo, a, mids) = (l, a - 2.0 * e, true);
+        }
+        let c = self.point(at(0.5, 0.5));
+        for k in 0..8 {
+            self.tri(outer[k], outer[(k + 1) % 8], c);
+        }
+        self.keep_if_held(nv, nt)
+    }
+
+    /// The triangles from side `k` of the square `outer` (corners at even places, side
+    /// midpoints at odd ones when `mids`) to the vertex `apex` inside it.
+    fn side_to(&mut self, outer: &[u32; 8], mids: bool, k: usize, apex: u32) {
+        let (c0, c1) = (outer[2 * k], outer[(2 * k + 2) % 8]);
+        if mids {
+            self.tri(c0, outer[2 * k + 1], apex);
+            self.tri(outer[2 * k + 1], c1, apex);
+        } else {
+            self.tri(c0, c1, apex);
+        }
+    }
+
+    /// True when every triangle from `nt` on is counter-clockwise after quantisation and
+    /// within the tolerance of the surface by the exact measure (`tin::worst_in_triangle`,
+    /// the greedy insertion's own: the closed forms hold for the ideal positions, the
+    /// vertices sit on quantized ones); else drops them and the vertices from `nv` on, and
+    /// false.
+    fn keep_if_held(&mut self, nv: usize, nt: usize) -> bool {
+        let mut cuts = Vec::new();
+        let ok = self.out.triangles[nt..].iter().all(|t| {
+            let k = t.map(|k| k as usize);
+            self.area(t[0], t[1], t[2]) > 0 && {
+                let p = k.map(|k| self.out.p[k]);
+                let h = k.map(|k| self.out.h[k]);
+                tin::worst_in_triangle(self.s, p, h, [false; 3], &mut cuts).0 <= self.tolerance
+            }
+        });
+        if !ok {
+            self.truncate(nv, nt);
+        }
+        ok
+    }
+
+    /// Drops the vertices from `nv` on and the triangles from `nt` on.
+    fn truncate(&mut self, nv: usize, nt: usize) {
+        self.out.uv.truncate(nv);
+        self.out.p.truncate(nv);
+        self.out.h.truncate(nv);
+        self.out.triangles.truncate(nt);
     }
 
     /// The convex polygon `poly` (counter-clockwise in (u, v)) triangulated by greedy

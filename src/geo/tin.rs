@@ -309,7 +309,7 @@ impl Ord for Candidate {
 /// The worst |plane − G| over the triangle (grid positions `p`, heights `h`): at the grid
 /// nodes inside it and along its edges (skipping edges on the tile's border, whose pieces
 /// the side simplification already holds within the tolerance), and where.
-fn worst_in_triangle<S: Surface>(
+pub(crate) fn worst_in_triangle<S: Surface>(
     s: &S,
     p: [[f64; 2]; 3],
     h: [f64; 3],
