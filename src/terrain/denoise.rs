@@ -685,9 +685,8 @@ fn finish(
             floors[lat.group_of(c)].saturating_mul(lat.slab)
         }
     };
-    // The kept points' keys of column `c`, in (layer, index) order.
-    let kept_keys = |c: usize| {
-        let f = floor(c);
+    // The kept points' keys of column `c` whose floor is `f`, in (layer, index) order.
+    let kept_above = |c: usize, f: u32| {
         let range = sorted.starts[c] as usize..sorted.starts[c + 1] as usize;
         sorted.keys[range.clone()]
             .iter()
@@ -695,37 +694,50 @@ fn finish(
             .filter(move |(&key, &d)| d && layer(key) >= f)
             .map(|(&key, _)| key)
     };
+    let kept_keys = |c: usize| kept_above(c, floor(c));
 
     // The flags back in input order.
     let keep: Vec<AtomicBool> = (0..n)
         .into_par_iter()
         .map(|_| AtomicBool::new(false))
         .collect();
-    let (low, extremes) = (0..lat.columns())
+    // Row by row of voxel columns, so that each column's floor comes from a running
+    // low-layer column number instead of [`Lattice::group_of`]'s four integer divisions
+    // per column (the counts are sums and the extremes minima and maxima: any split of the
+    // work gives the same).
+    let (nx, r) = (lat.ncx as usize, lat.ratio as usize);
+    let (low, extremes) = (0..lat.ncy as usize)
         .into_par_iter()
-        .with_min_len(256)
         .fold(
             || (0usize, Extremes::NONE),
-            |(mut low, mut ext), c| {
-                if owned.is_some_and(|o| !o[c]) {
-                    return (low, ext);
-                }
-                let floor = floor(c);
-                let range = sorted.starts[c] as usize..sorted.starts[c + 1] as usize;
-                let mut layers = (u32::MAX, 0);
-                for (&key, &d) in sorted.keys[range.clone()].iter().zip(&dense[range]) {
-                    if !d {
+            |(mut low, mut ext), cj| {
+                let group_row = (cj / r) * lat.groups_x() as usize;
+                for ci in 0..nx {
+                    let c = cj * nx + ci;
+                    if owned.is_some_and(|o| !o[c]) {
                         continue;
                     }
-                    if layer(key) < floor {
-                        low += 1;
+                    let floor = if floors.is_empty() {
+                        0
                     } else {
-                        keep[index(key)].store(true, Relaxed);
-                        layers = (layers.0.min(layer(key)), layer(key));
+                        floors[group_row + ci / r].saturating_mul(lat.slab)
+                    };
+                    let range = sorted.starts[c] as usize..sorted.starts[c + 1] as usize;
+                    let mut layers = (u32::MAX, 0);
+                    for (&key, &d) in sorted.keys[range.clone()].iter().zip(&dense[range]) {
+                        if !d {
+                            continue;
+                        }
+                        if layer(key) < floor {
+                            low += 1;
+                        } else {
+                            keep[index(key)].store(true, Relaxed);
+                            layers = (layers.0.min(layer(key)), layer(key));
+                        }
                     }
-                }
-                if let (Some([_, _, z]), true) = (coords, layers.0 != u32::MAX) {
-                    ext.column(c, &lat, layers, z, kept_keys(c));
+                    if let (Some([_, _, z]), true) = (coords, layers.0 != u32::MAX) {
+                        ext.column([ci as u32, cj as u32], layers, z, kept_above(c, floor));
+                    }
                 }
                 (low, ext)
             },
@@ -810,17 +822,15 @@ impl Extremes {
         }
     }
 
-    /// Column `c` holding kept points in `layers` (lowest, highest), whose keys `kept` gives
+    /// Column (ci, cj) holding kept points in `layers` (lowest, highest), whose keys `kept` gives
     /// in (layer, index) order: z is read only where a layer reaches an extreme so far.
     fn column(
         &mut self,
-        c: usize,
-        lat: &Lattice,
+        [ci, cj]: [u32; 2],
         layers: (u32, u32),
         z: &[f64],
         kept: impl DoubleEndedIterator<Item = u64> + Clone,
     ) {
-        let (ci, cj) = (c as u32 % lat.ncx, c as u32 / lat.ncx);
         self.col = [
             self.col[0].min(ci),
             self.col[1].max(ci),
@@ -1046,18 +1056,45 @@ fn sort_by_column(x: &[f64], y: &[f64], z: &[f64], lat: &Lattice) -> ColumnSort 
         })
         .collect();
     // Offsets: column-major over chunks, so each chunk's points of a column follow the
-    // previous chunk's (stability).
+    // previous chunk's (stability). A prefix sum in blocks of columns: each block's total
+    // (in parallel), the blocks' bases (a short serial scan), then each block's offsets from
+    // its base (in parallel); the serial scan over every column kept the workers waiting.
     let mut starts = vec![0u32; cols + 1];
-    let mut acc = 0u32;
-    for c in 0..cols {
-        starts[c] = acc;
-        for h in hist.iter_mut() {
-            let v = h[c];
-            h[c] = acc;
-            acc += v;
+    let block = cols.div_ceil(rayon::current_num_threads() * 8).max(1 << 12);
+    let totals: Vec<u32> = (0..cols.div_ceil(block))
+        .into_par_iter()
+        .map(|b| {
+            let r = b * block..((b + 1) * block).min(cols);
+            hist.iter().map(|h| h[r.clone()].iter().sum::<u32>()).sum()
+        })
+        .collect();
+    let mut bases = Vec::with_capacity(totals.len());
+    let mut total = 0u32;
+    for t in totals {
+        bases.push(total);
+        total += t;
+    }
+    let mut parts: Vec<Vec<&mut [u32]>> = bases.iter().map(|_| Vec::new()).collect();
+    for h in hist.iter_mut() {
+        for (part, s) in parts.iter_mut().zip(h.chunks_mut(block)) {
+            part.push(s);
         }
     }
-    starts[cols] = acc;
+    starts[..cols]
+        .par_chunks_mut(block)
+        .zip(parts)
+        .zip(bases)
+        .for_each(|((st, mut hs), mut acc)| {
+            for (k, s) in st.iter_mut().enumerate() {
+                *s = acc;
+                for h in hs.iter_mut() {
+                    let v = h[k];
+                    h[k] = acc;
+                    acc += v;
+                }
+            }
+        });
+    starts[cols] = total;
     // Pass 2: scatter. Chunks write disjoint slots; atomics make that safe without `unsafe`
     // (relaxed stores compile to plain stores).
     let out: Vec<AtomicU64> = (0..n).into_par_iter().map(|_| AtomicU64::new(0)).collect();

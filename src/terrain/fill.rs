@@ -376,6 +376,7 @@ fn fill_band(h: &mut [f32], s: &mut [CellState], at: &Band, halo: &[Halo; 2]) ->
         }
     }
     let mut right = vec![0u16; cols];
+    let weights = Weights::new(r, [dx, dy]);
     let (mut measured, mut done, mut missing) = (0, 0, 0);
     for j in j0..j1 {
         let row = (j - j0) * cols;
@@ -440,7 +441,7 @@ fn fill_band(h: &mut [f32], s: &mut [CellState], at: &Band, halo: &[Halo; 2]) ->
                 down: (d > 0).then(|| (d as f64 * dy, rows.height(h, j - d, i) as f64)),
                 up: (u > 0).then(|| (u as f64 * dy, rows.height(h, j + u, i) as f64)),
             };
-            match n.interpolate() {
+            match weights.interpolate(&n, [l, rt, d, u]) {
                 Some(v) => {
                     h[row + i] = v as f32;
                     s[row + i] = CellState::Interpolated;
@@ -489,6 +490,84 @@ impl Neighbours {
         {
             num += v / d;
             den += 1.0 / d;
+        }
+        (den > 0.0).then(|| num / den)
+    }
+}
+
+/// The distance sums and reciprocals of Kim & Shin's combination for every pair of whole
+/// cell distances within the radius, each computed once by the very operations
+/// [`Neighbours::interpolate`] performs, so that looking them up gives the same bits: two of
+/// the five divisions an interpolated cell costs (the pair weights) become loads. Built for
+/// radii up to [`Weights::MAX_TABULATED`] cells (a few KiB); beyond, cells are interpolated
+/// by [`Neighbours::interpolate`] itself.
+struct Weights {
+    /// Radius in cells; 0 when not tabulated.
+    r: usize,
+    /// Per axis (x, y), for distances a, b in 1..=r at `(a − 1)·r + b − 1`: a·cell + b·cell
+    /// and 1 / (a·cell + b·cell).
+    sum: [Vec<f64>; 2],
+    inv_sum: [Vec<f64>; 2],
+    /// Per axis, for a distance a in 1..=r at `a − 1`: 1 / (a·cell).
+    inv: [Vec<f64>; 2],
+}
+
+impl Weights {
+    /// Largest radius tabulated (r² entries per table).
+    const MAX_TABULATED: usize = 64;
+
+    fn new(r: usize, cell: [f64; 2]) -> Weights {
+        if r == 0 || r > Weights::MAX_TABULATED {
+            return Weights {
+                r: 0,
+                sum: [Vec::new(), Vec::new()],
+                inv_sum: [Vec::new(), Vec::new()],
+                inv: [Vec::new(), Vec::new()],
+            };
+        }
+        let pairs = |c: f64| -> Vec<f64> {
+            (0..r * r)
+                .map(|k| (k / r + 1) as f64 * c + (k % r + 1) as f64 * c)
+                .collect()
+        };
+        let sum = [pairs(cell[0]), pairs(cell[1])];
+        let inv_sum = [
+            sum[0].iter().map(|s| 1.0 / s).collect(),
+            sum[1].iter().map(|s| 1.0 / s).collect(),
+        ];
+        let inv = cell.map(|c| (1..=r).map(|a| 1.0 / (a as f64 * c)).collect());
+        Weights {
+            r,
+            sum,
+            inv_sum,
+            inv,
+        }
+    }
+
+    /// [`Neighbours::interpolate`] of `n`, whose distances are `cells` = (left, right, down,
+    /// up) whole cells (0: that neighbour is absent) times the cell size of their axis.
+    #[inline]
+    fn interpolate(&self, n: &Neighbours, cells: [usize; 4]) -> Option<f64> {
+        let r = self.r;
+        if r == 0 {
+            return n.interpolate();
+        }
+        let [l, rt, d, u] = cells;
+        if let (Some((dl, lv)), Some((dr, rv)), Some((dd, dv)), Some((du, uv))) =
+            (n.left, n.right, n.down, n.up)
+        {
+            let (px, py) = ((l - 1) * r + rt - 1, (d - 1) * r + u - 1);
+            let hx = (lv * dr + rv * dl) / self.sum[0][px];
+            let hy = (dv * du + uv * dd) / self.sum[1][py];
+            let (wx, wy) = (self.inv_sum[0][px], self.inv_sum[1][py]);
+            return Some((hx * wx + hy * wy) / (wx + wy));
+        }
+        let (mut num, mut den) = (0.0, 0.0);
+        for (k, side) in [n.left, n.right, n.down, n.up].into_iter().enumerate() {
+            if let Some((dist, v)) = side {
+                num += v / dist;
+                den += self.inv[k / 2][cells[k] - 1];
+            }
         }
         (den > 0.0).then(|| num / den)
     }
@@ -583,20 +662,18 @@ pub(crate) fn push_level(v: &[f32], h: usize, w: usize) -> (Vec<f32>, usize, usi
     let (nh, nw) = (h.div_ceil(2), w.div_ceil(2));
     let mut up = vec![f32::NAN; nh * nw];
     up.par_chunks_mut(nw).enumerate().for_each(|(j, out)| {
-        for (i, o) in out.iter_mut().enumerate() {
+        // The block's two rows (the second absent past the last row) as slices, so that the
+        // children are read without an index or bounds test each: (2j, 2i), (2j, 2i + 1),
+        // (2j + 1, 2i), (2j + 1, 2i + 1) in that order, as the sum's rounding needs.
+        let lower = &v[2 * j * w..(2 * j + 1) * w];
+        let upper = v.get((2 * j + 1) * w..(2 * j + 2) * w).unwrap_or(&[]);
+        let mut above = upper.chunks(2);
+        for (o, below) in out.iter_mut().zip(lower.chunks(2)) {
             let (mut sum, mut n) = (0.0f64, 0u32);
-            for (cj, ci) in [
-                (2 * j, 2 * i),
-                (2 * j, 2 * i + 1),
-                (2 * j + 1, 2 * i),
-                (2 * j + 1, 2 * i + 1),
-            ] {
-                if cj < h && ci < w {
-                    let x = v[cj * w + ci];
-                    if !x.is_nan() {
-                        sum += x as f64;
-                        n += 1;
-                    }
+            for &x in below.iter().chain(above.next().unwrap_or(&[])) {
+                if !x.is_nan() {
+                    sum += x as f64;
+                    n += 1;
                 }
             }
             if n > 0 {
@@ -678,6 +755,80 @@ pub(crate) mod tests {
                 let mut fast = hf.clone();
                 fill(&mut fast, &p).unwrap();
                 assert!(same(&fast, &reference::fill(&hf, &p).unwrap()), "{p:?}");
+            }
+        }
+    }
+
+    /// [`push_level`] as first written: each child by its index, bounds tested.
+    fn push_level_by_index(v: &[f32], h: usize, w: usize) -> Vec<f32> {
+        let (nh, nw) = (h.div_ceil(2), w.div_ceil(2));
+        let mut up = vec![f32::NAN; nh * nw];
+        for j in 0..nh {
+            for i in 0..nw {
+                let (mut sum, mut n) = (0.0f64, 0u32);
+                for (cj, ci) in [
+                    (2 * j, 2 * i),
+                    (2 * j, 2 * i + 1),
+                    (2 * j + 1, 2 * i),
+                    (2 * j + 1, 2 * i + 1),
+                ] {
+                    if cj < h && ci < w && !v[cj * w + ci].is_nan() {
+                        sum += v[cj * w + ci] as f64;
+                        n += 1;
+                    }
+                }
+                if n > 0 {
+                    up[j * nw + i] = (sum / n as f64) as f32;
+                }
+            }
+        }
+        up
+    }
+
+    #[test]
+    fn push_level_equals_the_indexed_one() {
+        let mut rng = crate::rng::SplitMix64::new(11);
+        for (h, w) in [(1, 1), (1, 2), (2, 1), (3, 3), (7, 4), (4, 9), (33, 17)] {
+            let v: Vec<f32> = (0..h * w)
+                .map(|_| {
+                    if rng.unit() < 0.4 {
+                        f32::NAN
+                    } else {
+                        (rng.unit() * 1000.0) as f32
+                    }
+                })
+                .collect();
+            let (up, nh, nw) = push_level(&v, h, w);
+            assert_eq!((nh, nw), (h.div_ceil(2), w.div_ceil(2)));
+            let want = push_level_by_index(&v, h, w);
+            assert!(
+                up.iter()
+                    .zip(&want)
+                    .all(|(a, b)| a.to_bits() == b.to_bits()),
+                "{h}×{w}"
+            );
+        }
+    }
+
+    #[test]
+    fn tabulated_weights_give_the_same_bits() {
+        let mut rng = crate::rng::SplitMix64::new(7);
+        for (r, cell) in [(1, [1.0, 1.0]), (8, [1.86, 2.527]), (13, [0.3, 7.1])] {
+            let w = Weights::new(r, cell);
+            for _ in 0..20_000 {
+                // Each side absent (0) or at 1..=r cells.
+                let cells: [usize; 4] = std::array::from_fn(|_| rng.below(r as u64 + 1) as usize);
+                let mut side = |k: usize, c: f64| {
+                    (cells[k] > 0).then(|| (cells[k] as f64 * c, 100.0 * rng.unit() - 50.0))
+                };
+                let n = Neighbours {
+                    left: side(0, cell[0]),
+                    right: side(1, cell[0]),
+                    down: side(2, cell[1]),
+                    up: side(3, cell[1]),
+                };
+                let (fast, slow) = (w.interpolate(&n, cells), n.interpolate());
+                assert_eq!(fast.map(f64::to_bits), slow.map(f64::to_bits), "{cells:?}");
             }
         }
     }

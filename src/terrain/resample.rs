@@ -170,14 +170,22 @@ impl GridSpec {
     /// The column of a point's x.
     #[inline(always)]
     pub fn col(&self, x: f64) -> usize {
-        (((x - self.corner[0]) / self.cell_size[0]) as usize).min(self.cols - 1)
+        clamped_index((x - self.corner[0]) / self.cell_size[0], self.cols)
     }
 
     /// The row of a point's y.
     #[inline(always)]
     pub fn row(&self, y: f64) -> usize {
-        (((y - self.corner[1]) / self.cell_size[1]) as usize).min(self.rows - 1)
+        clamped_index((y - self.corner[1]) / self.cell_size[1], self.rows)
     }
+}
+
+/// `(v as usize).min(n − 1)` for every f64 `v` (NaN and negatives to 0, beyond to n − 1),
+/// through a signed conversion: x86-64 has no unsigned one before AVX-512, so `as usize`
+/// costs a dozen instructions where `as i64` costs a few, and this runs for every point.
+#[inline(always)]
+fn clamped_index(v: f64, n: usize) -> usize {
+    (v as i64).clamp(0, n as i64 - 1) as usize
 }
 
 /// What resampling produced.
@@ -338,7 +346,17 @@ fn bin(
     };
     let mut heights = Array2::<f32>::zeros((rows, cols));
     let mut counts = Array2::<u32>::zeros((rows, cols));
-    let mut state = Array2::from_elem((rows, cols), CellState::Empty);
+    // Filled by the workers: a serial fill faulted its fresh pages in on the calling thread
+    // while the workers waited.
+    let mut state = Array2::from_shape_vec(
+        (rows, cols),
+        (0..cells)
+            .into_par_iter()
+            .with_min_len(1 << 16)
+            .map(|_| CellState::Empty)
+            .collect(),
+    )
+    .expect("rows × cols states");
     heights
         .axis_chunks_iter_mut(Axis(0), band_rows)
         .into_par_iter()
@@ -475,6 +493,36 @@ mod tests {
                         .grid;
                     assert!(same(&got, &want), "{method:?} {len} {threads}");
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn clamped_index_is_the_unsigned_cast() {
+        let mut rng = crate::rng::SplitMix64::new(3);
+        let special = [
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            -0.0,
+            0.0,
+            -0.5,
+            -1.0,
+            0.999_999_999,
+            1.0,
+            4.0,
+            4.5,
+            5.0,
+            1e19,
+            -1e19,
+            9.3e18,
+            f64::MAX,
+            f64::MIN_POSITIVE,
+        ];
+        for n in [1usize, 2, 5, 1842, 1 << 20] {
+            let random = (0..10_000).map(|_| (rng.unit() * 3.0 - 1.0) * n as f64);
+            for v in special.into_iter().chain(random) {
+                assert_eq!(clamped_index(v, n), (v as usize).min(n - 1), "{v} {n}");
             }
         }
     }
