@@ -177,58 +177,82 @@ pub(crate) fn drop_above_plane(
         }
     }
     drop((row_of, next));
-    let mut moments: Vec<Moments> = vec![[0.0; 10]; cols * rows];
+    // The column of each point of `order`.
+    let col_of: Vec<u32> = order
+        .par_iter()
+        .map(|&p| cells.of(x[p as usize], y[p as usize]).0 as u32)
+        .collect();
+    // The cells that hold a ground point are the only ones with moments: numbered row by
+    // row (`slot`: the number within the row, u32::MAX for the others; `base`: the row's
+    // first), so that the moments take a few bytes per point, not 80 per cell of the grid.
+    let mut slot = vec![u32::MAX; cols * rows];
+    let counts: Vec<usize> = slot
+        .par_chunks_mut(cols)
+        .enumerate()
+        .map(|(j, row)| {
+            let mut n = 0;
+            for &i in &col_of[start[j]..start[j + 1]] {
+                if row[i as usize] == u32::MAX {
+                    row[i as usize] = n;
+                    n += 1;
+                }
+            }
+            n as usize
+        })
+        .collect();
+    let mut base = vec![0usize; rows + 1];
+    for j in 0..rows {
+        base[j + 1] = base[j] + counts[j];
+    }
+    let mut moments: Vec<Moments> = vec![[0.0; 10]; base[rows]];
     let mut total = 0;
     for _ in 0..t.rounds {
         // The moments of the ground points left.
-        moments
-            .par_chunks_mut(cols)
-            .enumerate()
-            .for_each(|(j, row)| {
-                row.iter_mut().for_each(|m| *m = [0.0; 10]);
-                for &p in &order[start[j]..start[j + 1]] {
-                    let p = p as usize;
-                    if !ground[p] {
-                        continue;
-                    }
-                    let (i, _) = cells.of(x[p], y[p]);
-                    add(&mut row[i], &moments_of(cells.metres(x[p], y[p], z[p])));
+        let mut rest = &mut moments[..];
+        let mut by_row = Vec::with_capacity(rows);
+        for &n in &counts {
+            let (head, tail) = rest.split_at_mut(n);
+            by_row.push(head);
+            rest = tail;
+        }
+        by_row.into_par_iter().enumerate().for_each(|(j, row)| {
+            row.iter_mut().for_each(|m| *m = [0.0; 10]);
+            let span = start[j]..start[j + 1];
+            for (&p, &i) in order[span.clone()].iter().zip(&col_of[span]) {
+                let p = p as usize;
+                if ground[p] {
+                    let k = slot[j * cols + i as usize] as usize;
+                    add(&mut row[k], &moments_of(cells.metres(x[p], y[p], z[p])));
                 }
-            });
-        // Each row's window sums: the cells of rows j − half ..= j + half summed by column,
-        // then the columns i − half ..= i + half of those (once per cell, not per point; no
-        // running sum, whose subtractions would drift).
+            }
+        });
+        let window = Window {
+            moments: &moments,
+            slot: &slot,
+            base: &base,
+            cols,
+            rows,
+            half,
+        };
         let gone: Vec<u32> = (0..rows)
             .into_par_iter()
             .map_init(
-                || (vec![[0.0; 10]; cols], vec![[0.0; 10]; cols]),
-                |(col, win), j| {
+                || WindowScratch::new(cols),
+                |scratch, j| {
                     let mut out = Vec::new();
-                    let points = &order[start[j]..start[j + 1]];
+                    let span = start[j]..start[j + 1];
+                    let (points, at) = (&order[span.clone()], &col_of[span]);
                     if !points.iter().any(|&p| ground[p as usize]) {
                         return out;
                     }
-                    let (j0, j1) = (j.saturating_sub(half), (j + half).min(rows - 1));
-                    col.iter_mut().for_each(|m| *m = [0.0; 10]);
-                    for jj in j0..=j1 {
-                        for (c, m) in col.iter_mut().zip(&moments[jj * cols..(jj + 1) * cols]) {
-                            add(c, m);
-                        }
-                    }
-                    for (i, w) in win.iter_mut().enumerate() {
-                        *w = [0.0; 10];
-                        for c in &col[i.saturating_sub(half)..=(i + half).min(cols - 1)] {
-                            add(w, c);
-                        }
-                    }
-                    for &p in points {
+                    let win = window.sums(j, points, at, ground, scratch);
+                    for (&p, &i) in points.iter().zip(at) {
                         let p = p as usize;
                         if !ground[p] {
                             continue;
                         }
-                        let (i, _) = cells.of(x[p], y[p]);
                         let q = cells.metres(x[p], y[p], z[p]);
-                        let mut m = win[i];
+                        let mut m = win[i as usize];
                         for (a, b) in m.iter_mut().zip(moments_of(q)) {
                             *a -= b;
                         }
@@ -250,6 +274,94 @@ pub(crate) fn drop_above_plane(
         }
     }
     total
+}
+
+/// The moments of one round and the square neighbourhood of half-width `half` cells.
+struct Window<'a> {
+    /// The moments of the cells that hold ground points, row by row.
+    moments: &'a [Moments],
+    /// Per cell: its number among its row's cells with moments (u32::MAX: none) …
+    slot: &'a [u32],
+    /// … after the row's first, `base[j]`.
+    base: &'a [usize],
+    cols: usize,
+    rows: usize,
+    half: usize,
+}
+
+/// Per-worker buffers of [`Window::sums`].
+struct WindowScratch {
+    /// Column sums over the window's rows.
+    col: Vec<Moments>,
+    /// Window sums at the cells that hold a ground point of the row.
+    win: Vec<Moments>,
+    /// Ground points of the row up to each column (prefix count).
+    upto: Vec<u32>,
+}
+
+impl WindowScratch {
+    fn new(cols: usize) -> WindowScratch {
+        WindowScratch {
+            col: vec![[0.0; 10]; cols],
+            win: vec![[0.0; 10]; cols],
+            upto: vec![0; cols + 1],
+        }
+    }
+}
+
+impl Window<'_> {
+    /// The window sums of row `j` (the cells of rows j − half ..= j + half summed by column,
+    /// then the columns i − half ..= i + half of those; once per cell, not per point; no
+    /// running sum, whose subtractions would drift), at the cells `at` of the row's ground
+    /// points only. The sums skip the cells that held no ground point: their moments are
+    /// zero and all the moments are ≥ 0 (coordinates from the grid's origin and `zref`, the
+    /// bounds' minimum), so adding them would change no bit: the sums are the same bits as
+    /// over every cell in the same order. Other entries of the returned row are stale.
+    fn sums<'s>(
+        &self,
+        j: usize,
+        points: &[u32],
+        at: &[u32],
+        ground: &[bool],
+        s: &'s mut WindowScratch,
+    ) -> &'s [Moments] {
+        let (cols, half) = (self.cols, self.half);
+        let (j0, j1) = (j.saturating_sub(half), (j + half).min(self.rows - 1));
+        // Which columns hold a ground point of this row (prefix counts).
+        s.upto.iter_mut().for_each(|u| *u = 0);
+        for (&p, &i) in points.iter().zip(at) {
+            if ground[p as usize] {
+                s.upto[i as usize + 1] = 1;
+            }
+        }
+        for c in 0..cols {
+            s.upto[c + 1] += s.upto[c];
+        }
+        let holds = |i: usize| s.upto[i + 1] > s.upto[i];
+        // The column sums that some window of those cells reads.
+        for c in 0..cols {
+            let (a, b) = (c.saturating_sub(half), (c + half + 1).min(cols));
+            if s.upto[b] == s.upto[a] {
+                continue;
+            }
+            let mut m = [0.0; 10];
+            for jj in j0..=j1 {
+                let k = self.slot[jj * cols + c];
+                if k != u32::MAX {
+                    add(&mut m, &self.moments[self.base[jj] + k as usize]);
+                }
+            }
+            s.col[c] = m;
+        }
+        for i in (0..cols).filter(|&i| holds(i)) {
+            let mut w = [0.0; 10];
+            for c in &s.col[i.saturating_sub(half)..=(i + half).min(cols - 1)] {
+                add(&mut w, c);
+            }
+            s.win[i] = w;
+        }
+        &s.win
+    }
 }
 
 #[cfg(test)]
