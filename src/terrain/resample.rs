@@ -280,6 +280,37 @@ pub fn resample_window(
     bin(x, y, z, keep, spec, window, method, crs, &mut Vec::new())
 }
 
+/// Makes `scratch` `cells` zeroed sums; true when it was allocated afresh (its pages are then
+/// already zero and the workers need not fill them).
+fn reset_scratch(scratch: &mut Vec<u64>, cells: usize) -> bool {
+    let fresh = scratch.capacity() < cells;
+    if fresh {
+        *scratch = Vec::new();
+        *scratch = vec![0u64; cells];
+    } else {
+        scratch.truncate(cells);
+        scratch.resize(cells, 0);
+    }
+    fresh
+}
+
+/// The corner of the window starting at cell (`i0`, `j0`): the whole grid's corner itself for
+/// a window at its start (no `+ 0.0`, which would turn a −0 corner into +0).
+fn window_corner(spec: &GridSpec, i0: usize, j0: usize) -> [f64; 2] {
+    [
+        if i0 == 0 {
+            spec.corner[0]
+        } else {
+            spec.corner[0] + i0 as f64 * spec.cell_size[0]
+        },
+        if j0 == 0 {
+            spec.corner[1]
+        } else {
+            spec.corner[1] + j0 as f64 * spec.cell_size[1]
+        },
+    ]
+}
+
 /// Bins the kept points into the cells `window` of `spec` (points outside it are skipped).
 #[allow(clippy::too_many_arguments)]
 fn bin(
@@ -331,14 +362,7 @@ fn bin(
     };
     // The sums (f64 bits), one per cell, in the reused scratch.
     let cells = rows * cols;
-    let fresh = scratch.capacity() < cells;
-    if fresh {
-        *scratch = Vec::new();
-        *scratch = vec![0u64; cells];
-    } else {
-        scratch.truncate(cells);
-        scratch.resize(cells, 0);
-    }
+    let fresh = reset_scratch(scratch, cells);
     let init = match method {
         CellMethod::Mean => 0.0f64,
         CellMethod::Min => f64::INFINITY,
@@ -414,20 +438,7 @@ fn bin(
         heights,
         counts,
         state,
-        // The whole grid's corner itself for a window at its start (no `+ 0.0`, which
-        // would turn a −0 corner into +0).
-        corner: [
-            if i0 == 0 {
-                spec.corner[0]
-            } else {
-                spec.corner[0] + i0 as f64 * spec.cell_size[0]
-            },
-            if j0 == 0 {
-                spec.corner[1]
-            } else {
-                spec.corner[1] + j0 as f64 * spec.cell_size[1]
-            },
-        ],
+        corner: window_corner(&spec, i0, j0),
         cell_size: spec.cell_size,
         z_offset: spec.z_offset,
         crs,
