@@ -23,7 +23,9 @@
 //! targets) and then replays the records once: each split must undo exactly the collapse
 //! that its kept vertex and offsets describe. Errors name the byte offset.
 
-use super::progressive::{ref_offset, ref_slot, show, Encoding, Progressive, Split, REF_BASE};
+use super::progressive::{
+    ref_offset, ref_slot, show, vertex_floats, Encoding, Progressive, REF_BASE,
+};
 use super::stripify::RESTART;
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
@@ -48,21 +50,11 @@ fn vertex_bytes(flags: u16) -> usize {
 }
 
 fn put_vertex(out: &mut Vec<u8>, m: &TriMesh, v: usize) {
-    let mut put = |xs: &[f32]| {
+    vertex_floats(m, v, |xs| {
         for x in xs {
             out.extend_from_slice(&x.to_le_bytes());
         }
-    };
-    put(&m.positions[v].to_array());
-    if let Some(a) = &m.normals {
-        put(&a[v].to_array());
-    }
-    if let Some(a) = &m.colors {
-        put(&a[v]);
-    }
-    if let Some(a) = &m.uvs {
-        put(&a[v].to_array());
-    }
+    });
 }
 
 /// The stream of `p` with records in `encoding`.
@@ -109,17 +101,19 @@ pub fn encode(p: &Progressive, encoding: Encoding) -> Vec<u8> {
         out.extend_from_slice(&s.kept.to_le_bytes());
         match encoding {
             Encoding::Naive => {
-                out.extend_from_slice(&(s.naive.len() as u32).to_le_bytes());
-                for &o in &s.naive {
+                let naive = p.naive(i);
+                out.extend_from_slice(&(naive.len() as u32).to_le_bytes());
+                for &o in naive {
                     out.extend_from_slice(&o.to_le_bytes());
                 }
             }
             Encoding::Encoded => {
-                out.extend_from_slice(&(s.encoded.len() as u32).to_le_bytes());
-                for &(o, _) in &s.encoded {
+                let encoded = p.encoded(i);
+                out.extend_from_slice(&(encoded.len() as u32).to_le_bytes());
+                for &(o, _) in encoded {
                     out.extend_from_slice(&o.to_le_bytes());
                 }
-                for &(_, was) in &s.encoded {
+                for &(_, was) in encoded {
                     let code = match ref_offset(was) {
                         None => 0u8,
                         Some(k) => 1 + CODES.iter().position(|&c| c == k).unwrap_or(0) as u8,
@@ -225,14 +219,15 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<(Progressive, Encoding)> {
     }
     // The records must be the inverses of collapses: rebuild them from the full strip by
     // collapsing again, and compare.
+    let kept: Vec<u32> = splits.iter().map(|s| s.kept).collect();
     let rebuilt = Progressive::from_full(
         m,
         h.base_vertices,
         replay.drawn,
-        &splits,
+        &kept,
         h.triangles as usize,
     );
-    check_rebuilt(&c, &rebuilt.splits, &splits, &at_of, encoding)?;
+    check_rebuilt(&c, &rebuilt, &splits, &at_of, encoding)?;
     Ok((rebuilt, encoding))
 }
 
@@ -342,6 +337,15 @@ struct Replay {
     stack: Vec<u32>,
 }
 
+/// A split record as read: the kept vertex, and the offsets (Naive-PS) or the offsets with
+/// their slot codes (E-PS), whichever the stream holds.
+#[derive(Default)]
+struct Record {
+    kept: u32,
+    naive: Vec<u32>,
+    encoded: Vec<(u32, u32)>,
+}
+
 /// Reads split `i` (its vertex into `m`, its kept vertex, offsets and, encoded, slot
 /// codes), checks it against the strip and replays it on `r`.
 fn read_split(
@@ -350,7 +354,7 @@ fn read_split(
     i: u32,
     m: &mut TriMesh,
     r: &mut Replay,
-) -> Result<Split> {
+) -> Result<Record> {
     let (len, encoding) = (h.len, h.encoding);
     c.vertex(m)?;
     let v = h.base_vertices + i;
@@ -383,9 +387,9 @@ fn read_split(
         }
         offs.push(o);
     }
-    let mut split = Split {
+    let mut split = Record {
         kept,
-        ..Split::default()
+        ..Record::default()
     };
     match encoding {
         Encoding::Naive => {
@@ -430,15 +434,15 @@ fn read_split(
 /// `at_of` holds each record's byte offset.
 fn check_rebuilt(
     c: &Cursor<'_>,
-    rebuilt: &[Split],
-    splits: &[Split],
+    rebuilt: &Progressive,
+    splits: &[Record],
     at_of: &[usize],
     encoding: Encoding,
 ) -> Result<()> {
-    for (i, (a, b)) in rebuilt.iter().zip(splits).enumerate() {
+    for (i, b) in splits.iter().enumerate().take(rebuilt.splits.len()) {
         let same = match encoding {
-            Encoding::Naive => a.naive == b.naive,
-            Encoding::Encoded => a.encoded == b.encoded,
+            Encoding::Naive => rebuilt.naive(i) == b.naive.as_slice(),
+            Encoding::Encoded => rebuilt.encoded(i) == b.encoded.as_slice(),
         };
         if !same {
             return Err(c.err(

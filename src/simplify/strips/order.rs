@@ -156,64 +156,16 @@ pub fn hierarchical(
     join: Join,
 ) -> Vec<u32> {
     let n = tris.len();
-    let flat: Vec<u32> = tris.iter().flatten().copied().collect();
-    // The corner slots each collapse rewrote (what its split restores): the slots that
-    // showed the removed vertex then.
-    let restore = MergeLists::new(&flat, NONE, vertices, pairs);
-    // The triangles collapsed to the base mesh: each corner shows the vertex its own was
-    // collapsed into, transitively.
-    let mut root: Vec<u32> = (0..vertices as u32).collect();
-    for &(p, q) in pairs.iter().rev() {
-        root[p as usize] = root[q as usize];
-    }
-    drop(flat);
-    let mut lv = Level {
-        tri: tris
-            .iter()
-            .map(|t| Tri {
-                c: t.map(|v| root[v as usize]),
-                prev: NONE,
-                next: NONE,
-                stamp: NONE,
-            })
-            .collect(),
-        head: NONE,
-        tail: NONE,
-    };
-    drop(root);
-
-    // The base mesh's triangles in the order of its own strip.
-    let base: Vec<u32> = (0..n as u32).filter(|&t| distinct(lv.corners(t))).collect();
-    let base_tris: Vec<[u32; 3]> = base.iter().map(|&t| lv.corners(t)).collect();
-    let strip = stripify::stripify(
-        &base_tris,
-        &StripParams {
-            join: Join::Restart,
-            window: 0,
+    // The corner slots each collapse rewrote (what its split restores: the slots that
+    // showed the removed vertex then) beside the base mesh's order and the fans, which do
+    // not need them.
+    let (restore, (mut lv, mut fans)) = rayon::join(
+        || {
+            let flat: Vec<u32> = tris.iter().flatten().copied().collect();
+            MergeLists::new(&flat, NONE, vertices, pairs)
         },
+        || base_order(tris, vertices, pairs),
     );
-    let mut by_key: Vec<([u32; 3], u32)> = base_tris
-        .iter()
-        .zip(&base)
-        .map(|(&c, &t)| (canonical(c), t))
-        .collect();
-    by_key.sort_unstable();
-    let mut taken = vec![false; by_key.len()];
-    let mut fans = Fans::new(tris, vertices);
-    stripify::each_triangle(&strip, |c| {
-        let key = canonical(c);
-        let mut i = by_key.partition_point(|e| e.0 < key);
-        while taken[i] {
-            i += 1;
-        }
-        debug_assert_eq!(by_key[i].0, key);
-        taken[i] = true;
-        let t = by_key[i].1;
-        lv.insert_after(lv.tail, t);
-        for v in c {
-            fans.push(v, t);
-        }
-    });
 
     // The splits, coarse to fine.
     let mut touched: Vec<(u32, bool)> = Vec::new();
@@ -292,6 +244,63 @@ pub fn hierarchical(
     let mut out = Vec::with_capacity(2 * n);
     rebuild_into(&mut seq, join, 1, &mut out);
     out
+}
+
+/// The triangles collapsed to the base mesh (each corner shows the vertex its own was
+/// collapsed into, transitively), those of the base mesh linked in the order of its own
+/// strip, and their fans.
+fn base_order(tris: &[[u32; 3]], vertices: usize, pairs: &[(u32, u32)]) -> (Level, Fans) {
+    let n = tris.len();
+    let mut root: Vec<u32> = (0..vertices as u32).collect();
+    for &(p, q) in pairs.iter().rev() {
+        root[p as usize] = root[q as usize];
+    }
+    let mut lv = Level {
+        tri: tris
+            .iter()
+            .map(|t| Tri {
+                c: t.map(|v| root[v as usize]),
+                prev: NONE,
+                next: NONE,
+                stamp: NONE,
+            })
+            .collect(),
+        head: NONE,
+        tail: NONE,
+    };
+    drop(root);
+    let base: Vec<u32> = (0..n as u32).filter(|&t| distinct(lv.corners(t))).collect();
+    let base_tris: Vec<[u32; 3]> = base.iter().map(|&t| lv.corners(t)).collect();
+    let strip = stripify::stripify(
+        &base_tris,
+        &StripParams {
+            join: Join::Restart,
+            window: 0,
+        },
+    );
+    let mut by_key: Vec<([u32; 3], u32)> = base_tris
+        .iter()
+        .zip(&base)
+        .map(|(&c, &t)| (canonical(c), t))
+        .collect();
+    by_key.sort_unstable();
+    let mut taken = vec![false; by_key.len()];
+    let mut fans = Fans::new(tris, vertices);
+    stripify::each_triangle(&strip, |c| {
+        let key = canonical(c);
+        let mut i = by_key.partition_point(|e| e.0 < key);
+        while taken[i] {
+            i += 1;
+        }
+        debug_assert_eq!(by_key[i].0, key);
+        taken[i] = true;
+        let t = by_key[i].1;
+        lv.insert_after(lv.tail, t);
+        for v in c {
+            fans.push(v, t);
+        }
+    });
+    (lv, fans)
 }
 
 /// Inserts the new triangle `t` next to one of its neighbours (in the fans of its corners)

@@ -27,7 +27,8 @@ use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
 use crate::simplify::qem::{self, QemParams};
 use glam::{Vec2, Vec3};
-use rustc_hash::FxHashMap;
+use rayon::prelude::*;
+use std::ops::Range;
 
 /// A strip slot that refers to the slot at offset k ∈ {−2, −1, 1, 2} from it:
 /// `REF_BASE + (k + 2)`. Vertex ids stay below it.
@@ -105,17 +106,20 @@ impl Default for ProgressiveParams {
     }
 }
 
-/// One vertex split: vertex `base_vertices + i` (for split i) comes back.
+/// One vertex split: vertex `base_vertices + i` (for split i) comes back. Its records are
+/// ranges of two arrays shared by all splits ([`Progressive::naive`],
+/// [`Progressive::encoded`]): no allocation per split.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct Split {
     /// The vertex it was collapsed into (present at the coarser level).
     pub kept: u32,
-    /// Naive-PS: the offsets of every slot that shows `kept` at the coarser level and the
-    /// restored vertex at the finer one, ascending.
-    pub naive: Vec<u32>,
-    /// E-PS: the offsets that name the restored vertex directly at the finer level, with
-    /// what they hold at the coarser one (`kept` or a reference), ascending.
-    pub encoded: Vec<(u32, u32)>,
+    /// Naive-PS, in [`Progressive::naive_offsets`]: the offsets of every slot that shows
+    /// `kept` at the coarser level and the restored vertex at the finer one, ascending.
+    pub naive: Range<usize>,
+    /// E-PS, in [`Progressive::encoded_slots`]: the offsets that name the restored vertex
+    /// directly at the finer level, with what they hold at the coarser one (`kept` or a
+    /// reference), ascending.
+    pub encoded: Range<usize>,
 }
 
 /// A mesh as progressive strips.
@@ -132,6 +136,10 @@ pub struct Progressive {
     pub base_slots: Vec<u32>,
     /// The splits, coarse to fine.
     pub splits: Vec<Split>,
+    /// The Naive-PS records of all splits (each split's a range, [`Progressive::naive`]).
+    pub naive_offsets: Vec<u32>,
+    /// The E-PS records of all splits (each split's a range, [`Progressive::encoded`]).
+    pub encoded_slots: Vec<(u32, u32)>,
     /// Triangles of the full mesh (with three distinct vertices).
     pub triangles: usize,
 }
@@ -150,11 +158,37 @@ fn canonical_mesh(mesh: &TriMesh) -> TriMesh {
 
 /// [`canonical_mesh`] with keys of `N` values: the position and the attributes the mesh
 /// has, in a fixed array (the same attributes for every vertex, so the unused tail is zero
-/// for all): no allocation per vertex.
+/// for all): no allocation per vertex. The vertices with equal keys are grouped by a
+/// parallel sort (a class per key); then one pass over the triangles in order numbers the
+/// classes as it first meets them, as a hash map filled in that pass would (the sort runs
+/// on both cores where the map could not, and each corner is then two array reads).
 fn merge_duplicates<const N: usize>(mesh: &TriMesh) -> TriMesh {
     let bits = |x: f32| (x + 0.0).to_bits();
-    let mut first: FxHashMap<[u32; N], u32> =
-        FxHashMap::with_capacity_and_hasher(mesh.vertex_count(), Default::default());
+    let mut keyed: Vec<([u32; N], u32)> = (0..mesh.vertex_count())
+        .into_par_iter()
+        .map(|v| {
+            let mut key = [0u32; N];
+            let mut at = 0;
+            vertex_floats(mesh, v, |xs| {
+                for &x in xs {
+                    key[at] = bits(x);
+                    at += 1;
+                }
+            });
+            (key, v as u32)
+        })
+        .collect();
+    keyed.par_sort_unstable();
+    // Each vertex's class: the first vertex of its run of equal keys.
+    let mut class = vec![0u32; mesh.vertex_count()];
+    for (i, &(key, v)) in keyed.iter().enumerate() {
+        class[v as usize] = if i > 0 && keyed[i - 1].0 == key {
+            class[keyed[i - 1].1 as usize]
+        } else {
+            v
+        };
+    }
+    drop(keyed);
     let mut id = vec![u32::MAX; mesh.vertex_count()];
     let mut out = TriMesh {
         normals: mesh.normals.as_ref().map(|_| Vec::new()),
@@ -169,41 +203,34 @@ fn merge_duplicates<const N: usize>(mesh: &TriMesh) -> TriMesh {
         }
         let mut tri = [0u32; 3];
         for (k, &v) in t.iter().enumerate() {
-            let v = v as usize;
-            if id[v] == u32::MAX {
-                let mut key = [0u32; N];
-                let mut at = 0;
-                let mut put = |xs: &[f32]| {
-                    for &x in xs {
-                        key[at] = bits(x);
-                        at += 1;
-                    }
-                };
-                put(&mesh.positions[v].to_array());
-                if let Some(n) = &mesh.normals {
-                    put(&n[v].to_array());
-                }
-                if let Some(c) = &mesh.colors {
-                    put(&c[v]);
-                }
-                if let Some(u) = &mesh.uvs {
-                    put(&u[v].to_array());
-                }
-                let next = out.positions.len() as u32;
-                let c = *first.entry(key).or_insert(next);
-                if c == next {
-                    out.positions.push(mesh.positions[v]);
-                    push_attributes(&mut out, mesh, v);
-                }
-                id[v] = c;
+            let c = class[v as usize] as usize;
+            if id[c] == u32::MAX {
+                id[c] = out.positions.len() as u32;
+                out.positions.push(mesh.positions[v as usize]);
+                push_attributes(&mut out, mesh, v as usize);
             }
-            tri[k] = id[v];
+            tri[k] = id[c];
         }
         if tri[0] != tri[1] && tri[1] != tri[2] && tri[0] != tri[2] {
             out.indices.push(tri);
         }
     }
     out
+}
+
+/// Calls `f` on vertex `v`'s position, then on each attribute the mesh has (normal,
+/// colour, UV): the order of a duplicate's key and of a vertex in the stream.
+pub(crate) fn vertex_floats(m: &TriMesh, v: usize, mut f: impl FnMut(&[f32])) {
+    f(&m.positions[v].to_array());
+    if let Some(a) = &m.normals {
+        f(&a[v].to_array());
+    }
+    if let Some(a) = &m.colors {
+        f(&a[v]);
+    }
+    if let Some(a) = &m.uvs {
+        f(&a[v].to_array());
+    }
 }
 
 fn push_attributes(out: &mut TriMesh, mesh: &TriMesh, v: usize) {
@@ -251,8 +278,14 @@ impl Replay {
     }
 
     /// Collapses `p` into `q` (the next of the collapses given to [`Replay::new`]);
-    /// returns the split that undoes it.
-    fn collapse(&mut self, p: u32, q: u32) -> Split {
+    /// returns the split that undoes it, its records appended to `naive` and `encoded`.
+    fn collapse(
+        &mut self,
+        p: u32,
+        q: u32,
+        naive: &mut Vec<u32>,
+        encoded: &mut Vec<(u32, u32)>,
+    ) -> Split {
         let len = self.resolved.len() as i64;
         // E-PS, against the strip before the collapse. A slot that names p becomes a
         // reference to a neighbour at distance 1 or 2 that shows p or q, as every slot
@@ -318,7 +351,7 @@ impl Replay {
                 }
             }
         }
-        let mut encoded = Vec::with_capacity(names.len());
+        let e0 = encoded.len();
         for (i, &o) in names.iter().enumerate() {
             if state[i] == 2 {
                 self.slots[o as usize] = q;
@@ -327,16 +360,17 @@ impl Replay {
         }
         self.state = state;
         self.named = names;
-        let mut naive: Vec<u32> = self.shows.get(p).to_vec();
-        for &o in &naive {
+        let n0 = naive.len();
+        naive.extend_from_slice(self.shows.get(p));
+        for &o in &naive[n0..] {
             self.resolved[o as usize] = q;
         }
-        naive.sort_unstable();
-        encoded.sort_unstable();
+        naive[n0..].sort_unstable();
+        encoded[e0..].sort_unstable();
         Split {
             kept: q,
-            naive,
-            encoded,
+            naive: n0..naive.len(),
+            encoded: e0..encoded.len(),
         }
     }
 }
@@ -387,13 +421,42 @@ pub fn progressive(mesh: &TriMesh, params: &ProgressiveParams) -> Result<Progres
         removed[p as usize] = true;
         pairs.push((p, q));
     }
-    let strip = match params.order {
-        StripOrder::Full => stripify::stripify(&canon.indices, &params.strip),
-        StripOrder::Hierarchical => {
-            super::order::hierarchical(&canon.indices, n, &pairs, params.strip.join)
-        }
-    };
-    // Stream ids: base vertices ascending, then the removed ones, last collapse first.
+    // The strip's order and the stream's numbering of the vertices are independent.
+    let (strip, (stream, base_vertices, vertices)) = rayon::join(
+        || match params.order {
+            StripOrder::Full => stripify::stripify(&canon.indices, &params.strip),
+            StripOrder::Hierarchical => {
+                super::order::hierarchical(&canon.indices, n, &pairs, params.strip.join)
+            }
+        },
+        || stream_vertices(&canon, &removed, &pairs),
+    );
+    let full: Vec<u32> = strip
+        .iter()
+        .map(|&v| if v == RESTART { v } else { stream[v as usize] })
+        .collect();
+    let kept: Vec<u32> = pairs
+        .iter()
+        .rev()
+        .map(|&(_, q)| stream[q as usize])
+        .collect();
+    Ok(Progressive::from_full(
+        vertices,
+        base_vertices,
+        full,
+        &kept,
+        canon.triangle_count(),
+    ))
+}
+
+/// The stream's id of each vertex (the base mesh's ascending, then the removed ones, last
+/// collapse first), the base mesh's vertex count, and the vertices in stream order.
+fn stream_vertices(
+    canon: &TriMesh,
+    removed: &[bool],
+    pairs: &[(u32, u32)],
+) -> (Vec<u32>, u32, TriMesh) {
+    let n = canon.vertex_count();
     let mut stream = vec![u32::MAX; n];
     let mut next = 0u32;
     for v in 0..n {
@@ -427,25 +490,7 @@ pub fn progressive(mesh: &TriMesh, params: &ProgressiveParams) -> Result<Progres
             o[s] = a[v];
         }
     }
-    let full: Vec<u32> = strip
-        .iter()
-        .map(|&v| if v == RESTART { v } else { stream[v as usize] })
-        .collect();
-    let kept: Vec<Split> = pairs
-        .iter()
-        .rev()
-        .map(|&(_, q)| Split {
-            kept: stream[q as usize],
-            ..Split::default()
-        })
-        .collect();
-    Ok(Progressive::from_full(
-        vertices,
-        base_vertices,
-        full,
-        &kept,
-        canon.triangle_count(),
-    ))
+    (stream, base_vertices, vertices)
 }
 
 /// The engine's parameters for `params` on the canonical mesh.
@@ -546,13 +591,14 @@ impl<'p> Decoder<'p> {
         let v = p.base_vertices + self.level as u32;
         match self.encoding {
             Encoding::Naive => {
-                for &o in &s.naive {
+                let naive = &p.naive_offsets[s.naive.clone()];
+                for &o in naive {
                     self.strip[o as usize] = v;
                 }
-                self.updates += s.naive.len() as u64;
+                self.updates += naive.len() as u64;
             }
             Encoding::Encoded => {
-                for &(o, _) in &s.encoded {
+                for &(o, _) in &p.encoded_slots[s.encoded.clone()] {
                     self.slots[o as usize] = v;
                     self.show(o, v);
                 }
@@ -572,13 +618,14 @@ impl<'p> Decoder<'p> {
         let s = &p.splits[self.level];
         match self.encoding {
             Encoding::Naive => {
-                for &o in &s.naive {
+                let naive = &p.naive_offsets[s.naive.clone()];
+                for &o in naive {
                     self.strip[o as usize] = s.kept;
                 }
-                self.updates += s.naive.len() as u64;
+                self.updates += naive.len() as u64;
             }
             Encoding::Encoded => {
-                for &(o, was) in &s.encoded {
+                for &(o, was) in &p.encoded_slots[s.encoded.clone()] {
                     self.slots[o as usize] = was;
                     self.show(o, s.kept);
                 }
@@ -601,18 +648,18 @@ impl<'p> Decoder<'p> {
 
 impl Progressive {
     /// Progressive strips from the full strip (stream ids) and the kept vertex of each
-    /// split (`splits[i].kept`, for vertex `base_vertices + i`): the collapses are
-    /// replayed from the last split to the first.
+    /// split (`kept[i]`, for vertex `base_vertices + i`): the collapses are replayed from
+    /// the last split to the first.
     pub fn from_full(
         vertices: TriMesh,
         base_vertices: u32,
         full: Vec<u32>,
-        splits: &[Split],
+        kept: &[u32],
         triangles: usize,
     ) -> Progressive {
-        let collapses: Vec<(u32, u32)> = (0..splits.len())
+        let collapses: Vec<(u32, u32)> = (0..kept.len())
             .rev()
-            .map(|i| (base_vertices + i as u32, splits[i].kept))
+            .map(|i| (base_vertices + i as u32, kept[i]))
             .collect();
         let mut replay = Replay::new(full, vertices.vertex_count(), &collapses);
         // The slots of the collapse `AHEAD` places on are read early (folded into
@@ -620,13 +667,15 @@ impl Progressive {
         // so their cache misses overlap the work in between instead of stalling each one.
         let mut early = 0u32;
         let mut out: Vec<Split> = Vec::with_capacity(collapses.len());
+        // The records in collapse order (fine to coarse); each split holds its ranges.
+        let (mut naive, mut encoded) = (Vec::new(), Vec::new());
         for (i, &(p, q)) in collapses.iter().enumerate() {
             if let Some(&(r, _)) = collapses.get(i + AHEAD) {
                 for &o in replay.shows.get(r) {
                     early ^= replay.slots[o as usize];
                 }
             }
-            out.push(replay.collapse(p, q));
+            out.push(replay.collapse(p, q, &mut naive, &mut encoded));
         }
         std::hint::black_box(early);
         out.reverse();
@@ -636,8 +685,23 @@ impl Progressive {
             base: replay.resolved,
             base_slots: replay.slots,
             splits: out,
+            naive_offsets: naive,
+            encoded_slots: encoded,
             triangles,
         }
+    }
+
+    /// The Naive-PS record of split `i`: the offsets it restores, ascending.
+    #[inline]
+    pub fn naive(&self, i: usize) -> &[u32] {
+        &self.naive_offsets[self.splits[i].naive.clone()]
+    }
+
+    /// The E-PS record of split `i`: the offsets that name its vertex, with what each holds
+    /// at the coarser level, ascending.
+    #[inline]
+    pub fn encoded(&self, i: usize) -> &[(u32, u32)] {
+        &self.encoded_slots[self.splits[i].encoded.clone()]
     }
 
     /// The mesh at `level` splits: the vertices present and the triangles drawn.
@@ -658,8 +722,7 @@ impl Progressive {
     /// Mean strip slots updated per split: (Naive-PS, E-PS).
     pub fn mean_updates(&self) -> (f64, f64) {
         let n = self.splits.len().max(1) as f64;
-        let naive: usize = self.splits.iter().map(|s| s.naive.len()).sum();
-        let enc: usize = self.splits.iter().map(|s| s.encoded.len()).sum();
+        let (naive, enc) = (self.naive_offsets.len(), self.encoded_slots.len());
         (naive as f64 / n, enc as f64 / n)
     }
 
