@@ -58,8 +58,14 @@ pub fn convert(input: &Path, output: &Path, selection: Selection) -> Result<u64>
             &picked
         }
     };
-    // Only the count and the bounds are wanted from the decoded points.
-    let layout = Layout::of(&h, super::Columns::XYZ);
+    let layout = Layout {
+        len,
+        extended: h.point_format >= 6,
+        scale: h.scale,
+        offset: h.offset,
+        // Only the count and the bounds are wanted from the decoded points.
+        columns: super::Columns::XYZ,
+    };
     let mut cloud = PointCloud::default();
     let (_, bounds) = las_records::decode(out, &layout, &ClassFilter::default(), None, &mut cloud);
     write_raw_las(output, &h, out, &bounds)?;
