@@ -149,6 +149,40 @@ impl Error {
     }
 }
 
+/// Range checks shared by the settings of every stage: each passes a good value and returns
+/// the [`Error::Param`] that names the stage, the key and the value otherwise.
+pub(crate) mod check {
+    use super::{Error, Result};
+
+    /// `value` must be a finite number > 0.
+    pub(crate) fn positive(
+        stage: &'static str,
+        param: &'static str,
+        value: f64,
+        message: &str,
+    ) -> Result<()> {
+        if value.is_finite() && value > 0.0 {
+            Ok(())
+        } else {
+            Err(Error::param(stage, param, value, message))
+        }
+    }
+
+    /// `value` must be a finite number >= 0.
+    pub(crate) fn non_negative(
+        stage: &'static str,
+        param: &'static str,
+        value: f64,
+        message: &str,
+    ) -> Result<()> {
+        if value.is_finite() && value >= 0.0 {
+            Ok(())
+        } else {
+            Err(Error::param(stage, param, value, message))
+        }
+    }
+}
+
 /// `s` on one line, safe for a terminal: every control character (CR, LF, tab, ESC, DEL,
 /// the C1 range) and the bidirectional-override characters are written as escapes
 /// (`\r`, `\n`, `\u{1b}`, …), so a file name, a TOML value or file content echoed in a

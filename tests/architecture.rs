@@ -23,6 +23,19 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
     }
 }
 
+/// The crate's `src/` directory.
+fn src_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
+}
+
+/// Every `.rs` file below `dir` but the `tests.rs` files (test code), in a fixed order.
+fn production_files(dir: &Path) -> Vec<PathBuf> {
+    let mut files = Vec::new();
+    rust_files(dir, &mut files);
+    files.retain(|f| f.file_name().is_none_or(|n| n != "tests.rs"));
+    files
+}
+
 /// The production lines of a source file: everything before the first `#[cfg(test)]` that
 /// opens a module (test modules stand at the end of a file).
 fn production_lines(text: &str) -> Vec<&str> {
@@ -75,15 +88,10 @@ fn crate_uses(code: &str) -> BTreeSet<String> {
 
 /// Top-level module of `src/` → the other top-level modules its production code uses.
 fn module_edges() -> BTreeMap<String, BTreeSet<String>> {
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
-    let mut files = Vec::new();
-    rust_files(&src, &mut files);
+    let src = src_dir();
     let mut edges: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
-    for file in files {
+    for file in production_files(&src) {
         let rel = file.strip_prefix(&src).unwrap();
-        if rel.file_name().is_some_and(|n| n == "tests.rs") {
-            continue;
-        }
         let first = rel
             .components()
             .next()
@@ -225,10 +233,7 @@ fn stage_calls(code: &str) -> Vec<String> {
 
 #[test]
 fn the_encoders_call_no_stage() {
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/output");
-    let mut files = Vec::new();
-    rust_files(&src, &mut files);
-    for file in files {
+    for file in production_files(&src_dir().join("output")) {
         let code = production_code(&fs::read_to_string(&file).unwrap());
         let calls = stage_calls(&code);
         assert!(
@@ -281,14 +286,8 @@ fn long_functions(lines: &[&str], limit: usize) -> Vec<(String, usize, usize)> {
 
 #[test]
 fn no_function_over_150_lines_outside_tests() {
-    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
-    let mut files = Vec::new();
-    rust_files(&src, &mut files);
     let mut long = Vec::new();
-    for file in files {
-        if file.file_name().is_some_and(|n| n == "tests.rs") {
-            continue;
-        }
+    for file in production_files(&src_dir()) {
         let text = fs::read_to_string(&file).unwrap();
         for (name, line, n) in long_functions(&production_lines(&text), 150) {
             long.push(format!("{}:{line} {name}: {n} lines", file.display()));

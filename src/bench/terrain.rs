@@ -527,6 +527,22 @@ pub fn terrain(path: &Path, repeats: usize) -> Result<TerrainBench> {
     })
 }
 
+/// One stage's line of the bench's text report: wall seconds, CPU seconds, then `note` (if
+/// any) after three spaces.
+fn stage_line(
+    f: &mut std::fmt::Formatter<'_>,
+    stage: &str,
+    seconds: f64,
+    cpu_s: f64,
+    note: &str,
+) -> std::fmt::Result {
+    write!(f, "  {stage:<19}{seconds:>8.3} s   cpu {cpu_s:.3} s")?;
+    if !note.is_empty() {
+        write!(f, "   {note}")?;
+    }
+    writeln!(f)
+}
+
 impl std::fmt::Display for TerrainBench {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(
@@ -540,26 +556,10 @@ impl std::fmt::Display for TerrainBench {
             self.grid[1]
         )?;
         let c = &self.stage_cpu_s;
-        writeln!(
-            f,
-            "  read               {:>8.3} s   cpu {:.3} s",
-            self.read_s, c[0]
-        )?;
-        writeln!(
-            f,
-            "  denoise            {:>8.3} s   cpu {:.3} s",
-            self.denoise_s, c[1]
-        )?;
-        writeln!(
-            f,
-            "  resample           {:>8.3} s   cpu {:.3} s",
-            self.resample_s, c[2]
-        )?;
-        writeln!(
-            f,
-            "  fill               {:>8.3} s   cpu {:.3} s",
-            self.fill_s, c[3]
-        )?;
+        stage_line(f, "read", self.read_s, c[0], "")?;
+        stage_line(f, "denoise", self.denoise_s, c[1], "")?;
+        stage_line(f, "resample", self.resample_s, c[2], "")?;
+        stage_line(f, "fill", self.fill_s, c[3], "")?;
         writeln!(f, "  denoise+resample+fill {:>5.3} s", self.stages_s)?;
         writeln!(
             f,
@@ -576,28 +576,25 @@ impl std::fmt::Display for TerrainBench {
             "  stages_ratio (Delaunay {} / grid stages): {:.1}",
             self.delaunay_method, self.stages_ratio
         )?;
-        writeln!(
+        let [size, cols, rows] = self.tiling;
+        stage_line(
             f,
-            "  tiles              {:>8.3} s   cpu {:.3} s   ({} tiles of {}², {} × {})",
+            "tiles",
             self.tiles_s,
             c[4],
-            self.tiling[1] * self.tiling[2],
-            self.tiling[0],
-            self.tiling[1],
-            self.tiling[2]
+            &format!("({} tiles of {size}², {cols} × {rows})", cols * rows),
         )?;
-        writeln!(
+        stage_line(f, "quadtree d2", self.quadtree_s, c[5], "")?;
+        stage_line(
             f,
-            "  quadtree d2        {:>8.3} s   cpu {:.3} s",
-            self.quadtree_s, c[5]
-        )?;
-        writeln!(
-            f,
-            "  write              {:>8.3} s   cpu {:.3} s   (EXR {}, manifest, PNG + RAW heightmaps: {:.1} MB)",
+            "write",
             self.write_s,
             c[6],
-            self.exr_compression,
-            self.written_bytes as f64 / 1e6
+            &format!(
+                "(EXR {}, manifest, PNG + RAW heightmaps: {:.1} MB)",
+                self.exr_compression,
+                self.written_bytes as f64 / 1e6
+            ),
         )?;
         writeln!(f, "  total, file to written tiles {:>6.3} s", self.total_s)?;
         writeln!(

@@ -392,18 +392,20 @@ fn level_set(src: &Source<'_>, r: &TileRange) -> LevelSet {
         })
         .collect();
     let set = TileSet {
-        tile_size: n + 1,
-        grid,
-        samples: [grid[0] * n + 1, grid[1] * n + 1],
-        source_samples: [grid[0] * n + 1, grid[1] * n + 1],
-        preset: crate::terrain::Preset::None,
-        corner: [
-            tile_bounds(r.z, r.x[0], r.y[0])[0] - 0.5 * step,
-            tile_bounds(r.z, r.x[0], r.y[0])[1] - 0.5 * step,
-        ],
-        cell_size: [step, step],
-        z_offset: 0.0,
-        crs: None,
+        layout: crate::terrain::SetLayout {
+            tile_size: n + 1,
+            grid,
+            samples: [grid[0] * n + 1, grid[1] * n + 1],
+            source_samples: [grid[0] * n + 1, grid[1] * n + 1],
+            preset: crate::terrain::Preset::None,
+            corner: [
+                tile_bounds(r.z, r.x[0], r.y[0])[0] - 0.5 * step,
+                tile_bounds(r.z, r.x[0], r.y[0])[1] - 0.5 * step,
+            ],
+            cell_size: [step, step],
+            z_offset: 0.0,
+            crs: None,
+        },
         tiles,
     };
     LevelSet { set, aprons }

@@ -459,7 +459,7 @@ pub fn build(
         quadtree: QuadtreeInfo {
             c: set.quadtree_ck[0],
             k: set.quadtree_ck[1],
-            levels: set.levels,
+            levels: set.levels(),
             d2: "height units per sample spacing: (1/d)·max|Δh| over the 4 edge midpoints and both diagonals, d in samples; \
                  stored at the node's centre sample; divide by the spacing for Röttger's dimensionless d2"
                 .into(),

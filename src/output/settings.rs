@@ -1,7 +1,7 @@
 //! The `[output]` table: which encoders run, and their settings. It lives with the encoders
 //! it switches (the pipeline file's schema in `config` only names it).
 
-use crate::error::{Error, Result};
+use crate::error::{check, Error, Result};
 use crate::mesh::io::MeshFormat;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
@@ -120,16 +120,12 @@ impl OutputConfig {
                 "must be 16 to 16384 pixels",
             ));
         }
-        let t = self.quantized_mesh_tolerance;
-        if !(t.is_finite() && t > 0.0) {
-            return Err(Error::param(
-                "output",
-                "quantized_mesh_tolerance",
-                t,
-                "must be > 0 metres",
-            ));
-        }
-        Ok(())
+        check::positive(
+            "output",
+            "quantized_mesh_tolerance",
+            self.quantized_mesh_tolerance,
+            "must be > 0 metres",
+        )
     }
 
     /// True when the switches ask for a mesh (files or the wireframe picture).

@@ -3,8 +3,7 @@
 //! that those writers never need the whole `TileSet` (and a sharded run can build the same
 //! summary from its shards).
 
-use crate::points::Crs;
-use crate::terrain::{Preset, Quadtree, TileMeshes, TileSet};
+use crate::terrain::{Quadtree, SetLayout, TileMeshes, TileSet};
 
 /// One tile, as the set-level writers see it.
 #[derive(Debug, Clone, PartialEq)]
@@ -25,39 +24,31 @@ pub struct TileSummary {
     pub triangles: Option<usize>,
 }
 
-/// A tile set, as the set-level writers see it.
+/// A tile set, as the set-level writers see it: its layout (read through the summary:
+/// `summary.grid`) and a few figures of its tiles.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SetSummary {
-    /// Samples per tile side (2^k + 1).
-    pub tile_size: usize,
-    /// Tiles in x and y.
-    pub grid: [usize; 2],
-    /// Samples of the whole (possibly resampled) grid.
-    pub samples: [usize; 2],
-    /// Samples of the grid the tiles were cut from, before any engine resampling.
-    pub source_samples: [usize; 2],
-    /// The engine preset.
-    pub preset: Preset,
-    /// World x, y of the grid's south-west corner.
-    pub corner: [f64; 2],
-    /// Sample spacing in x and y, CRS units.
-    pub cell_size: [f64; 2],
-    /// World z that stored heights are relative to.
-    pub z_offset: f64,
-    /// The set's coordinate reference system, when known.
-    pub crs: Option<Crs>,
+    /// Tile grid and georeference, the set's own.
+    pub layout: SetLayout,
     /// World z range of the valid samples.
     pub z_range: Option<(f64, f64)>,
     /// Hole samples over all tiles.
     pub holes: usize,
-    /// Quadtree levels of a tile.
-    pub levels: u32,
     /// Röttger's C and K the d2 values were computed with.
     pub quadtree_ck: [f64; 2],
     /// The tiles, in the set's order.
     pub tiles: Vec<TileSummary>,
     /// How the tile meshes were made, when they were extracted.
     pub meshes: Option<MeshSummary>,
+}
+
+/// The summary reads as its layout, as a [`TileSet`] does.
+impl std::ops::Deref for SetSummary {
+    type Target = SetLayout;
+
+    fn deref(&self) -> &SetLayout {
+        &self.layout
+    }
 }
 
 /// How the tile meshes were made.
@@ -86,18 +77,9 @@ impl SetSummary {
         holes: usize,
     ) -> SetSummary {
         SetSummary {
-            tile_size: set.tile_size,
-            grid: set.grid,
-            samples: set.samples,
-            source_samples: set.source_samples,
-            preset: set.preset,
-            corner: set.corner,
-            cell_size: set.cell_size,
-            z_offset: set.z_offset,
-            crs: set.crs.clone(),
+            layout: set.layout.clone(),
             z_range: set.z_range(),
             holes,
-            levels: set.levels(),
             quadtree_ck: [qt.c, qt.k],
             tiles: set
                 .tiles
@@ -118,21 +100,5 @@ impl SetSummary {
                 skirt_depth: m.skirt_depth,
             }),
         }
-    }
-
-    /// World x, y of grid sample (i, j) (fractional indices allowed), as
-    /// `TileSet::sample_xy`.
-    pub fn sample_xy(&self, i: f64, j: f64) -> [f64; 2] {
-        [
-            self.corner[0] + (i + 0.5) * self.cell_size[0],
-            self.corner[1] + (j + 0.5) * self.cell_size[1],
-        ]
-    }
-
-    /// Metres per CRS unit (1 without a CRS or when the CRS says nothing about units). The
-    /// one conversion behind every engine-facing number: glb positions, the manifest's
-    /// `unity` and `unreal` blocks.
-    pub fn metres_per_unit(&self) -> f64 {
-        self.crs.as_ref().map_or(1.0, |c| c.metres_per_unit())
     }
 }

@@ -109,9 +109,8 @@ impl std::fmt::Display for RunSummary {
         for a in &self.assets {
             write!(
                 f,
-                "  {} → {}: {} → {} triangles",
-                a.input.display(),
-                a.output.display(),
+                "  {}: {} → {} triangles",
+                crate::simplify::InOut(&a.input, &a.output),
                 a.triangles_in,
                 a.triangles_out
             )?;

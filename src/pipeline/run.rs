@@ -559,7 +559,7 @@ pub fn with_input_crs(cfg: &Pipeline, set: &mut TileSet) {
         &set.crs,
         cfg.input.crs.as_deref().map(crate::geo::crs_from_key),
     ) {
-        set.crs = Some(crs);
+        set.layout.crs = Some(crs);
     }
 }
 

@@ -46,13 +46,7 @@ pub(crate) fn read_las_bounds(
             "format is set to las, but the point data is LASzip-compressed",
         ));
     }
-    let layout = Layout {
-        len: h.record_length as usize,
-        extended: h.point_format >= 6,
-        scale: h.scale,
-        offset: h.offset,
-        columns: opts.columns,
-    };
+    let layout = Layout::of(&h, opts.columns);
     let mut cloud = PointCloud::default();
     let mut bounds = super::Bounds::EMPTY;
     let wanted = opts
@@ -383,13 +377,7 @@ pub(crate) fn for_each_decoded(
     mut f: impl FnMut(&PointCloud, &LasHeader) -> Result<()>,
 ) -> Result<(LasHeader, u64)> {
     let h = LasHeader::parse(path, bytes)?;
-    let layout = Layout {
-        len: h.record_length as usize,
-        extended: h.point_format >= 6,
-        scale: h.scale,
-        offset: h.offset,
-        columns: opts.columns,
-    };
+    let layout = Layout::of(&h, opts.columns);
     let mut kept = 0u64;
     for_each_batch(path, bytes, &h, |records| {
         for part in records.chunks(batch.max(1) * layout.len) {

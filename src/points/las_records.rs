@@ -8,6 +8,7 @@
 //! byte 15 = classification (bits 0–4) | flags. Formats 6–10: byte 14 = return number
 //! (bits 0–3) | number of returns (bits 4–7), byte 16 = classification (all 8 bits).
 
+use super::las_header::LasHeader;
 use super::{Bounds, ClassFilter, Columns, PointCloud};
 use rayon::prelude::*;
 
@@ -31,6 +32,17 @@ pub(crate) struct Layout {
 }
 
 impl Layout {
+    /// The layout of the records `h` describes, decoding `columns`.
+    pub(crate) fn of(h: &LasHeader, columns: Columns) -> Layout {
+        Layout {
+            len: h.record_length as usize,
+            extended: h.point_format >= 6,
+            scale: h.scale,
+            offset: h.offset,
+            columns,
+        }
+    }
+
     #[inline(always)]
     fn class(&self, r: &[u8]) -> u8 {
         if self.extended {

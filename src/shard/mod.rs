@@ -23,7 +23,7 @@
 use crate::error::{Error, Result};
 use crate::terrain::fill::{self, Fallback, FillParams, FillReport};
 use crate::terrain::quadtree::{self, NodeValues, Quadtree, QuadtreeParams};
-use crate::terrain::tiles::{self, Preset, Tile, TileParams, TileSet};
+use crate::terrain::tiles::{self, Preset, SetLayout, Tile, TileParams, TileSet};
 use crate::terrain::{CellState, Heightfield};
 use ndarray::s;
 use serde::{Deserialize, Serialize};
@@ -592,15 +592,17 @@ pub fn merge(
     quadtree::merge(layout.tiles, k as f32, &mut d2);
     quadtree::merge(layout.tiles, 1.0, &mut err);
     let set = TileSet {
-        tile_size: layout.tile_size,
-        grid: layout.tiles,
-        samples: layout.samples,
-        source_samples: layout.samples,
-        preset: tiles.preset,
-        corner: grid.corner,
-        cell_size: grid.cell_size,
-        z_offset: grid.z_offset,
-        crs: grid.crs.clone(),
+        layout: SetLayout {
+            tile_size: layout.tile_size,
+            grid: layout.tiles,
+            samples: layout.samples,
+            source_samples: layout.samples,
+            preset: tiles.preset,
+            corner: grid.corner,
+            cell_size: grid.cell_size,
+            z_offset: grid.z_offset,
+            crs: grid.crs.clone(),
+        },
         tiles: set_tiles,
     };
     Ok(Merged {

@@ -163,15 +163,23 @@ pub fn simplify_file_with(
     })
 }
 
+/// A simplified file's input and output paths as the reports print them: `input → output`.
+pub(crate) struct InOut<'a>(pub &'a Path, pub &'a Path);
+
+impl std::fmt::Display for InOut<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} → {}", self.0.display(), self.1.display())
+    }
+}
+
 impl std::fmt::Display for FileReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let r = &self.report;
         if let Some(q) = &r.qem {
             writeln!(
                 f,
-                "{} → {}: qem method, {} placement, {} quadric merge",
-                self.input.display(),
-                self.output.display(),
+                "{}: qem method, {} placement, {} quadric merge",
+                InOut(&self.input, &self.output),
                 q.placement,
                 q.quadric_merge
             )?;
@@ -194,9 +202,8 @@ impl std::fmt::Display for FileReport {
         } else {
             writeln!(
                 f,
-                "{} → {}: {} method, {} representative",
-                self.input.display(),
-                self.output.display(),
+                "{}: {} method, {} representative",
+                InOut(&self.input, &self.output),
                 r.method,
                 r.representative.unwrap_or(Representative::Quadric)
             )?;

@@ -27,7 +27,7 @@ pub use resample::{resample, CellMethod, ResampleParams, Resampled};
 // The products the encoders in `output` take (types only; the stages stay in their modules).
 pub use extract::{TileMeshes, TileTriangulation};
 pub use quadtree::Quadtree;
-pub use tiles::{Preset, Tile, TileSet};
+pub use tiles::{Preset, SetLayout, Tile, TileSet};
 
 use crate::points::Bounds;
 use rayon::prelude::*;

@@ -123,9 +123,11 @@ impl Tile {
     }
 }
 
-/// A heightfield cut into tiles, with the georeference of the whole set.
+/// The layout and georeference of a tile set: its tile grid and the world placement of its
+/// samples. A [`TileSet`] is this plus its tiles; the set-level writers' summary
+/// (`output::SetSummary`) is this plus a few figures of the tiles.
 #[derive(Debug, Clone, PartialEq)]
-pub struct TileSet {
+pub struct SetLayout {
     /// Samples per tile side (2^k + 1).
     pub tile_size: usize,
     /// Tiles in x and y.
@@ -144,16 +146,51 @@ pub struct TileSet {
     pub z_offset: f64,
     /// Coordinate reference system.
     pub crs: Option<Crs>,
-    /// The tiles, row by row from the south, west to east within a row.
-    pub tiles: Vec<Tile>,
 }
 
-impl TileSet {
+impl SetLayout {
     /// Quadtree depth k of the tiles (tile size 2^k + 1).
     pub fn levels(&self) -> u32 {
         (self.tile_size - 1).trailing_zeros()
     }
 
+    /// World x, y of global sample (i, j) (a cell centre; fractional indices allowed).
+    pub fn sample_xy(&self, i: f64, j: f64) -> [f64; 2] {
+        [
+            self.corner[0] + (i + 0.5) * self.cell_size[0],
+            self.corner[1] + (j + 0.5) * self.cell_size[1],
+        ]
+    }
+
+    /// Metres per CRS unit (1 without a CRS or when the CRS says nothing about units). The
+    /// one conversion behind every engine-facing number: glb positions, the manifest's
+    /// `unity` and `unreal` blocks.
+    pub fn metres_per_unit(&self) -> f64 {
+        self.crs.as_ref().map_or(1.0, |c| c.metres_per_unit())
+    }
+}
+
+/// A heightfield cut into tiles, with the georeference of the whole set.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TileSet {
+    /// Tile grid and georeference; its fields read through the set (`set.grid`).
+    pub layout: SetLayout,
+    /// The tiles, row by row from the south, west to east within a row.
+    pub tiles: Vec<Tile>,
+}
+
+/// A set is read as its layout plus its tiles: `set.grid` is `set.layout.grid`. (The
+/// layout is shared with `output::SetSummary`; reading through it keeps every reader of a
+/// set's geometry unchanged.)
+impl std::ops::Deref for TileSet {
+    type Target = SetLayout;
+
+    fn deref(&self) -> &SetLayout {
+        &self.layout
+    }
+}
+
+impl TileSet {
     /// The tile at (col, row), if inside the grid.
     pub fn tile(&self, col: usize, row: usize) -> Option<&Tile> {
         (col < self.grid[0] && row < self.grid[1]).then(|| &self.tiles[row * self.grid[0] + col])
@@ -162,14 +199,6 @@ impl TileSet {
     /// Index in `tiles` of the tile at (col, row).
     pub fn index(&self, col: usize, row: usize) -> usize {
         row * self.grid[0] + col
-    }
-
-    /// World x, y of global sample (i, j) (a cell centre).
-    pub fn sample_xy(&self, i: f64, j: f64) -> [f64; 2] {
-        [
-            self.corner[0] + (i + 0.5) * self.cell_size[0],
-            self.corner[1] + (j + 0.5) * self.cell_size[1],
-        ]
     }
 
     /// Hole samples of the whole grid (a sample on a shared border counts once).
@@ -304,15 +333,17 @@ pub fn tile(hf: &Heightfield, params: &TileParams) -> Result<TileSet> {
         })
         .collect();
     Ok(TileSet {
-        tile_size: t,
-        grid,
-        samples: [cols, rows],
-        source_samples,
-        preset: params.preset,
-        corner: hf.corner,
-        cell_size: hf.cell_size,
-        z_offset: hf.z_offset,
-        crs: hf.crs.clone(),
+        layout: SetLayout {
+            tile_size: t,
+            grid,
+            samples: [cols, rows],
+            source_samples,
+            preset: params.preset,
+            corner: hf.corner,
+            cell_size: hf.cell_size,
+            z_offset: hf.z_offset,
+            crs: hf.crs.clone(),
+        },
         tiles,
     })
 }

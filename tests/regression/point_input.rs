@@ -16,9 +16,23 @@ fn pipeline(dir: &Path, input: &str, extra: &str) {
     common::write_pipeline(dir, input, &format!("meshes = []\n{extra}"));
 }
 
+/// A pipeline reading `a.xyz`, a grid of `points` points written beside it, with `extra`
+/// TOML appended.
+fn xyz_job(dir: &Path, points: usize, extra: &str) {
+    write(dir, "a.xyz", corpus::xyz_grid(points));
+    pipeline(dir, "a.xyz", extra);
+}
+
 /// The same within a memory budget (`--max-memory`).
 fn run_within(dir: &Path, budget: &str) -> Run {
     terratile(dir, &["--max-memory", budget, "run", "-q", "p.toml"])
+}
+
+/// The run within `budget` must fail with `needles` before writing any output.
+fn refused_within(dir: &Path, budget: &str, needles: &[&str]) {
+    run_within(dir, budget)
+        .input_error(needles)
+        .left_nothing("out");
 }
 
 fn info(dir: &Path, file: &str) -> Run {
@@ -193,30 +207,32 @@ fn directory_input_is_refused_clearly() {
 #[test]
 fn resample_size_46000_is_refused_by_the_memory_estimate() {
     let d = tempfile::tempdir().unwrap();
-    write(d.path(), "a.xyz", corpus::xyz_grid(2500));
-    pipeline(d.path(), "a.xyz", "[resample]\nsize = [46000, 46000]\n");
-    run_within(d.path(), "8GiB")
-        .input_error(&[
+    xyz_job(d.path(), 2500, "[resample]\nsize = [46000, 46000]\n");
+    refused_within(
+        d.path(),
+        "8GiB",
+        &[
             "p.toml:7:1: resample.size:",
             "memory budget of 8.00 GiB",
             "GiB",
-        ])
-        .left_nothing("out");
+        ],
+    );
 }
 
 // The budget is a global option; a small one refuses an ordinary run before the work.
 #[test]
 fn max_memory_refuses_a_run_that_needs_more() {
     let d = tempfile::tempdir().unwrap();
-    write(d.path(), "a.xyz", corpus::xyz_grid(40_000));
-    pipeline(d.path(), "a.xyz", "");
-    run_within(d.path(), "64KiB")
-        .input_error(&[
+    xyz_job(d.path(), 40_000, "");
+    refused_within(
+        d.path(),
+        "64KiB",
+        &[
             "p.toml:",
             "memory budget of 65536 bytes",
             "raise --max-memory",
-        ])
-        .left_nothing("out");
+        ],
+    );
     let r = run_within(d.path(), "lots");
     assert_eq!(r.code, 2, "{}", r.context());
     assert!(r.stderr.contains("`lots` is not a size"), "{}", r.context());
@@ -233,13 +249,13 @@ fn tiny_cells_and_voxels_on_a_real_survey_are_refused() {
     let d = tempfile::tempdir().unwrap();
     let f = f.display().to_string();
     pipeline(d.path(), &f, "[resample]\ncell_size = 0.02\n");
-    run_within(d.path(), "8GiB")
-        .input_error(&["p.toml:7:1: resample.cell_size:"])
-        .left_nothing("out");
+    refused_within(d.path(), "8GiB", &["p.toml:7:1: resample.cell_size:"]);
     pipeline(d.path(), &f, "[denoise]\nvoxel_size = 0.025\n");
-    run_within(d.path(), "8GiB")
-        .input_error(&["p.toml:7:1: denoise.voxel_size:", "noise removal's voxels"])
-        .left_nothing("out");
+    refused_within(
+        d.path(),
+        "8GiB",
+        &["p.toml:7:1: denoise.voxel_size:", "noise removal's voxels"],
+    );
 }
 
 // One far-away point (1e15 or 1e16) made denoise take 20 s and 3.7 GB, or abort: the voxel
@@ -267,9 +283,11 @@ fn an_infinite_span_is_not_called_zero_width() {
     let d = tempfile::tempdir().unwrap();
     write(d.path(), "a.xyz", "1e308 1e308 1\n-1e308 -1e308 2\n0 0 0\n");
     pipeline(d.path(), "a.xyz", "");
-    run_within(d.path(), "1GiB")
-        .input_error(&["denoise.voxel_size:", "too large to measure"])
-        .left_nothing("out");
+    refused_within(
+        d.path(),
+        "1GiB",
+        &["denoise.voxel_size:", "too large to measure"],
+    );
 }
 
 // `--threads 100000` ran a minute and aborted.
@@ -366,8 +384,7 @@ fn degenerate_points_name_the_pipeline_key() {
 #[test]
 fn too_small_voxels_and_cells_name_the_key() {
     let d = tempfile::tempdir().unwrap();
-    write(d.path(), "a.xyz", corpus::xyz_grid(1600));
-    pipeline(d.path(), "a.xyz", "[denoise]\nvoxel_size = 1e-9\n");
+    xyz_job(d.path(), 1600, "[denoise]\nvoxel_size = 1e-9\n");
     common::run_p_toml(d.path()).input_error(&["p.toml:7:1: denoise.voxel_size:", "too small"]);
     pipeline(d.path(), "a.xyz", "[resample]\ncell_size = 1e-9\n");
     common::run_p_toml(d.path()).input_error(&["p.toml:7:1: resample.cell_size:"]);
@@ -391,8 +408,7 @@ fn non_utf8_byte_in_xyz_names_its_line() {
 #[test]
 fn config_arrays_with_extra_elements_are_refused() {
     let d = tempfile::tempdir().unwrap();
-    write(d.path(), "a.xyz", corpus::xyz_grid(1600));
-    pipeline(d.path(), "a.xyz", "[resample]\nsize = [64, 64, 99999]\n");
+    xyz_job(d.path(), 1600, "[resample]\nsize = [64, 64, 99999]\n");
     common::run_p_toml(d.path()).input_error(&["p.toml:7:", "resample.size", "invalid length 3"]);
     pipeline(
         d.path(),

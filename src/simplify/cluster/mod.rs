@@ -21,7 +21,7 @@ pub mod floating;
 pub mod octree;
 pub mod uniform;
 
-use crate::error::{Error, Result};
+use crate::error::{check, Error, Result};
 use crate::mesh::adjacency::Csr;
 use crate::mesh::TriMesh;
 use crate::simplify::quadric::Quadric;
@@ -281,14 +281,7 @@ impl SimplifyParams {
             ));
         }
         for r in &self.refine {
-            if !(r.factor.is_finite() && r.factor > 0.0) {
-                return Err(Error::param(
-                    S,
-                    "refine.factor",
-                    r.factor,
-                    "must be a positive number",
-                ));
-            }
+            check::positive(S, "refine.factor", r.factor, "must be a positive number")?;
             if (0..3).any(|k| r.min[k] > r.max[k] || !r.min[k].is_finite() || !r.max[k].is_finite())
             {
                 return Err(Error::param(
@@ -315,9 +308,7 @@ impl SimplifyParams {
             ("theta_max_weight", self.theta_max_weight),
         ] {
             if let Some(w) = w {
-                if !(w.is_finite() && w >= 0.0) {
-                    return Err(Error::param(S, name, w, "must be a number >= 0"));
-                }
+                check::non_negative(S, name, w, "must be a number >= 0")?;
             }
         }
         if let Some(r) = self.ratio {
@@ -343,9 +334,7 @@ impl SimplifyParams {
                     "the octree method takes `threshold`, not `cell_size`",
                 ));
             }
-            if !(c.is_finite() && c > 0.0) {
-                return Err(Error::param(S, "cell_size", c, "must be a positive number"));
-            }
+            check::positive(S, "cell_size", c, "must be a positive number")?;
             return Ok(Target::Scale(c));
         }
         let t = self.threshold.unwrap_or_default();
@@ -357,9 +346,7 @@ impl SimplifyParams {
                 "only the octree method takes `threshold`; use `cell_size`",
             ));
         }
-        if !(t.is_finite() && t > 0.0) {
-            return Err(Error::param(S, "threshold", t, "must be a positive number"));
-        }
+        check::positive(S, "threshold", t, "must be a positive number")?;
         Ok(Target::Scale(t))
     }
 }
@@ -415,9 +402,7 @@ impl SimplifyParams {
             ("pair_distance", self.pair_distance),
         ] {
             if let Some(e) = e {
-                if !(e.is_finite() && e >= 0.0) {
-                    return Err(Error::param(S, name, e, "must be a number >= 0"));
-                }
+                check::non_negative(S, name, e, "must be a number >= 0")?;
             }
         }
         if self.max_error.is_some() && self.max_error_pct.is_some() {
