@@ -640,14 +640,14 @@ pub(crate) mod tests {
     }
 
     /// The slow twin of the exact bound: the TIN against the surface at a dense sampling of
-    /// every triangle.
-    fn dense_worst(s: &Block, tin: &TileTin, map: &TileMap) -> f64 {
+    /// every triangle (`n` steps along each of its sides).
+    pub(crate) fn dense_worst<S: Surface>(s: &S, tin: &TileTin, map: &TileMap, n: usize) -> f64 {
         let mut worst = 0.0f64;
         for t in &tin.triangles {
             let k = t.map(|k| k as usize);
-            for a in 0..=60 {
-                for b in 0..=(60 - a) {
-                    let l = [a as f64 / 60.0, b as f64 / 60.0];
+            for a in 0..=n {
+                for b in 0..=(n - a) {
+                    let l = [a as f64 / n as f64, b as f64 / n as f64];
                     let w = [1.0 - l[0] - l[1], l[0], l[1]];
                     let uv = [0, 1].map(|c| {
                         (0..3)
@@ -711,7 +711,7 @@ pub(crate) mod tests {
         let corners = [at(0.0, 0.0), at(1.0, 0.0), at(0.0, 1.0), at(1.0, 1.0)];
         let tol = 0.1;
         let (map, tin, sides) = tile(corners, tol);
-        let worst = dense_worst(&Block, &tin, &map);
+        let worst = dense_worst(&Block, &tin, &map, 60);
         // Dense sampling never finds more than the exact bound allowed (up to the map's
         // quantisation: a vertex is up to 1/65534 of the tile from where it was chosen).
         assert!(worst <= tol + 1e-6, "{worst}");

@@ -431,25 +431,45 @@ fn terrain_tile(
     let (x, y) = (r.x[0] + tile.col as u32, r.y[0] + tile.row as u32);
     let bounds = tile_bounds(r.z, x, y);
     let frame = Frame::new(r.z, bounds);
-    let mut remap = vec![u32::MAX; tri.uv.len()];
+    by_first_use([r.z, x, y], bounds, &tri.triangles, tri.uv.len(), |v| {
+        // No padding in these sets: every vertex is a lattice sample.
+        let [i, j] = tri.uv[v].map(|c| c as usize);
+        (
+            [lattice_uv(i as u16), lattice_uv(j as u16)],
+            f64::from(tri.z[v]),
+            frame.normal(apron, i, j),
+        )
+    })
+}
+
+/// Tile `zxy` of the triangles `triangles` over `n` vertices, its vertices renumbered in the
+/// order of their first use (what the encoder's high-water-mark coding needs), each made by
+/// `vertex` (quantized u and v, height, normal) when first used.
+fn by_first_use(
+    zxy: [u32; 3],
+    bounds: [f64; 4],
+    triangles: &[[u32; 3]],
+    n: usize,
+    mut vertex: impl FnMut(usize) -> ([u16; 2], f64, [f32; 3]),
+) -> TerrainTile {
+    let mut remap = vec![u32::MAX; n];
     let mut out = TerrainTile {
-        zxy: [r.z, x, y],
+        zxy,
         bounds,
         uv: Vec::new(),
         heights: Vec::new(),
         normals: Vec::new(),
-        triangles: Vec::with_capacity(tri.triangles.len()),
+        triangles: Vec::with_capacity(triangles.len()),
     };
-    for f in &tri.triangles {
+    for f in triangles {
         out.triangles.push(f.map(|v| {
             let slot = &mut remap[v as usize];
             if *slot == u32::MAX {
                 *slot = out.uv.len() as u32;
-                // No padding in these sets: every vertex is a lattice sample.
-                let [i, j] = tri.uv[v as usize].map(|c| c as usize);
-                out.uv.push([lattice_uv(i as u16), lattice_uv(j as u16)]);
-                out.heights.push(f64::from(tri.z[v as usize]));
-                out.normals.push(frame.normal(apron, i, j));
+                let (uv, h, normal) = vertex(v as usize);
+                out.uv.push(uv);
+                out.heights.push(h);
+                out.normals.push(normal);
             }
             *slot
         }));
@@ -624,31 +644,11 @@ fn tin_tile(
         let dy = (gx * jv[0] + gy * jv[1]) / north;
         ecef_normal(sl_cl, (sp, cp), dx, dy)
     };
-    let mut remap = vec![u32::MAX; t.uv.len()];
-    let mut out = TerrainTile {
-        zxy,
-        bounds,
-        uv: Vec::new(),
-        heights: Vec::new(),
-        normals: Vec::new(),
-        triangles: Vec::with_capacity(t.triangles.len()),
-    };
-    for f in &t.triangles {
-        out.triangles.push(f.map(|v| {
-            let slot = &mut remap[v as usize];
-            if *slot == u32::MAX {
-                *slot = out.uv.len() as u32;
-                let k = v as usize;
-                out.uv.push(t.uv[k]);
-                // As f32, the encoder's header precision: the decoded extremes are then the
-                // header's min and max exactly.
-                out.heights.push(f64::from(t.h[k] as f32));
-                out.normals.push(normal(k));
-            }
-            *slot
-        }));
-    }
-    out
+    by_first_use(zxy, bounds, &t.triangles, t.uv.len(), |k| {
+        // Heights as f32, the encoder's header precision: the decoded extremes are then the
+        // header's min and max exactly.
+        (t.uv[k], f64::from(t.h[k] as f32), normal(k))
+    })
 }
 
 /// The tileset of `set` from level 0 down to the level matching its spacing. The coarser
