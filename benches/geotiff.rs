@@ -33,21 +33,11 @@ fn geotiff(c: &mut Criterion) {
         bytes as f64 / (set.samples[0] * set.samples[1]) as f64,
         rayon::current_num_threads()
     );
-    // CPU time, which the other processes of a shared machine cannot inflate (the wall times
-    // below can): five encodings, process user + system time per encoding (Linux).
-    if let Some(t0) = cpu_seconds() {
-        let wall = std::time::Instant::now();
-        for _ in 0..5 {
-            black_box(dem_geotiff(&set).expect("geotiff"));
-        }
-        if let Some(t1) = cpu_seconds() {
-            eprintln!(
-                "geotiff: {:.3} CPU-s and {:.3} s of wall time per encoding",
-                (t1 - t0) / 5.0,
-                wall.elapsed().as_secs_f64() / 5.0
-            );
-        }
-    }
+    // Five encodings, CPU and wall time per encoding (the wall times below the other
+    // processes of a shared machine can inflate).
+    per_run("geotiff", "encoding", 5, || {
+        black_box(dem_geotiff(&set).expect("geotiff"));
+    });
     let mut g = c.benchmark_group("geotiff_autzen_full");
     g.sample_size(10);
     common::exr_tiles_reference(&mut g, &set, &qt);
@@ -55,6 +45,23 @@ fn geotiff(c: &mut Criterion) {
         b.iter(|| black_box(dem_geotiff(&set).expect("geotiff")))
     });
     g.finish();
+}
+
+/// Runs `f` `n` times and prints its CPU time (process user + system time, Linux), which the
+/// other processes of a shared machine cannot inflate, and its wall time, per run.
+fn per_run(name: &str, what: &str, n: u32, mut f: impl FnMut()) {
+    let Some(t0) = cpu_seconds() else { return };
+    let wall = std::time::Instant::now();
+    for _ in 0..n {
+        f();
+    }
+    if let Some(t1) = cpu_seconds() {
+        eprintln!(
+            "{name}: {:.3} CPU-s and {:.3} s of wall time per {what}",
+            (t1 - t0) / f64::from(n),
+            wall.elapsed().as_secs_f64() / f64::from(n)
+        );
+    }
 }
 
 /// This process's user + system CPU time in seconds, from /proc/self/stat (clock ticks of
@@ -91,19 +98,9 @@ fn quantized_mesh(c: &mut Criterion) {
         bytes as f64 / 1e6,
         rayon::current_num_threads()
     );
-    if let Some(t0) = cpu_seconds() {
-        let wall = std::time::Instant::now();
-        for _ in 0..3 {
-            black_box(tileset_and_tiles());
-        }
-        if let Some(t1) = cpu_seconds() {
-            eprintln!(
-                "quantized_mesh: {:.3} CPU-s and {:.3} s of wall time per tileset",
-                (t1 - t0) / 3.0,
-                wall.elapsed().as_secs_f64() / 3.0
-            );
-        }
-    }
+    per_run("quantized_mesh", "tileset", 3, || {
+        black_box(tileset_and_tiles());
+    });
     let mut g = c.benchmark_group("quantized_mesh_autzen_full");
     g.sample_size(10);
     common::exr_tiles_reference(&mut g, &set, &qt);

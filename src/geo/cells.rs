@@ -510,7 +510,7 @@ impl<S: Surface> Tile<'_, S> {
             for k in 0..4 {
                 self.tri(v[k], v[(k + 1) % 4], c);
             }
-            return self.keep_if_held(nv, nt);
+            return self.keep_if_held(i, j, nv, nt);
         }
         while a * a > 4.0 * s {
             rings += 1;
@@ -530,7 +530,7 @@ impl<S: Surface> Tile<'_, S> {
                 }
                 self.tri(m[0], m[1], m[2]);
                 self.tri(m[0], m[2], m[3]);
-                return self.keep_if_held(nv, nt);
+                return self.keep_if_held(i, j, nv, nt);
             }
             let q = [at(l, l), at(h, l), at(h, h), at(l, h)].map(|p| self.point(p));
             for k in 0..4 {
@@ -545,7 +545,7 @@ impl<S: Surface> Tile<'_, S> {
         for k in 0..8 {
             self.tri(outer[k], outer[(k + 1) % 8], c);
         }
-        self.keep_if_held(nv, nt)
+        self.keep_if_held(i, j, nv, nt)
     }
 
     /// The triangles from side `k` of the square `outer` (corners at even places, side
@@ -560,19 +560,24 @@ impl<S: Surface> Tile<'_, S> {
         }
     }
 
-    /// True when every triangle from `nt` on is counter-clockwise after quantisation and
-    /// within the tolerance of the surface by the exact measure (`tin::worst_in_triangle`,
-    /// the greedy insertion's own: the closed forms hold for the ideal positions, the
-    /// vertices sit on quantized ones); else drops them and the vertices from `nv` on, and
-    /// false.
-    fn keep_if_held(&mut self, nv: usize, nt: usize) -> bool {
+    /// True when every triangle from `nt` on (inside cell (i, j)) is counter-clockwise after
+    /// quantisation and within the tolerance of the surface (the closed forms hold for the
+    /// ideal positions, the vertices sit on quantized ones); else drops them and the vertices
+    /// from `nv` on, and false. Each triangle is held by [`Tile::cell_bound`] when that
+    /// suffices, else by the exact measure (`tin::worst_in_triangle`, the greedy
+    /// insertion's own).
+    fn keep_if_held(&mut self, i: i64, j: i64, nv: usize, nt: usize) -> bool {
         let mut cuts = Vec::new();
+        let twist = twist(&self.corners(i, j));
+        let slope = self.slope(i, j);
         let ok = self.out.triangles[nt..].iter().all(|t| {
             let k = t.map(|k| k as usize);
             self.area(t[0], t[1], t[2]) > 0 && {
                 let p = k.map(|k| self.out.p[k]);
-                let h = k.map(|k| self.out.h[k]);
-                tin::worst_in_triangle(self.s, p, h, [false; 3], &mut cuts).0 <= self.tolerance
+                cell_bound(p, [i, j], twist, slope) <= self.tolerance || {
+                    let h = k.map(|k| self.out.h[k]);
+                    tin::worst_in_triangle(self.s, p, h, [false; 3], &mut cuts).0 <= self.tolerance
+                }
             }
         });
         if !ok {
@@ -735,6 +740,34 @@ fn twist(z: &[f64; 4]) -> f64 {
     (z[0] - z[1] - z[3] + z[2]).abs()
 }
 
+/// A bound on |G − L| over the triangle at grid positions `p` whose vertices lie on G (L its
+/// linear interpolant of them), for a triangle in or next to cell (i, j) of twist `twist`
+/// (metres) inside a neighbourhood where G's slope is at most `slope` (metres per cell).
+/// Inside the cell G is one bilinear polynomial, G − L = d·(xy − L(xy)) is harmonic, and on an
+/// edge it is d·ΔxΔy·t(1 − t): the bound is exact, |d|·max|ΔxΔy|/4 over the three edges. A
+/// vertex quantized up to `out` outside the cell adds, on the sliver past its border, where G
+/// and the cell's polynomial G_c agree on the border and part at most with their slopes,
+/// |G − G_c| ≤ m = (2·slope + |d|·out)·out, and as much again through the vertices' heights
+/// (L against G_c's own interpolant): 2m in all.
+fn cell_bound(p: [[f64; 2]; 3], [i, j]: [i64; 2], twist: f64, slope: f64) -> f64 {
+    let (x0, y0) = (i as f64, j as f64);
+    let out = p
+        .iter()
+        .map(|q| {
+            let ex = (x0 - q[0]).max(q[0] - x0 - 1.0).max(0.0);
+            let ey = (y0 - q[1]).max(q[1] - y0 - 1.0).max(0.0);
+            ex + ey
+        })
+        .fold(0.0, f64::max);
+    let span = (0..3)
+        .map(|k| {
+            let (a, b) = (p[k], p[(k + 1) % 3]);
+            ((b[0] - a[0]) * (b[1] - a[1])).abs()
+        })
+        .fold(0.0, f64::max);
+    twist * span / 4.0 + 2.0 * (2.0 * slope + twist * out) * out
+}
+
 /// Share of a tile's grid nodes where the grid bends by more than `tolerance` over two cells
 /// (|z(i−1) − 2z(i) + z(i+1)| along a row or a column): the cheap count that chooses between
 /// the dense path and the greedy one. Where most nodes bend, the greedy insertion would take
@@ -748,23 +781,18 @@ pub fn roughness<S: Surface>(s: &S, map: &TileMap, tolerance: f64) -> f64 {
         map.grid(0.0, 1.0),
         map.grid(1.0, 1.0),
     ];
-    let lo = |c: usize| {
-        corners
+    // The nodes of the corners' bounding box along axis `c`.
+    let nodes = |c: usize| {
+        let (lo, hi) = corners
             .iter()
-            .map(|p| p[c])
-            .fold(f64::INFINITY, f64::min)
-            .ceil() as i64
-    };
-    let hi = |c: usize| {
-        corners
-            .iter()
-            .map(|p| p[c])
-            .fold(f64::NEG_INFINITY, f64::max)
-            .floor() as i64
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |m, p| {
+                (m.0.min(p[c]), m.1.max(p[c]))
+            });
+        (lo.ceil() as i64..=hi.floor() as i64).step_by(2)
     };
     let (mut rough, mut all) = (0usize, 0usize);
-    for j in (lo(1)..=hi(1)).step_by(2) {
-        for i in (lo(0)..=hi(0)).step_by(2) {
+    for j in nodes(1) {
+        for i in nodes(0) {
             let z = 2.0 * s.node(i, j);
             let bend = (s.node(i - 1, j) + s.node(i + 1, j) - z)
                 .abs()
@@ -974,29 +1002,57 @@ mod tests {
         )
     }
 
-    /// Worst |mesh − G| over every triangle, sampled densely (the slow twin).
-    fn dense_worst(tin: &TileTin, map: &TileMap) -> f64 {
-        let mut worst = 0.0f64;
-        for t in &tin.triangles {
-            let k = t.map(|k| k as usize);
-            for a in 0..=24 {
-                for b in 0..=(24 - a) {
-                    let w = [
-                        1.0 - (a + b) as f64 / 24.0,
-                        a as f64 / 24.0,
-                        b as f64 / 24.0,
-                    ];
-                    let uv = [0, 1].map(|c| {
-                        (0..3)
-                            .map(|m| w[m] * f64::from(tin.uv[k[m]][c]) / f64::from(Q))
-                            .sum::<f64>()
-                    });
-                    let h: f64 = (0..3).map(|m| w[m] * tin.h[k[m]]).sum();
-                    worst = worst.max((h - Rough.at(map.grid(uv[0], uv[1]))).abs());
+    #[test]
+    fn the_cell_bound_holds_the_sampled_distance() {
+        // Triangles in the trees' cells, their vertices on the surface and up to 3 % of a
+        // cell past its border: the bound never falls below a dense sampling of |G − L| (the
+        // slow twin), and equals it (to rounding) for a triangle inside the cell.
+        let mut rng = crate::SplitMix64::new(11);
+        let (mut inside, mut outside) = (0, 0);
+        for _ in 0..3000 {
+            let (i, j) = (21 + rng.below(27) as i64, 11 + rng.below(47) as i64);
+            let pad = if rng.below(2) == 0 { 0.0 } else { 0.03 };
+            let p = [0, 1, 2].map(|_| {
+                [
+                    i as f64 + rng.range(-pad, 1.0 + pad),
+                    j as f64 + rng.range(-pad, 1.0 + pad),
+                ]
+            });
+            let h = p.map(|q| Rough.at(q));
+            let z = [(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)].map(|(a, b)| Rough.node(a, b));
+            let mut step = 0.0f64;
+            for b in (j - 1)..=(j + 2) {
+                for a in (i - 1)..=(i + 2) {
+                    for (x, y) in [(a + 1, b), (a, b + 1)] {
+                        step = step.max((Rough.node(x, y) - Rough.node(a, b)).abs());
+                    }
                 }
             }
+            let bound = cell_bound(p, [i, j], twist(&z), std::f64::consts::SQRT_2 * step);
+            let n = 40;
+            let mut sampled = 0.0f64;
+            for a in 0..=n {
+                for b in 0..=(n - a) {
+                    let w = [a as f64 / n as f64, b as f64 / n as f64];
+                    let w = [1.0 - w[0] - w[1], w[0], w[1]];
+                    let q = [0, 1].map(|c| (0..3).map(|m| w[m] * p[m][c]).sum::<f64>());
+                    let l: f64 = (0..3).map(|m| w[m] * h[m]).sum();
+                    sampled = sampled.max((l - Rough.at(q)).abs());
+                }
+            }
+            assert!(bound >= sampled - 1e-9, "{p:?}: bound {bound} < {sampled}");
+            let within = p.iter().all(|q| {
+                (i as f64..=(i + 1) as f64).contains(&q[0])
+                    && (j as f64..=(j + 1) as f64).contains(&q[1])
+            });
+            if within {
+                assert!(bound <= sampled + 1e-9, "{p:?}: bound {bound} > {sampled}");
+                inside += 1;
+            } else {
+                outside += 1;
+            }
         }
-        worst
+        assert!(inside > 1000 && outside > 200, "{inside} {outside}");
     }
 
     #[test]
@@ -1039,7 +1095,7 @@ mod tests {
                 on_border,
                 sides.iter().map(|s| s.verts.len()).sum::<usize>() - 4
             );
-            let worst = dense_worst(&tin, &map);
+            let worst = tin::tests::dense_worst(&Rough, &tin, &map, 24);
             assert!(worst <= tol + 1e-9, "angle {angle}: {worst} > {tol}");
             // Nearly every node of the 40² cells, no Delaunay.
             assert!(tin.uv.len() > 1200, "{}", tin.uv.len());

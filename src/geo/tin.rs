@@ -28,6 +28,7 @@
 //! Hand-written: spade builds the Delaunay triangulation, but no crate approximates a
 //! bilinear grid by a TIN within an exact bound on a region that is not grid-aligned.
 
+use rustc_hash::FxHashMap;
 use spade::handles::{FixedFaceHandle, FixedVertexHandle, InnerTag};
 use spade::{DelaunayTriangulation, Point2, Triangulation};
 use std::cmp::Ordering;
@@ -67,22 +68,44 @@ fn edge_error<S: Surface>(
     h1: f64,
     cuts: &mut Vec<f64>,
 ) -> (f64, f64) {
+    // The crossings with each axis's integer lines strictly between the ends come in
+    // increasing t when those lines are walked towards p1: the two runs are merged, not sorted.
+    let run = |k: usize| {
+        let (a, b) = (p0[k], p1[k]);
+        if a == b {
+            return (a, 1.0, 0.0, 0, 1.0);
+        }
+        let (lo, hi) = (a.min(b), a.max(b));
+        let (first, last) = (lo.floor() + 1.0, hi.ceil() - 1.0);
+        let n = if last >= first {
+            (last - first) as usize + 1
+        } else {
+            0
+        };
+        if b > a {
+            (a, b - a, first, n, 1.0)
+        } else {
+            (a, b - a, last, n, -1.0)
+        }
+    };
+    let at =
+        |(a, d, c0, _, dir): (f64, f64, f64, usize, f64), m: usize| (c0 + dir * m as f64 - a) / d;
+    let (rx, ry) = (run(0), run(1));
     cuts.clear();
     cuts.push(0.0);
-    for k in 0..2 {
-        let (a, b) = (p0[k], p1[k]);
-        if a != b {
-            // Integer lines strictly between a and b.
-            let (lo, hi) = (a.min(b), a.max(b));
-            let mut c = lo.floor() + 1.0;
-            while c < hi {
-                cuts.push((c - a) / (b - a));
-                c += 1.0;
-            }
+    let (mut mx, mut my) = (0, 0);
+    while mx < rx.3 || my < ry.3 {
+        let tx = if mx < rx.3 { at(rx, mx) } else { f64::INFINITY };
+        let ty = if my < ry.3 { at(ry, my) } else { f64::INFINITY };
+        if tx <= ty {
+            cuts.push(tx);
+            mx += 1;
+        } else {
+            cuts.push(ty);
+            my += 1;
         }
     }
     cuts.push(1.0);
-    cuts.sort_unstable_by(f64::total_cmp);
     let point = |t: f64| [p0[0] + t * (p1[0] - p0[0]), p0[1] + t * (p1[1] - p0[1])];
     let e = |t: f64| h0 + t * (h1 - h0) - s.at(point(t));
     let mut worst = (0.0f64, 0.0f64);
@@ -316,21 +339,45 @@ pub(crate) fn worst_in_triangle<S: Surface>(
     border: [bool; 3],
     cuts: &mut Vec<f64>,
 ) -> (f64, [f64; 2]) {
+    worst_in_triangle_with(s, p, h, |k| {
+        (!border[k]).then(|| {
+            let (a, b) = (k, (k + 1) % 3);
+            edge_worst(s, p[a], p[b], h[a], h[b], cuts)
+        })
+    })
+}
+
+/// [`edge_error`]'s largest deviation and the grid position where it is taken.
+fn edge_worst<S: Surface>(
+    s: &S,
+    p0: [f64; 2],
+    p1: [f64; 2],
+    h0: f64,
+    h1: f64,
+    cuts: &mut Vec<f64>,
+) -> (f64, [f64; 2]) {
+    let (e, t) = edge_error(s, p0, p1, h0, h1, cuts);
+    (
+        e,
+        [p0[0] + t * (p1[0] - p0[0]), p0[1] + t * (p1[1] - p0[1])],
+    )
+}
+
+/// [`worst_in_triangle`] with each edge's worst deviation from `edge(k)` (the edge from
+/// corner k to corner k + 1; None for an edge not to measure), so that the greedy insertion
+/// measures an edge once for both faces that share it.
+fn worst_in_triangle_with<S: Surface>(
+    s: &S,
+    p: [[f64; 2]; 3],
+    h: [f64; 3],
+    mut edge: impl FnMut(usize) -> Option<(f64, [f64; 2])>,
+) -> (f64, [f64; 2]) {
     let mut worst = (0.0f64, p[0]);
-    for (k, &on_border) in border.iter().enumerate() {
-        if on_border {
-            continue;
-        }
-        let (a, b) = (k, (k + 1) % 3);
-        let (e, t) = edge_error(s, p[a], p[b], h[a], h[b], cuts);
-        if e > worst.0 {
-            worst = (
-                e,
-                [
-                    p[a][0] + t * (p[b][0] - p[a][0]),
-                    p[a][1] + t * (p[b][1] - p[a][1]),
-                ],
-            );
+    for k in 0..3 {
+        if let Some((e, at)) = edge(k) {
+            if e > worst.0 {
+                worst = (e, at);
+            }
         }
     }
     // The plane h = c0 + cx·x + cy·y through the three vertices.
@@ -489,16 +536,31 @@ pub fn refine<S: Surface>(
             || (uv[1] == w[1] && (uv[1] == 0 || uv[1] == Q))
     };
     let mut cuts = Vec::new();
+    // Each edge's worst deviation and where, by its vertices (lower first): an edge depends on
+    // its ends alone, and the faces around a new vertex keep the old faces' outer edges.
+    let mut edges: FxHashMap<(u32, u32), (f64, [f64; 2])> = FxHashMap::default();
     let measure = |tri: &DelaunayTriangulation<Point2<f64>>,
                    out: &TileTin,
                    face: FixedFaceHandle<InnerTag>,
-                   cuts: &mut Vec<f64>| {
+                   cuts: &mut Vec<f64>,
+                   edges: &mut FxHashMap<(u32, u32), (f64, [f64; 2])>| {
         let vertices = tri.face(face).vertices().map(|v| v.fix());
         let k = vertices.map(|v| v.index());
         let p = k.map(|k| out.p[k]);
         let h = k.map(|k| out.h[k]);
-        let border = [0, 1, 2].map(|e| on_border(out.uv[k[e]], out.uv[k[(e + 1) % 3]]));
-        let (err, at) = worst_in_triangle(s, p, h, border, cuts);
+        let (err, at) = worst_in_triangle_with(s, p, h, |e| {
+            let (a, b) = (k[e], k[(e + 1) % 3]);
+            if on_border(out.uv[a], out.uv[b]) {
+                return None;
+            }
+            // Measured from its lower-numbered end, once for both faces.
+            let (a, b) = (a.min(b), a.max(b));
+            Some(
+                *edges
+                    .entry((a as u32, b as u32))
+                    .or_insert_with(|| edge_worst(s, out.p[a], out.p[b], out.h[a], out.h[b], cuts)),
+            )
+        });
         Candidate {
             err,
             face,
@@ -508,7 +570,7 @@ pub fn refine<S: Surface>(
     };
     let mut heap: BinaryHeap<Candidate> = tri
         .fixed_inner_faces()
-        .map(|f| measure(&tri, &out, f, &mut cuts))
+        .map(|f| measure(&tri, &out, f, &mut cuts, &mut edges))
         .collect();
     while let Some(c) = heap.pop() {
         if c.err <= tolerance || out.uv.len() >= max_vertices {
@@ -535,7 +597,7 @@ pub fn refine<S: Surface>(
             .filter_map(|e| e.face().as_inner().map(|f| f.fix()))
             .collect();
         for f in faces {
-            heap.push(measure(&tri, &out, f, &mut cuts));
+            heap.push(measure(&tri, &out, f, &mut cuts, &mut edges));
         }
     }
     out.triangles = tri
@@ -578,14 +640,14 @@ pub(crate) mod tests {
     }
 
     /// The slow twin of the exact bound: the TIN against the surface at a dense sampling of
-    /// every triangle.
-    fn dense_worst(s: &Block, tin: &TileTin, map: &TileMap) -> f64 {
+    /// every triangle (`n` steps along each of its sides).
+    pub(crate) fn dense_worst<S: Surface>(s: &S, tin: &TileTin, map: &TileMap, n: usize) -> f64 {
         let mut worst = 0.0f64;
         for t in &tin.triangles {
             let k = t.map(|k| k as usize);
-            for a in 0..=60 {
-                for b in 0..=(60 - a) {
-                    let l = [a as f64 / 60.0, b as f64 / 60.0];
+            for a in 0..=n {
+                for b in 0..=(n - a) {
+                    let l = [a as f64 / n as f64, b as f64 / n as f64];
                     let w = [1.0 - l[0] - l[1], l[0], l[1]];
                     let uv = [0, 1].map(|c| {
                         (0..3)
@@ -649,7 +711,7 @@ pub(crate) mod tests {
         let corners = [at(0.0, 0.0), at(1.0, 0.0), at(0.0, 1.0), at(1.0, 1.0)];
         let tol = 0.1;
         let (map, tin, sides) = tile(corners, tol);
-        let worst = dense_worst(&Block, &tin, &map);
+        let worst = dense_worst(&Block, &tin, &map, 60);
         // Dense sampling never finds more than the exact bound allowed (up to the map's
         // quantisation: a vertex is up to 1/65534 of the tile from where it was chosen).
         assert!(worst <= tol + 1e-6, "{worst}");

@@ -191,7 +191,11 @@ pub fn check(set: &TileSet) -> Result<ToWgs84> {
 
 /// The source grid: heights in metres, and where a CRS position falls in it.
 struct Source<'a> {
-    grid: Array2<f32>,
+    /// The grid's heights, row-major from the south-west (`grid[j * cols + i]`): a flat
+    /// slice, for the bilinear lookups that are most of the adaptive level's time.
+    grid: Vec<f32>,
+    cols: usize,
+    rows: usize,
     set: &'a TileSet,
     to_wgs84: &'a ToWgs84,
     unit: f64,
@@ -210,14 +214,16 @@ impl Source<'_> {
 
     /// Height in metres at fractional grid coordinates, bilinear, clamped to the grid.
     fn height(&self, [fi, fj]: [f64; 2]) -> f64 {
-        let (rows, cols) = self.grid.dim();
+        let (rows, cols) = (self.rows, self.cols);
         let fi = fi.clamp(0.0, (cols - 1) as f64);
         let fj = fj.clamp(0.0, (rows - 1) as f64);
         let (i0, j0) = ((fi as usize).min(cols - 2), (fj as usize).min(rows - 2));
         let (di, dj) = (fi - i0 as f64, fj - j0 as f64);
-        let h = |i: usize, j: usize| f64::from(self.grid[[j, i]]);
-        let v = (h(i0, j0) * (1.0 - di) + h(i0 + 1, j0) * di) * (1.0 - dj)
-            + (h(i0, j0 + 1) * (1.0 - di) + h(i0 + 1, j0 + 1) * di) * dj;
+        let at = j0 * cols + i0;
+        let (south, north) = (&self.grid[at..at + 2], &self.grid[at + cols..at + cols + 2]);
+        let h = |row: &[f32], k: usize| f64::from(row[k]);
+        let v = (h(south, 0) * (1.0 - di) + h(south, 1) * di) * (1.0 - dj)
+            + (h(north, 0) * (1.0 - di) + h(north, 1) * di) * dj;
         (self.set.z_offset + v) * self.unit
     }
 }
@@ -245,7 +251,7 @@ fn tile_heights(src: &Source<'_>, z: u32, x: u32, y: u32) -> Vec<f64> {
         let m = n / LATTICE + 1;
         // A lattice point outside the projection (never the case this close to a survey)
         // falls back to the grid's centre rather than failing the whole tileset.
-        let centre = [(src.grid.dim().1 / 2) as f64, (src.grid.dim().0 / 2) as f64];
+        let centre = [(src.cols / 2) as f64, (src.rows / 2) as f64];
         let mut lat_ij = vec![[0.0; 2]; m * m];
         for b in 0..m {
             for a in 0..m {
@@ -427,25 +433,45 @@ fn terrain_tile(
     let (x, y) = (r.x[0] + tile.col as u32, r.y[0] + tile.row as u32);
     let bounds = tile_bounds(r.z, x, y);
     let frame = Frame::new(r.z, bounds);
-    let mut remap = vec![u32::MAX; tri.uv.len()];
+    by_first_use([r.z, x, y], bounds, &tri.triangles, tri.uv.len(), |v| {
+        // No padding in these sets: every vertex is a lattice sample.
+        let [i, j] = tri.uv[v].map(|c| c as usize);
+        (
+            [lattice_uv(i as u16), lattice_uv(j as u16)],
+            f64::from(tri.z[v]),
+            frame.normal(apron, i, j),
+        )
+    })
+}
+
+/// Tile `zxy` of the triangles `triangles` over `n` vertices, its vertices renumbered in the
+/// order of their first use (what the encoder's high-water-mark coding needs), each made by
+/// `vertex` (quantized u and v, height, normal) when first used.
+fn by_first_use(
+    zxy: [u32; 3],
+    bounds: [f64; 4],
+    triangles: &[[u32; 3]],
+    n: usize,
+    mut vertex: impl FnMut(usize) -> ([u16; 2], f64, [f32; 3]),
+) -> TerrainTile {
+    let mut remap = vec![u32::MAX; n];
     let mut out = TerrainTile {
-        zxy: [r.z, x, y],
+        zxy,
         bounds,
         uv: Vec::new(),
         heights: Vec::new(),
         normals: Vec::new(),
-        triangles: Vec::with_capacity(tri.triangles.len()),
+        triangles: Vec::with_capacity(triangles.len()),
     };
-    for f in &tri.triangles {
+    for f in triangles {
         out.triangles.push(f.map(|v| {
             let slot = &mut remap[v as usize];
             if *slot == u32::MAX {
                 *slot = out.uv.len() as u32;
-                // No padding in these sets: every vertex is a lattice sample.
-                let [i, j] = tri.uv[v as usize].map(|c| c as usize);
-                out.uv.push([lattice_uv(i as u16), lattice_uv(j as u16)]);
-                out.heights.push(f64::from(tri.z[v as usize]));
-                out.normals.push(frame.normal(apron, i, j));
+                let (uv, h, normal) = vertex(v as usize);
+                out.uv.push(uv);
+                out.heights.push(h);
+                out.normals.push(normal);
             }
             *slot
         }));
@@ -460,15 +486,13 @@ impl tin::Surface for Source<'_> {
     }
 
     fn node(&self, i: i64, j: i64) -> f64 {
-        let (rows, cols) = self.grid.dim();
-        let i = i.clamp(0, cols as i64 - 1) as usize;
-        let j = j.clamp(0, rows as i64 - 1) as usize;
-        (self.set.z_offset + f64::from(self.grid[[j, i]])) * self.unit
+        let i = i.clamp(0, self.cols as i64 - 1) as usize;
+        let j = j.clamp(0, self.rows as i64 - 1) as usize;
+        (self.set.z_offset + f64::from(self.grid[j * self.cols + i])) * self.unit
     }
 
     fn size(&self) -> [usize; 2] {
-        let (rows, cols) = self.grid.dim();
-        [cols, rows]
+        [self.cols, self.rows]
     }
 }
 
@@ -484,7 +508,7 @@ fn tin_level(src: &Source<'_>, r: &TileRange, tolerance: f64) -> Vec<TerrainTile
     // The level's points every 1/M of a tile, projected once (the tiles' maps and sides): a
     // point outside the projection (never the case this close to a survey) falls back to the
     // grid's centre rather than failing the whole tileset.
-    let centre = [(src.grid.dim().1 / 2) as f64, (src.grid.dim().0 / 2) as f64];
+    let centre = [(src.cols / 2) as f64, (src.rows / 2) as f64];
     let (px, py) = (nx * m + 1, ny * m + 1);
     let points: Vec<[f64; 2]> = (0..px * py)
         .into_par_iter()
@@ -622,31 +646,11 @@ fn tin_tile(
         let dy = (gx * jv[0] + gy * jv[1]) / north;
         ecef_normal(sl_cl, (sp, cp), dx, dy)
     };
-    let mut remap = vec![u32::MAX; t.uv.len()];
-    let mut out = TerrainTile {
-        zxy,
-        bounds,
-        uv: Vec::new(),
-        heights: Vec::new(),
-        normals: Vec::new(),
-        triangles: Vec::with_capacity(t.triangles.len()),
-    };
-    for f in &t.triangles {
-        out.triangles.push(f.map(|v| {
-            let slot = &mut remap[v as usize];
-            if *slot == u32::MAX {
-                *slot = out.uv.len() as u32;
-                let k = v as usize;
-                out.uv.push(t.uv[k]);
-                // As f32, the encoder's header precision: the decoded extremes are then the
-                // header's min and max exactly.
-                out.heights.push(f64::from(t.h[k] as f32));
-                out.normals.push(normal(k));
-            }
-            *slot
-        }));
-    }
-    out
+    by_first_use(zxy, bounds, &t.triangles, t.uv.len(), |k| {
+        // Heights as f32, the encoder's header precision: the decoded extremes are then the
+        // header's min and max exactly.
+        (t.uv[k], f64::from(t.h[k] as f32), normal(k))
+    })
 }
 
 /// The tileset of `set` from level 0 down to the level matching its spacing. The coarser
@@ -668,8 +672,12 @@ pub fn tileset_with(set: &TileSet, tolerance_m: f64, adaptive: bool) -> Result<T
     let bounds = survey_bounds(set, &to_wgs84)
         .ok_or_else(|| Error::Internal("survey bounds after check".into()))?;
     let unit = set.crs.as_ref().map_or(1.0, |c| c.metres_per_unit());
+    let grid = set.assemble();
+    let (rows, cols) = grid.dim();
     let src = Source {
-        grid: set.assemble(),
+        grid: grid.into_iter().collect(),
+        cols,
+        rows,
         set,
         to_wgs84: &to_wgs84,
         unit,
