@@ -184,26 +184,30 @@ pub(crate) fn drop_above_plane(
         .collect();
     // The cells that hold a ground point are the only ones with moments: numbered row by
     // row (`slot`: the number within the row, u32::MAX for the others; `base`: the row's
-    // first), so that the moments take a few bytes per point, not 80 per cell of the grid.
+    // first; `cell_col`: the column of each), so that the moments take a few bytes per point,
+    // not 80 per cell of the grid.
     let mut slot = vec![u32::MAX; cols * rows];
-    let counts: Vec<usize> = slot
+    let by_row: Vec<Vec<u32>> = slot
         .par_chunks_mut(cols)
         .enumerate()
         .map(|(j, row)| {
-            let mut n = 0;
+            let mut list = Vec::new();
             for &i in &col_of[start[j]..start[j + 1]] {
                 if row[i as usize] == u32::MAX {
-                    row[i as usize] = n;
-                    n += 1;
+                    row[i as usize] = list.len() as u32;
+                    list.push(i);
                 }
             }
-            n as usize
+            list
         })
         .collect();
+    let counts: Vec<usize> = by_row.iter().map(Vec::len).collect();
     let mut base = vec![0usize; rows + 1];
     for j in 0..rows {
         base[j + 1] = base[j] + counts[j];
     }
+    let cell_col = by_row.concat();
+    drop(by_row);
     let mut moments: Vec<Moments> = vec![[0.0; 10]; base[rows]];
     let mut total = 0;
     for _ in 0..t.rounds {
@@ -228,9 +232,8 @@ pub(crate) fn drop_above_plane(
         });
         let window = Window {
             moments: &moments,
-            slot: &slot,
+            cell_col: &cell_col,
             base: &base,
-            cols,
             rows,
             half,
         };
@@ -278,25 +281,24 @@ pub(crate) fn drop_above_plane(
 
 /// The moments of one round and the square neighbourhood of half-width `half` cells.
 struct Window<'a> {
-    /// The moments of the cells that hold ground points, row by row.
+    /// The moments of the cells that hold ground points, row by row …
     moments: &'a [Moments],
-    /// Per cell: its number among its row's cells with moments (u32::MAX: none) …
-    slot: &'a [u32],
-    /// … after the row's first, `base[j]`.
+    /// … their columns …
+    cell_col: &'a [u32],
+    /// … and where each row's start (one more entry than rows).
     base: &'a [usize],
-    cols: usize,
     rows: usize,
     half: usize,
 }
 
 /// Per-worker buffers of [`Window::sums`].
 struct WindowScratch {
-    /// Column sums over the window's rows.
+    /// Column sums over the window's rows (all zero between calls).
     col: Vec<Moments>,
     /// Window sums at the cells that hold a ground point of the row.
     win: Vec<Moments>,
-    /// Ground points of the row up to each column (prefix count).
-    upto: Vec<u32>,
+    /// The columns whose window sum is done.
+    done: Vec<bool>,
 }
 
 impl WindowScratch {
@@ -304,7 +306,7 @@ impl WindowScratch {
         WindowScratch {
             col: vec![[0.0; 10]; cols],
             win: vec![[0.0; 10]; cols],
-            upto: vec![0; cols + 1],
+            done: vec![false; cols],
         }
     }
 }
@@ -313,10 +315,11 @@ impl Window<'_> {
     /// The window sums of row `j` (the cells of rows j − half ..= j + half summed by column,
     /// then the columns i − half ..= i + half of those; once per cell, not per point; no
     /// running sum, whose subtractions would drift), at the cells `at` of the row's ground
-    /// points only. The sums skip the cells that held no ground point: their moments are
-    /// zero and all the moments are ≥ 0 (coordinates from the grid's origin and `zref`, the
-    /// bounds' minimum), so adding them would change no bit: the sums are the same bits as
-    /// over every cell in the same order. Other entries of the returned row are stale.
+    /// points only. The column sums visit only the cells that hold ground points, each
+    /// row's in turn (so each column's in row order): the others' moments are zero and all
+    /// the moments are ≥ 0 (coordinates from the grid's origin and `zref`, the bounds'
+    /// minimum), so adding them would change no bit: the sums are the same bits as over
+    /// every cell in the same order. Other entries of the returned row are stale.
     fn sums<'s>(
         &self,
         j: usize,
@@ -325,40 +328,32 @@ impl Window<'_> {
         ground: &[bool],
         s: &'s mut WindowScratch,
     ) -> &'s [Moments] {
-        let (cols, half) = (self.cols, self.half);
+        let (cols, half) = (s.col.len(), self.half);
         let (j0, j1) = (j.saturating_sub(half), (j + half).min(self.rows - 1));
-        // Which columns hold a ground point of this row (prefix counts).
-        s.upto.iter_mut().for_each(|u| *u = 0);
+        let cells = self.base[j0]..self.base[j1 + 1];
+        for (&c, m) in self.cell_col[cells.clone()]
+            .iter()
+            .zip(&self.moments[cells.clone()])
+        {
+            add(&mut s.col[c as usize], m);
+        }
         for (&p, &i) in points.iter().zip(at) {
-            if ground[p as usize] {
-                s.upto[i as usize + 1] = 1;
-            }
-        }
-        for c in 0..cols {
-            s.upto[c + 1] += s.upto[c];
-        }
-        let holds = |i: usize| s.upto[i + 1] > s.upto[i];
-        // The column sums that some window of those cells reads.
-        for c in 0..cols {
-            let (a, b) = (c.saturating_sub(half), (c + half + 1).min(cols));
-            if s.upto[b] == s.upto[a] {
+            let i = i as usize;
+            if !ground[p as usize] || s.done[i] {
                 continue;
             }
-            let mut m = [0.0; 10];
-            for jj in j0..=j1 {
-                let k = self.slot[jj * cols + c];
-                if k != u32::MAX {
-                    add(&mut m, &self.moments[self.base[jj] + k as usize]);
-                }
-            }
-            s.col[c] = m;
-        }
-        for i in (0..cols).filter(|&i| holds(i)) {
+            s.done[i] = true;
             let mut w = [0.0; 10];
             for c in &s.col[i.saturating_sub(half)..=(i + half).min(cols - 1)] {
                 add(&mut w, c);
             }
             s.win[i] = w;
+        }
+        for &i in at {
+            s.done[i as usize] = false;
+        }
+        for &c in &self.cell_col[cells] {
+            s.col[c as usize] = [0.0; 10];
         }
         &s.win
     }
