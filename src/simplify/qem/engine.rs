@@ -22,6 +22,7 @@ use rayon::prelude::*;
 
 mod hold;
 mod passes;
+mod quadrics;
 
 pub use hold::Held;
 
@@ -160,6 +161,8 @@ pub struct Collapse<'m> {
     ring: Vec<u32>,
     fan: Vec<(u32, [u32; 3])>,
     tlm_fan: Vec<[DVec3; 3]>,
+    /// The two local mappings' fixed buffers, kept across collapses.
+    tlm_scratch: Box<super::tlm::Scratch>,
     diag: f64,
     half: Vec<(u32, u32)>,
     /// Scratch of an update: the new keys of `half`'s slots.
@@ -387,11 +390,14 @@ impl<'m> Collapse<'m> {
     pub fn new(prep: &Prepared<'m>, params: &QemParams) -> Collapse<'m> {
         let mesh = prep.mesh;
         let n = prep.active.len();
-        let qs = prep.quadrics();
         let pos: Vec<DVec3> = prep.dense_pos.iter().map(|p| p.as_dvec3()).collect();
-        let mut quad: Vec<Quadric> = prep.active.iter().map(|&v| qs[v as usize]).collect();
         let (faces, orig_face) = live_faces(prep);
         let (span, pool) = corner_lists(n, &faces);
+        let mut quad =
+            quadrics::vertex_quadrics(prep, &faces, &span, &pool, &pos).unwrap_or_else(|| {
+                let qs = prep.quadrics();
+                prep.active.iter().map(|&v| qs[v as usize]).collect()
+            });
         let ef = Edges::new(&faces, &span, &pool);
         let (border, mut locked) = manifold(n, &faces, &ef);
         let non_manifold = locked.iter().filter(|&&l| l).count();
@@ -449,6 +455,7 @@ impl<'m> Collapse<'m> {
             ring: Vec::new(),
             fan: Vec::new(),
             tlm_fan: Vec::new(),
+            tlm_scratch: Box::default(),
             diag,
             half: Vec::new(),
             keys: Vec::new(),
@@ -908,6 +915,17 @@ impl<'m> Collapse<'m> {
         }
     }
 
+    /// The live faces of a, then those of b, each with its corners, in the scratch vector
+    /// taken from `self.fan` (the caller puts it back), and how many are a's.
+    fn take_fans(&mut self, a: u32, b: u32) -> (Vec<(u32, [u32; 3])>, usize) {
+        let mut fan = std::mem::take(&mut self.fan);
+        fan.clear();
+        self.each_face(a, |f| fan.push((f as u32, self.faces[f])));
+        let na = fan.len();
+        self.each_face(b, |f| fan.push((f as u32, self.faces[f])));
+        (fan, na)
+    }
+
     /// Whether collapsing (a, b) to `c` passes the checks. The live faces of a and of b
     /// are gathered once (the corner lists are the pointer chase of the run). With the
     /// two-local-mappings placement, this is where the point is found (it depends on the
@@ -915,11 +933,7 @@ impl<'m> Collapse<'m> {
     /// stays that of the optimal point's quadric error, a lower bound of the placed
     /// point's), and `c.p` becomes it.
     fn valid(&mut self, a: u32, b: u32, c: &mut Candidate) -> bool {
-        let mut fan = std::mem::take(&mut self.fan);
-        fan.clear();
-        self.each_face(a, |f| fan.push((f as u32, self.faces[f])));
-        let na = fan.len();
-        self.each_face(b, |f| fan.push((f as u32, self.faces[f])));
+        let (fan, na) = self.take_fans(a, b);
         let placed = self.place_two_mappings(a, b, c, &fan[..na], &fan[na..]);
         let ok = placed && self.valid_fans(a, b, c, &fan[..na], &fan[na..]);
         self.fan = fan;
@@ -953,11 +967,7 @@ impl<'m> Collapse<'m> {
         if a == b || self.params.max_error.is_some_and(|e| error(&c.q, c.p) > e) {
             return false;
         }
-        let mut fan = std::mem::take(&mut self.fan);
-        fan.clear();
-        self.each_face(a, |f| fan.push((f as u32, self.faces[f])));
-        let na = fan.len();
-        self.each_face(b, |f| fan.push((f as u32, self.faces[f])));
+        let (fan, na) = self.take_fans(a, b);
         let e = self.next_epoch();
         self.vx[a as usize].mark = e;
         for (_, t) in &fan[..na] {
@@ -998,7 +1008,8 @@ impl<'m> Collapse<'m> {
                 }
             }
             let (pa, pb) = (self.vx[a as usize].p, self.vx[b as usize].p);
-            let p = super::tlm::place(&c.q, &faces, pa, pb, c.p, self.diag);
+            let p =
+                super::tlm::place_in(&mut self.tlm_scratch, &c.q, &faces, pa, pb, c.p, self.diag);
             self.tlm_fan = faces;
             let Some(p) = p else {
                 return false;
