@@ -22,7 +22,6 @@ use rayon::prelude::*;
 
 mod hold;
 mod passes;
-mod quadrics;
 
 pub use hold::Held;
 
@@ -161,8 +160,6 @@ pub struct Collapse<'m> {
     ring: Vec<u32>,
     fan: Vec<(u32, [u32; 3])>,
     tlm_fan: Vec<[DVec3; 3]>,
-    /// The two local mappings' fixed buffers, kept across collapses.
-    tlm_scratch: Box<super::tlm::Scratch>,
     diag: f64,
     half: Vec<(u32, u32)>,
     /// Scratch of an update: the new keys of `half`'s slots.
@@ -390,14 +387,11 @@ impl<'m> Collapse<'m> {
     pub fn new(prep: &Prepared<'m>, params: &QemParams) -> Collapse<'m> {
         let mesh = prep.mesh;
         let n = prep.active.len();
+        let qs = prep.quadrics();
         let pos: Vec<DVec3> = prep.dense_pos.iter().map(|p| p.as_dvec3()).collect();
+        let mut quad: Vec<Quadric> = prep.active.iter().map(|&v| qs[v as usize]).collect();
         let (faces, orig_face) = live_faces(prep);
         let (span, pool) = corner_lists(n, &faces);
-        let mut quad =
-            quadrics::vertex_quadrics(prep, &faces, &span, &pool, &pos).unwrap_or_else(|| {
-                let qs = prep.quadrics();
-                prep.active.iter().map(|&v| qs[v as usize]).collect()
-            });
         let ef = Edges::new(&faces, &span, &pool);
         let (border, mut locked) = manifold(n, &faces, &ef);
         let non_manifold = locked.iter().filter(|&&l| l).count();
@@ -455,7 +449,6 @@ impl<'m> Collapse<'m> {
             ring: Vec::new(),
             fan: Vec::new(),
             tlm_fan: Vec::new(),
-            tlm_scratch: Box::default(),
             diag,
             half: Vec::new(),
             keys: Vec::new(),
@@ -917,6 +910,7 @@ impl<'m> Collapse<'m> {
 
     /// The live faces of a, then those of b, each with its corners, in the scratch vector
     /// taken from `self.fan` (the caller puts it back), and how many are a's.
+    #[inline]
     fn take_fans(&mut self, a: u32, b: u32) -> (Vec<(u32, [u32; 3])>, usize) {
         let mut fan = std::mem::take(&mut self.fan);
         fan.clear();
@@ -1008,8 +1002,7 @@ impl<'m> Collapse<'m> {
                 }
             }
             let (pa, pb) = (self.vx[a as usize].p, self.vx[b as usize].p);
-            let p =
-                super::tlm::place_in(&mut self.tlm_scratch, &c.q, &faces, pa, pb, c.p, self.diag);
+            let p = super::tlm::place(&c.q, &faces, pa, pb, c.p, self.diag);
             self.tlm_fan = faces;
             let Some(p) = p else {
                 return false;

@@ -53,10 +53,6 @@ const MAX_POLY: usize = MAX_FAN + 8;
 /// Cosine margin for "strictly" facing d.
 const STRICT: f64 = 1e-9;
 
-/// The square of 1.1 × the tolerance −10⁻¹² of a ray's admissibility test, for
-/// [`cone_direction`]'s early reject.
-const REJECT_MARGIN2: f64 = 1.1e-12 * 1.1e-12;
-
 /// The projection direction for faces with unit normals `normals`: the normalised mean of
 /// the admissible cone's extreme rays (or the mean normal when it has none), `None` when no
 /// direction has d · n > 0 for every n.
@@ -72,19 +68,7 @@ pub fn cone_direction(normals: &[DVec3]) -> Option<DVec3> {
     for (i, ni) in normals.iter().enumerate() {
         for nj in &normals[i + 1..] {
             let r = ni.cross(*nj);
-            let len2 = r.length_squared();
-            // Early reject, before the square root and the divisions (their latency was
-            // the larger part of this loop): when both normals that last ruled out a ray
-            // and its opposite rule out these two by a margin of 10 % over the tolerance
-            // (far above the few ulps between the dot product with the unnormalised r and
-            // the normalised one), the exact test below would reject both too, changing
-            // nothing. A NaN or an underflow fails the comparisons and takes the exact path.
-            let (up, un) = (normals[wpos].dot(r), normals[wneg].dot(r));
-            let margin = REJECT_MARGIN2 * len2;
-            if up < 0.0 && up * up > margin && un > 0.0 && un * un > margin {
-                continue;
-            }
-            let len = len2.sqrt();
+            let len = r.length();
             if len < 1e-9 {
                 continue;
             }
@@ -161,21 +145,17 @@ fn first_axis(normals: &[DVec3]) -> Option<DVec3> {
 /// box [lo, hi], as a convex polygon (counter-clockwise) in `out`; empty when it has no
 /// area. Sutherland–Hodgman clipping on fixed buffers (`edges.len()` ≤ [`MAX_FAN`]).
 pub fn kernel(edges: &[(DVec2, DVec2)], lo: DVec2, hi: DVec2, out: &mut Poly) {
-    kernel_in(edges, lo, hi, out, &mut Poly::default());
-}
-
-/// [`kernel`] with the second clipping buffer `tmp` given (its content is overwritten).
-fn kernel_in(edges: &[(DVec2, DVec2)], lo: DVec2, hi: DVec2, out: &mut Poly, tmp: &mut Poly) {
     out.clear();
     for p in [lo, DVec2::new(hi.x, lo.y), hi, DVec2::new(lo.x, hi.y)] {
         out.push(p);
     }
     // Two buffers clipped into in turn (swapping them moved 1 kB per edge).
+    let mut tmp = Poly::default();
     let mut in_tmp = false;
     for &(x, y) in edges {
         let (src, dst) = match in_tmp {
-            true => (&*tmp, &mut *out),
-            false => (&*out, &mut *tmp),
+            true => (&tmp, &mut *out),
+            false => (&*out, &mut tmp),
         };
         let e = y - x;
         let side = |p: DVec2| e.perp_dot(p - x);
@@ -204,27 +184,6 @@ fn kernel_in(edges: &[(DVec2, DVec2)], lo: DVec2, hi: DVec2, out: &mut Poly, tmp
     }
     if out.area() <= 1e-18 * (hi - lo).length_squared() {
         out.clear();
-    }
-}
-
-/// The fixed buffers of [`place_in`] (about 6 kB): kept by the caller across calls rather
-/// than zeroed on the stack at every call (a few percent of a two-local-mappings run).
-#[derive(Debug, Clone)]
-pub struct Scratch {
-    normals: [DVec3; MAX_FAN],
-    edges: [(DVec2, DVec2); MAX_FAN],
-    kernel: Poly,
-    tmp: Poly,
-}
-
-impl Default for Scratch {
-    fn default() -> Scratch {
-        Scratch {
-            normals: [DVec3::ZERO; MAX_FAN],
-            edges: [(DVec2::ZERO, DVec2::ZERO); MAX_FAN],
-            kernel: Poly::default(),
-            tmp: Poly::default(),
-        }
     }
 }
 
@@ -304,28 +263,10 @@ pub fn place(
     best: DVec3,
     diag: f64,
 ) -> Option<DVec3> {
-    place_in(&mut Scratch::default(), q, fan, a, b, best, diag)
-}
-
-/// [`place`] on the buffers of `scratch` (only what a call writes is read: the same point).
-pub fn place_in(
-    scratch: &mut Scratch,
-    q: &Quadric,
-    fan: &[[DVec3; 3]],
-    a: DVec3,
-    b: DVec3,
-    best: DVec3,
-    diag: f64,
-) -> Option<DVec3> {
     if fan.is_empty() || fan.len() > MAX_FAN {
         return None;
     }
-    let Scratch {
-        normals,
-        edges,
-        kernel: k,
-        tmp,
-    } = scratch;
+    let mut normals = [DVec3::ZERO; MAX_FAN];
     for (n, t) in normals.iter_mut().zip(fan) {
         *n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
         if *n == DVec3::ZERO {
@@ -338,18 +279,20 @@ pub fn place_in(
     let e1 = d.any_orthonormal_vector();
     let e2 = d.cross(e1);
     let to2 = |p: DVec3| DVec2::new((p - o).dot(e1), (p - o).dot(e2));
+    let mut edges = [(DVec2::ZERO, DVec2::ZERO); MAX_FAN];
     let (mut lo, mut hi) = (to2(a).min(to2(b)), to2(a).max(to2(b)));
     for (e, t) in edges.iter_mut().zip(fan) {
         *e = (to2(t[1]), to2(t[2]));
         lo = lo.min(e.0).min(e.1);
         hi = hi.max(e.0).max(e.1);
     }
-    kernel_in(&edges[..fan.len()], lo, hi, k, tmp);
+    let mut k = Poly::default();
+    kernel(&edges[..fan.len()], lo, hi, &mut k);
     if k.len == 0 {
         return None;
     }
     let centre = k.points().iter().copied().sum::<DVec2>() / k.len as f64;
-    let c2 = toward(k, centre, to2(best));
+    let c2 = toward(&k, centre, to2(best));
     // Mapping 2: back along d, the least quadric error on the line c + t d.
     let c = o + e1 * c2.x + e2 * c2.y;
     let m = q.matrix();
@@ -364,7 +307,7 @@ pub fn place_in(
         return None;
     }
     let (mut sum, mut max) = (0.0f64, 0.0f64);
-    for (t, n) in fan.iter().zip(normals.iter()) {
+    for (t, n) in fan.iter().zip(&normals) {
         let m = (t[1] - p).cross(t[2] - p).normalize_or_zero();
         let dist = n.dot(p - t[0]).abs().max(m.dot(t[0] - p).abs());
         sum += dist;
