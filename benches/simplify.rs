@@ -22,23 +22,30 @@ fn bunny() -> Option<TriMesh> {
     load("bunny.obj")
 }
 
+/// A meshoptimizer simplifier `run(indices, vertices)` on `mesh`, as `name` in `g` (the
+/// vertex adapter is made inside the timed loop, as a caller would).
+fn bench_meshopt_fn<M: Measurement>(
+    g: &mut BenchmarkGroup<'_, M>,
+    name: &str,
+    mesh: &TriMesh,
+    run: impl Fn(&[u32], &meshopt::VertexDataAdapter<'_>) -> Vec<u32>,
+) {
+    let flat: Vec<u32> = mesh.indices.iter().flatten().copied().collect();
+    let bytes = meshopt::typed_to_bytes(&mesh.positions);
+    g.bench_function(name, |b| {
+        b.iter(|| {
+            let adapter = meshopt::VertexDataAdapter::new(bytes, 12, 0).expect("adapter");
+            black_box(run(&flat, &adapter))
+        })
+    });
+}
+
 /// meshoptimizer's `simplify` (its edge collapse) of `mesh` to `target` triangles, as
 /// `meshopt_simplify` in `g`.
 fn bench_meshopt<M: Measurement>(g: &mut BenchmarkGroup<'_, M>, mesh: &TriMesh, target: usize) {
-    let flat: Vec<u32> = mesh.indices.iter().flatten().copied().collect();
-    let bytes = meshopt::typed_to_bytes(&mesh.positions);
-    g.bench_function("meshopt_simplify", |b| {
-        b.iter(|| {
-            let adapter = meshopt::VertexDataAdapter::new(bytes, 12, 0).expect("adapter");
-            black_box(meshopt::simplify(
-                &flat,
-                &adapter,
-                target * 3,
-                1.0,
-                meshopt::SimplifyOptions::None,
-                None,
-            ))
-        })
+    bench_meshopt_fn(g, "meshopt_simplify", mesh, |flat, adapter| {
+        let options = meshopt::SimplifyOptions::None;
+        meshopt::simplify(flat, adapter, target * 3, 1.0, options, None)
     });
 }
 
@@ -124,22 +131,10 @@ fn edge_collapse_cpu(c: &mut Criterion<CpuTime>) {
 fn clustering(c: &mut Criterion) {
     let Some(mesh) = bunny() else { return };
     let target = mesh.triangle_count() / 10;
-    let flat: Vec<u32> = mesh.indices.iter().flatten().copied().collect();
-    let bytes = meshopt::typed_to_bytes(&mesh.positions);
-
     let mut g = c.benchmark_group("bunny_10pct");
     g.sample_size(30);
-    g.bench_function("meshopt_simplify_sloppy", |b| {
-        b.iter(|| {
-            let adapter = meshopt::VertexDataAdapter::new(bytes, 12, 0).expect("adapter");
-            black_box(meshopt::simplify_sloppy(
-                &flat,
-                &adapter,
-                target * 3,
-                1.0,
-                None,
-            ))
-        })
+    bench_meshopt_fn(&mut g, "meshopt_simplify_sloppy", &mesh, |flat, adapter| {
+        meshopt::simplify_sloppy(flat, adapter, target * 3, 1.0, None)
     });
     for method in [Method::Uniform, Method::Octree, Method::Floating] {
         let params = SimplifyParams::triangles(method, target as u64);

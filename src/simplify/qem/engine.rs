@@ -908,6 +908,18 @@ impl<'m> Collapse<'m> {
         }
     }
 
+    /// The live faces of a, then those of b, each with its corners, in the scratch vector
+    /// taken from `self.fan` (the caller puts it back), and how many are a's.
+    #[inline]
+    fn take_fans(&mut self, a: u32, b: u32) -> (Vec<(u32, [u32; 3])>, usize) {
+        let mut fan = std::mem::take(&mut self.fan);
+        fan.clear();
+        self.each_face(a, |f| fan.push((f as u32, self.faces[f])));
+        let na = fan.len();
+        self.each_face(b, |f| fan.push((f as u32, self.faces[f])));
+        (fan, na)
+    }
+
     /// Whether collapsing (a, b) to `c` passes the checks. The live faces of a and of b
     /// are gathered once (the corner lists are the pointer chase of the run). With the
     /// two-local-mappings placement, this is where the point is found (it depends on the
@@ -915,11 +927,7 @@ impl<'m> Collapse<'m> {
     /// stays that of the optimal point's quadric error, a lower bound of the placed
     /// point's), and `c.p` becomes it.
     fn valid(&mut self, a: u32, b: u32, c: &mut Candidate) -> bool {
-        let mut fan = std::mem::take(&mut self.fan);
-        fan.clear();
-        self.each_face(a, |f| fan.push((f as u32, self.faces[f])));
-        let na = fan.len();
-        self.each_face(b, |f| fan.push((f as u32, self.faces[f])));
+        let (fan, na) = self.take_fans(a, b);
         let placed = self.place_two_mappings(a, b, c, &fan[..na], &fan[na..]);
         let ok = placed && self.valid_fans(a, b, c, &fan[..na], &fan[na..]);
         self.fan = fan;
@@ -953,11 +961,7 @@ impl<'m> Collapse<'m> {
         if a == b || self.params.max_error.is_some_and(|e| error(&c.q, c.p) > e) {
             return false;
         }
-        let mut fan = std::mem::take(&mut self.fan);
-        fan.clear();
-        self.each_face(a, |f| fan.push((f as u32, self.faces[f])));
-        let na = fan.len();
-        self.each_face(b, |f| fan.push((f as u32, self.faces[f])));
+        let (fan, na) = self.take_fans(a, b);
         let e = self.next_epoch();
         self.vx[a as usize].mark = e;
         for (_, t) in &fan[..na] {

@@ -55,6 +55,13 @@ fn params(triangles: u64, placement: Placement) -> QemParams {
 /// Both engines: the tests of an invariant run on each.
 const ENGINES: [Engine; 2] = [Engine::Heap, Engine::Passes];
 
+/// Every placement, for the tests that run each.
+const PLACEMENTS: [Placement; 3] = [
+    Placement::Optimal,
+    Placement::Endpoint,
+    Placement::TwoLocalMappings,
+];
+
 /// [`params`] with `engine`.
 fn on(engine: Engine, triangles: u64, placement: Placement) -> QemParams {
     QemParams {
@@ -180,11 +187,7 @@ fn the_heap_equals_the_slow_twin() {
         (sphere(8), 8),
         (cube(3), 12),
     ] {
-        for placement in [
-            Placement::Optimal,
-            Placement::Endpoint,
-            Placement::TwoLocalMappings,
-        ] {
+        for placement in PLACEMENTS {
             for (merge, cost) in [
                 (QuadricMerge::Sum, Cost::Quadric),
                 (QuadricMerge::Mean, Cost::Quadric),
@@ -336,11 +339,7 @@ fn the_intersection_check_keeps_nested_spheres_apart() {
         .extend(outer.indices.iter().map(|t| t.map(|i| i + base)));
     assert!(crate::mesh::intersect::self_intersections(&m).is_empty());
     let mut unchecked = 0;
-    for placement in [
-        Placement::Optimal,
-        Placement::Endpoint,
-        Placement::TwoLocalMappings,
-    ] {
+    for placement in PLACEMENTS {
         for (engine, target) in ENGINES
             .into_iter()
             .flat_map(|e| [200u64, 60, 24].map(|t| (e, t)))
@@ -460,11 +459,7 @@ fn parts(m: &TriMesh) -> usize {
 fn pair_contraction_joins_separate_parts() {
     let m = two_grids();
     assert_eq!(parts(&m), 2);
-    for placement in [
-        Placement::Optimal,
-        Placement::Endpoint,
-        Placement::TwoLocalMappings,
-    ] {
+    for placement in PLACEMENTS {
         let off = simplify(&m, &params(30, placement)).unwrap();
         assert_eq!(parts(&off.mesh), 2, "{placement}");
         let p = QemParams {
@@ -500,11 +495,7 @@ fn pair_contraction_joins_separate_parts() {
 #[test]
 fn pair_contraction_keeps_the_slow_twin() {
     let m = two_grids();
-    for placement in [
-        Placement::Optimal,
-        Placement::Endpoint,
-        Placement::TwoLocalMappings,
-    ] {
+    for placement in PLACEMENTS {
         for (target, d, check_intersections) in
             [(40u64, 0.05, false), (20, 0.2, false), (30, 0.05, true)]
         {
@@ -555,11 +546,7 @@ fn both_engines_reach_the_target() {
         (sphere(16), 60),
         (cube(3), 12),
     ] {
-        for placement in [
-            Placement::Optimal,
-            Placement::Endpoint,
-            Placement::TwoLocalMappings,
-        ] {
+        for placement in PLACEMENTS {
             for check in [false, true] {
                 let r = ENGINES.map(|e| {
                     let p = QemParams {
