@@ -12,8 +12,6 @@
 use crate::error::{Error, Result};
 use crate::output::SetSummary;
 use crate::terrain::TileSet;
-use image::codecs::png::{CompressionType, FilterType, PngEncoder};
-use image::{ExtendedColorType, ImageEncoder};
 use ndarray::Array2;
 use serde::Serialize;
 
@@ -68,7 +66,13 @@ impl HeightEncoding {
 
 /// Values of tile `t`, south row first, `tile_size`² of them (padding included).
 pub fn tile_values(set: &TileSet, enc: &HeightEncoding, t: usize) -> Vec<u16> {
-    encode_heights(set.z_offset, enc, set.tiles[t].heights.iter().copied())
+    let h = &set.tiles[t].heights;
+    match h.as_slice() {
+        // Tiles are built in standard layout: a plain slice iterator, which the collect
+        // below sizes exactly (ndarray's own iterator does not tell its length).
+        Some(s) => encode_heights(set.z_offset, enc, s.iter().copied()),
+        None => encode_heights(set.z_offset, enc, h.iter().copied()),
+    }
 }
 
 /// Values of the whole grid (`heights`, assembled from the tiles, heights relative to
@@ -99,30 +103,53 @@ fn encode_heights(
 }
 
 /// A 16-bit greyscale PNG of `values` (`width` wide, south row first), north row on top.
+///
+/// Through the `png` crate itself rather than `image`'s encoder, which takes native-endian
+/// samples and makes a big-endian copy of them before encoding: the big-endian bytes are
+/// written here in the one pass that flips the rows (same encoder settings, so the same
+/// file to the byte).
 pub fn png_bytes(values: &[u16], width: usize) -> Result<Vec<u8>> {
-    let height = values.len() / width.max(1);
-    // The image's bytes, north row first, in one pass (no flipped copy of the values first).
-    let mut raw = Vec::with_capacity(values.len() * 2);
-    for row in values.chunks(width.max(1)).rev() {
-        raw.extend(row.iter().flat_map(|v| v.to_ne_bytes()));
+    let w = width.max(1);
+    let height = values.len() / w;
+    let mut raw = vec![0u8; w * height * 2];
+    for (out, row) in raw
+        .chunks_exact_mut(w * 2)
+        .zip(values.chunks_exact(w).rev())
+    {
+        for (o, v) in out.chunks_exact_mut(2).zip(row) {
+            o.copy_from_slice(&v.to_be_bytes());
+        }
     }
+    let bad = |e: png::EncodingError| Error::Internal(format!("png encoding: {e}"));
     let mut out = Vec::new();
+    let mut enc = png::Encoder::new(&mut out, width as u32, height as u32);
+    enc.set_color(png::ColorType::Grayscale);
+    enc.set_depth(png::BitDepth::Sixteen);
     // Paeth: as small as the adaptive choice on real tiles, and faster (measured).
-    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Paeth)
-        .write_image(&raw, width as u32, height as u32, ExtendedColorType::L16)
-        .map_err(|e| Error::Internal(format!("png encoding: {e}")))?;
+    enc.set_compression(png::Compression::Fast);
+    enc.set_filter(png::Filter::Paeth);
+    enc.write_header()
+        .map_err(bad)?
+        .write_image_data(&raw)
+        .map_err(bad)?;
     Ok(out)
 }
 
 /// Little-endian u16 RAW; `north_first` flips the rows (Unreal) or keeps them south first
 /// (Unity).
 pub fn raw_bytes(values: &[u16], width: usize, north_first_rows: bool) -> Vec<u8> {
-    let mut out = Vec::with_capacity(values.len() * 2);
-    let mut put = |row: &[u16]| out.extend(row.iter().flat_map(|v| v.to_le_bytes()));
+    let w = width.max(1);
+    let mut out = vec![0u8; values.len() * 2];
+    let put = |(o, row): (&mut [u8], &[u16])| {
+        for (b, v) in o.chunks_exact_mut(2).zip(row) {
+            b.copy_from_slice(&v.to_le_bytes());
+        }
+    };
+    let dst = out.chunks_mut(w * 2);
     if north_first_rows {
-        values.chunks(width.max(1)).rev().for_each(&mut put);
+        dst.zip(values.chunks(w).rev()).for_each(put);
     } else {
-        put(values);
+        dst.zip(values.chunks(w)).for_each(put);
     }
     out
 }
@@ -189,5 +216,43 @@ mod tests {
         assert_eq!(u16::from_le_bytes([raw[6], raw[7]]), v[3]);
         let raw_n = raw_bytes(&v, 65, true);
         assert_eq!(u16::from_le_bytes([raw_n[6], raw_n[7]]), v[64 * 65 + 3]);
+    }
+
+    /// The slow twins: `image`'s PNG encoder on native-endian samples (what `png_bytes` did
+    /// before calling `png` itself) and the RAW bytes value by value.
+    #[test]
+    fn png_and_raw_bytes_equal_their_slow_twins() {
+        use image::codecs::png::{CompressionType, FilterType, PngEncoder};
+        use image::{ExtendedColorType, ImageEncoder};
+        let mut rng = crate::rng::SplitMix64::new(11);
+        for (w, h) in [(65usize, 65usize), (1, 7), (9, 1), (257, 3)] {
+            let v: Vec<u16> = (0..w * h)
+                .map(|k| match k % 5 {
+                    0 => (rng.unit() * 65535.0) as u16,
+                    _ => (1000 + k % 97) as u16,
+                })
+                .collect();
+            let mut ne = Vec::new();
+            for row in v.chunks(w).rev() {
+                ne.extend(row.iter().flat_map(|x| x.to_ne_bytes()));
+            }
+            let mut want = Vec::new();
+            PngEncoder::new_with_quality(&mut want, CompressionType::Fast, FilterType::Paeth)
+                .write_image(&ne, w as u32, h as u32, ExtendedColorType::L16)
+                .unwrap();
+            assert_eq!(png_bytes(&v, w).unwrap(), want, "{w} × {h}");
+            for north in [false, true] {
+                let rows: Vec<&[u16]> = if north {
+                    v.chunks(w).rev().collect()
+                } else {
+                    v.chunks(w).collect()
+                };
+                let want: Vec<u8> = rows
+                    .iter()
+                    .flat_map(|r| r.iter().flat_map(|x| x.to_le_bytes()))
+                    .collect();
+                assert_eq!(raw_bytes(&v, w, north), want, "{w} × {h} {north}");
+            }
+        }
     }
 }

@@ -1167,19 +1167,25 @@ fn low_floors(t: &ColumnSort, dense: &[bool], lat: &Lattice, fraction: f64) -> V
             lo != u32::MAX && hi / lat.slab >= lo / lat.slab + 3
         })
         .collect();
-    // Profiles, (slab, count) runs of the points that passed the count, of the low-layer
-    // columns some open window needs.
+    // Profiles of the points that passed the count, of the low-layer columns some open
+    // window needs: counts per slab over the column's own slab range (from `span`), so that
+    // a window's profile is the sum of its columns' counts at their offsets, in slab order
+    // without a sort (a sort of each column's and each window's (slab, count) runs was most
+    // of this step's time).
     let needed = |g: u32| window(g).any(|w| open[w as usize]);
-    let profiles: Vec<Vec<(u32, u32)>> = (0..gx * gy)
+    let slabs = |(lo, hi): (u32, u32)| lo / lat.slab..hi / lat.slab + 1;
+    let profiles: Vec<Vec<u32>> = (0..gx * gy)
         .into_par_iter()
         .map(|g| {
-            let mut runs: Vec<(u32, u32)> = Vec::new();
-            if !needed(g) {
-                return runs;
+            let (lo, hi) = span[g as usize];
+            if lo == u32::MAX || !needed(g) {
+                return Vec::new();
             }
+            let range = slabs((lo, hi));
+            let mut counts = vec![0u32; range.len()];
             for c in members(g) {
-                let range = t.starts[c] as usize..t.starts[c + 1] as usize;
-                let (keys, ok) = (&t.keys[range.clone()], &dense[range]);
+                let r = t.starts[c] as usize..t.starts[c + 1] as usize;
+                let (keys, ok) = (&t.keys[r.clone()], &dense[r]);
                 let mut a = 0;
                 while a < keys.len() {
                     let s = layer(keys[a]) / lat.slab;
@@ -1190,43 +1196,49 @@ fn low_floors(t: &ColumnSort, dense: &[bool], lat: &Lattice, fraction: f64) -> V
                         count += ok[b] as u32;
                         b += 1;
                     }
+                    // Points that passed lie within the span (others may lie beyond it).
                     if count > 0 {
-                        runs.push((s, count));
+                        counts[(s - range.start) as usize] += count;
                     }
                     a = b;
                 }
             }
-            merge_runs(&mut runs);
-            runs
+            counts
         })
         .collect();
     (0..gx * gy)
         .into_par_iter()
-        .map(|g| {
-            if !open[g as usize] {
-                return 0;
-            }
-            let mut window_runs: Vec<(u32, u32)> = Vec::new();
-            for w in window(g) {
-                window_runs.extend_from_slice(&profiles[w as usize]);
-            }
-            merge_runs(&mut window_runs);
-            floor_of(&window_runs, fraction)
-        })
+        .map_init(
+            || (Vec::new(), Vec::new()),
+            |(sum, runs): &mut (Vec<u32>, Vec<(u32, u32)>), g| {
+                if !open[g as usize] {
+                    return 0;
+                }
+                let (lo, hi) = window(g).fold((u32::MAX, 0), |(lo, hi), w| {
+                    (lo.min(span[w as usize].0), hi.max(span[w as usize].1))
+                });
+                let range = slabs((lo, hi));
+                sum.clear();
+                sum.resize(range.len(), 0);
+                for w in window(g) {
+                    let p = &profiles[w as usize];
+                    if !p.is_empty() {
+                        let at = (span[w as usize].0 / lat.slab - range.start) as usize;
+                        for (a, &c) in sum[at..at + p.len()].iter_mut().zip(p) {
+                            *a += c;
+                        }
+                    }
+                }
+                runs.clear();
+                runs.extend(
+                    (range.start..)
+                        .zip(sum.iter().copied())
+                        .filter(|&(_, c)| c > 0),
+                );
+                floor_of(runs, fraction)
+            },
+        )
         .collect()
-}
-
-/// Sorts (slab, count) runs by slab and adds up equal slabs.
-fn merge_runs(runs: &mut Vec<(u32, u32)>) {
-    runs.sort_unstable_by_key(|r| r.0);
-    runs.dedup_by(|b, a| {
-        if a.0 == b.0 {
-            a.1 += b.1;
-            true
-        } else {
-            false
-        }
-    });
 }
 
 /// The floor of a window profile: the slab just above the highest gap of two or more empty

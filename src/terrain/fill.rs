@@ -142,19 +142,7 @@ pub fn fill(hf: &mut Heightfield, params: &FillParams) -> Result<FillReport> {
     let band_rows = rows.div_ceil(bands);
     let halo = |j0: usize, j1: usize| -> Halo {
         let (a, b) = (j0.min(rows), j1.min(rows));
-        let h = hf
-            .heights
-            .slice(ndarray::s![a..b, ..])
-            .iter()
-            .copied()
-            .collect();
-        let s = hf
-            .state
-            .slice(ndarray::s![a..b, ..])
-            .iter()
-            .copied()
-            .collect();
-        (a, h, s)
+        (a, rows_of(&hf.heights, a..b), rows_of(&hf.state, a..b))
     };
     let halos: Vec<[Halo; 2]> = (0..rows.div_ceil(band_rows))
         .map(|b| {
@@ -238,6 +226,15 @@ pub fn fill(hf: &mut Heightfield, params: &FillParams) -> Result<FillReport> {
 
 /// Rows copied from beyond a band's edge: (first row, heights, states), whole rows.
 type Halo = (usize, Vec<f32>, Vec<CellState>);
+
+/// A copy of the rows `rows` of `a` (whole rows, in memory order).
+fn rows_of<T: Copy>(a: &ndarray::Array2<T>, rows: std::ops::Range<usize>) -> Vec<T> {
+    let part = a.slice(ndarray::s![rows, ..]);
+    match part.as_slice() {
+        Some(s) => s.to_vec(),
+        None => part.iter().copied().collect(),
+    }
+}
 
 /// Where a band lies and how it is filled.
 struct Band {
