@@ -3,7 +3,8 @@
 //! under `target/copc-py`), with the same points as the input; the same bytes for any
 //! thread count.
 
-use crate::common::{data_file, fixture_las, python_venv, run_with, terratile};
+use crate::common::{data_file, fixture_las, python_venv, run_with, terratile, walk};
+use serde_json::Value;
 use std::path::{Path, PathBuf};
 
 /// A point's identity for multiset comparisons: stored coordinates and the attributes
@@ -154,4 +155,173 @@ fn copc_needs_a_laz_name() {
     let dir = tempfile::tempdir().unwrap();
     let i = fixture_las();
     terratile(dir.path(), &["convert", &i, "out.las", "--copc"]).input_error(&["copc.laz"]);
+}
+
+/// Converts the shared file `rel` to COPC in `dir`; None (skipping) without the data.
+fn copc_of(dir: &Path, rel: &str) -> Option<(PathBuf, PathBuf)> {
+    let f = data_file(rel)?;
+    let out = dir.join("in.copc.laz");
+    let o = out.to_string_lossy().into_owned();
+    terratile(dir, &["convert", &f.to_string_lossy(), &o, "--copc"]).ok();
+    Some((f, out))
+}
+
+/// Runs `input` as `NAME.toml` (output `out_NAME`) with `[scale]` `mode`, `budget` and
+/// `read`; returns the JSON summary.
+fn run(dir: &Path, name: &str, input: &Path, mode: &str, budget: &str, read: &str) -> Value {
+    let text = format!(
+        "[input]\npaths = [{:?}]\n[output]\ndir = \"out_{name}\"\n[scale]\nmode = \"{mode}\"\n\
+         memory_budget = \"{budget}\"\nread = \"{read}\"\n",
+        input.to_string_lossy()
+    );
+    let p = dir.join(format!("{name}.toml"));
+    std::fs::write(&p, text).unwrap();
+    let r = terratile(dir, &["run", "-q", "--json", &p.to_string_lossy()]);
+    serde_json::from_str(&r.ok().stdout).unwrap()
+}
+
+/// A figure of a stage in a run's summary.
+fn figure(s: &Value, stage: &str, key: &str) -> Option<String> {
+    s["stages"]
+        .as_array()?
+        .iter()
+        .find(|st| st["stage"] == stage)?["figures"]
+        .as_array()?
+        .iter()
+        .find(|f| f[0] == key)
+        .and_then(|f| f[1].as_str().map(str::to_string))
+}
+
+fn same_tree(a: &Path, b: &Path) {
+    let files = |d: &Path| -> Vec<PathBuf> {
+        walk(d)
+            .into_iter()
+            .map(|p| p.strip_prefix(d).unwrap().to_path_buf())
+            .collect()
+    };
+    let (fa, fb) = (files(a), files(b));
+    assert_eq!(fa, fb);
+    assert!(fa.len() > 3);
+    for f in fa.iter().filter(|f| a.join(f).is_file()) {
+        assert!(
+            std::fs::read(a.join(f)).unwrap() == std::fs::read(b.join(f)).unwrap(),
+            "{} differs",
+            f.display()
+        );
+    }
+}
+
+/// The streaming run on a COPC file reads it node by node (the counting pass once, then
+/// each window only the nodes its range meets) and writes the bytes of the in-memory run on
+/// the same file and on the original file's points, for several shard sizes; the plain LAZ
+/// read by bounds decodes the whole file in every window.
+fn stream_by_nodes(rel: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let Some((orig, copc)) = copc_of(d, rel) else {
+        return;
+    };
+    run(d, "orig", &orig, "memory", "1GiB", "auto");
+    run(d, "memory", &copc, "memory", "1GiB", "auto");
+    same_tree(&d.join("out_orig"), &d.join("out_memory"));
+    let points: f64 = figure(
+        &run(d, "count", &copc, "stream", "1GiB", "auto"),
+        "bucket",
+        "points",
+    )
+    .unwrap()
+    .parse()
+    .unwrap();
+    for budget in ["12MiB", "24MiB", "64MiB"] {
+        let name = format!("s{budget}");
+        let s = run(d, &name, &copc, "stream", budget, "auto");
+        assert_eq!(figure(&s, "bucket", "read").as_deref(), Some("by bounds"));
+        same_tree(&d.join("out_memory"), &d.join(format!("out_{name}")));
+        let windows: f64 = figure(&s, "denoise", "windows").unwrap().parse().unwrap();
+        let decoded: f64 = figure(&s, "denoise", "points decoded")
+            .unwrap()
+            .parse()
+            .unwrap();
+        if windows > 1.0 {
+            // Each window decodes its nodes only: far fewer than the whole file each time.
+            assert!(
+                decoded < 0.75 * windows * points,
+                "{decoded} of {points} x {windows}"
+            );
+        }
+    }
+    // The same file as plain LAZ read by bounds: every window decodes all of it.
+    let laz = d.join("plain.laz");
+    std::fs::copy(&orig, &laz).unwrap();
+    if orig.extension().is_some_and(|e| e == "laz") {
+        let s = run(d, "plain", &laz, "stream", "12MiB", "direct");
+        let c = run(d, "copc12", &copc, "stream", "12MiB", "direct");
+        let dec = |s: &Value| -> f64 {
+            figure(s, "denoise", "points decoded")
+                .unwrap()
+                .parse()
+                .unwrap()
+        };
+        assert!(dec(&c) < dec(&s), "COPC {} vs LAZ {}", dec(&c), dec(&s));
+    }
+}
+
+#[test]
+fn stream_reads_copc_by_nodes_on_csite4() {
+    stream_by_nodes("lidar/CSite4_orig-utm.laz");
+}
+
+#[test]
+fn stream_reads_copc_by_nodes_on_autzen_trim() {
+    stream_by_nodes("lidar/autzen_trim.las");
+}
+
+/// Shard jobs (plan, shard, merge) on a COPC file write the in-memory run's bytes.
+#[test]
+fn shard_jobs_on_copc_equal_memory() {
+    let dir = tempfile::tempdir().unwrap();
+    for rel in ["lidar/autzen_trim.las", "lidar/CSite4_orig-utm.laz"] {
+        if let Some((_, copc)) = copc_of(dir.path(), rel) {
+            let kept = dir.path().join(format!("{}.copc.laz", rel.len()));
+            std::fs::rename(&copc, &kept).unwrap();
+            crate::shard_jobs::check_identical(&kept, "[tiles]\nsize = 129\n", 4);
+        }
+    }
+}
+
+/// A broken COPC hierarchy (a page past the end of the file, a node whose chunk lies past
+/// it, a file cut inside the hierarchy) is one line and exit 2 in a streaming run.
+#[test]
+fn bad_copc_is_one_line_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let Some((_, copc)) = copc_of(d, "lidar/CSite4_orig-utm.laz") else {
+        return;
+    };
+    let b = std::fs::read(&copc).unwrap();
+    let info = 375 + 54;
+    let u64_at = |b: &[u8], at: usize| u64::from_le_bytes(b[at..at + 8].try_into().unwrap());
+    let (root, size) = (u64_at(&b, info + 40) as usize, u64_at(&b, info + 48));
+    let mut past = b.clone();
+    past[root + 32 * 2 + 16..root + 32 * 2 + 24]
+        .copy_from_slice(&(b.len() as u64 + 9).to_le_bytes());
+    let mut page = b.clone();
+    page[info + 48..info + 56].copy_from_slice(&(size + 3200).to_le_bytes());
+    let cut = b[..b.len() - 100].to_vec();
+    for (name, bytes, needle) in [
+        ("past", past, "outside the point data"),
+        ("page", page, "hierarchy page"),
+        ("cut", cut, "EVLR"),
+    ] {
+        let f = d.join(format!("{name}.copc.laz"));
+        std::fs::write(&f, bytes).unwrap();
+        let text = format!(
+            "[input]\npaths = [{:?}]\n[output]\ndir = \"out_{name}\"\n[scale]\nmode = \"stream\"\n",
+            f.to_string_lossy()
+        );
+        std::fs::write(d.join("bad.toml"), text).unwrap();
+        terratile(d, &["run", "-q", "bad.toml"])
+            .input_error(&[needle])
+            .left_nothing(&format!("out_{name}"));
+    }
 }

@@ -128,6 +128,8 @@ pub fn scan(pipeline: &LoadedPipeline, inputs: &[PathBuf]) -> Result<Scan> {
             ));
         }
         let h = points::LasHeader::parse(p, &map)?;
+        // A COPC input's hierarchy is checked here, before any pass relies on it.
+        points::copc::layout(p, &map, &h)?;
         bounds = bounds.union(h.bounds());
         total = total.saturating_add(h.point_count);
         sources.push(SourceInfo {
@@ -427,6 +429,10 @@ struct Bucketed {
     /// Read by bounds: each file's kept points' box (empty: read through the bricks).
     #[serde(default)]
     boxes: Vec<FileBox>,
+    /// Read by bounds when some input is COPC: the units (octree nodes, whole files) the
+    /// figures above are of; empty: the figures are the files'.
+    #[serde(default)]
+    parts: Vec<direct::Part>,
     /// Points, boxes and bounds taken from the headers and not yet checked against the
     /// points (see [`counts_from_headers`]).
     #[serde(default)]
@@ -457,6 +463,7 @@ impl Bucketed {
     fn files<'a>(&'a self, paths: &'a [PathBuf], opts: &'a points::ReadOptions) -> Files<'a> {
         Files {
             paths,
+            parts: &self.parts,
             sources: &self.sources,
             read: &self.read,
             boxes: &self.boxes,
@@ -471,16 +478,32 @@ fn reads_directly(pipeline: &LoadedPipeline, sc: &Scan, sizing: &Sizing) -> bool
         ReadMode::Bricks => false,
         ReadMode::Direct => true,
         ReadMode::Auto => {
-            let las = sc.sources.iter().all(|s| s.format == points::Format::Las);
-            let files: Vec<(Bounds, u64)> = sc
-                .sources
-                .iter()
-                .map(|s| (s.header_bounds.unwrap_or(Bounds::EMPTY), s.points_in_file))
-                .collect();
+            // LAS files, and COPC files by their nodes (from the hierarchy).
+            let mut las = true;
+            let mut files: Vec<(Bounds, u64)> = Vec::new();
+            for s in &sc.sources {
+                let hb = s.header_bounds.unwrap_or(Bounds::EMPTY);
+                match copc_nodes(s) {
+                    Some(nodes) => files.extend(nodes),
+                    None => {
+                        las &= s.format == points::Format::Las;
+                        files.push((hb, s.points_in_file));
+                    }
+                }
+            }
             las && direct::amplification(&files, sizing.points)
                 .is_some_and(|a| a <= DIRECT_MAX_READS)
         }
     }
+}
+
+/// A COPC input's nodes (box, points), from its header and hierarchy; `None` for any
+/// other input, or one that cannot be read (the counting pass then says why).
+fn copc_nodes(s: &SourceInfo) -> Option<Vec<(Bounds, u64)>> {
+    let map = points::map_file(&s.path).ok()?;
+    let h = points::LasHeader::parse(&s.path, &map).ok()?;
+    let l = points::copc::layout(&s.path, &map, &h).ok()??;
+    Some(l.node_boxes(&h.bounds()))
 }
 
 /// Pass 2: every input into the bricks.
@@ -513,10 +536,39 @@ fn bucket(
         },
         scan.points,
     );
-    for info in &scan.sources {
+    let mut parts = Vec::new();
+    for (fi, info) in scan.sources.iter().enumerate() {
         let mut file_box = Bounds::EMPTY;
         let path = &info.path;
         let map = points::map_file(path)?;
+        if direct {
+            // A COPC input is counted node by node, and read so (see `direct::Part`).
+            let h = points::LasHeader::parse(path, &map)?;
+            if let Some(l) = points::copc::layout(path, &map, &h)? {
+                let counted = direct::count_nodes(path, &map, &h, &l, &opts, seq)?;
+                for (nd, (kept, nb)) in l.nodes.iter().zip(counted) {
+                    parts.push(direct::Part {
+                        file: fi,
+                        node: Some(*nd),
+                    });
+                    sources.push(SourceTransform {
+                        first: seq,
+                        scale: h.scale,
+                        offset: h.offset,
+                    });
+                    read.push(kept);
+                    boxes.push(FileBox::of(&nb));
+                    b = b.union(nb);
+                    seq += kept;
+                }
+                progress.advance(h.point_count);
+                continue;
+            }
+            parts.push(direct::Part {
+                file: fi,
+                node: None,
+            });
+        }
         let mut o = opts.clone();
         if let Some(cap) = opts.max_points {
             o.max_points = Some(cap.saturating_sub(seq));
@@ -594,6 +646,11 @@ fn bucket(
         points: seq,
         bytes,
         boxes: if direct { boxes } else { Vec::new() },
+        parts: if parts.iter().any(|p| p.node.is_some()) {
+            parts
+        } else {
+            Vec::new()
+        },
         unchecked_headers: false,
     })
 }
@@ -607,6 +664,7 @@ fn counts_from_headers(pipeline: &LoadedPipeline, sc: &Scan, direct: bool) -> bo
     let opts = pipeline.config.input.read_options();
     direct
         && pipeline.config.denoise.enabled
+        && !sc.sources.iter().any(|s| copc_nodes(s).is_some())
         && !opts.classes.is_active()
         && opts.max_points.is_none()
         && sc.sources.iter().all(|s| s.header_bounds.is_some())
@@ -651,6 +709,7 @@ fn bucket_from_headers(scan: &Scan, sizing: &Sizing) -> (Bucketed, reuse::Header
         points: first,
         bytes: 0,
         boxes: header.iter().map(|h| FileBox::of(&h.0)).collect(),
+        parts: Vec::new(),
         unchecked_headers: true,
     };
     (bk, reuse::HeaderCheck::new(header))

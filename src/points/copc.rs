@@ -435,6 +435,229 @@ pub fn write_copc(h: &LasHeader, records: &[u8], output: &Path) -> Result<CopcWr
     })
 }
 
+/// One octree node's LAZ chunk in a COPC file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct NodeChunk {
+    /// Level, x, y, z.
+    pub key: [i32; 4],
+    /// Byte offset of the chunk.
+    pub offset: u64,
+    /// Compressed bytes.
+    pub bytes: u64,
+    /// Points in the chunk.
+    pub points: u64,
+}
+
+/// The octree of a COPC file as its header and hierarchy give it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CopcLayout {
+    /// The cube.
+    pub cube: Cube,
+    /// The nodes with points, in file order: their chunks follow each other from the first
+    /// point byte, so the points of node `k` are the records after those of nodes `..k`.
+    pub nodes: Vec<NodeChunk>,
+}
+
+impl CopcLayout {
+    /// Each node's x/y box (its cube's, clipped to `header`'s box) and points: what a
+    /// reader by bounds can know before decoding anything.
+    pub fn node_boxes(&self, header: &super::Bounds) -> Vec<(super::Bounds, u64)> {
+        self.nodes
+            .iter()
+            .map(|nd| {
+                let [x0, y0, x1, y1] = self.cube.node_box(nd.key);
+                let b = super::Bounds {
+                    min: [x0.max(header.min[0]), y0.max(header.min[1]), header.min[2]],
+                    max: [x1.min(header.max[0]), y1.min(header.max[1]), header.max[2]],
+                };
+                (b, nd.points)
+            })
+            .collect()
+    }
+}
+
+/// True when the header's first VLR is a COPC info VLR.
+pub fn is_copc(h: &LasHeader) -> bool {
+    h.vlrs
+        .first()
+        .is_some_and(|v| !v.extended && v.user_id.starts_with(b"copc\0") && v.record_id == 1)
+}
+
+fn le_u64(b: &[u8], at: usize) -> u64 {
+    u64::from_le_bytes(b[at..at + 8].try_into().unwrap_or([0; 8]))
+}
+
+fn le_i32(b: &[u8], at: usize) -> i32 {
+    i32::from_le_bytes(b[at..at + 4].try_into().unwrap_or([0; 4]))
+}
+
+/// The octree of the COPC file `bytes` (header `h`); `None` when it is not COPC or its
+/// chunks do not follow each other in the file (then it is read whole, as LAZ). A hierarchy
+/// that lies outside the file, a node whose chunk does, or node counts that disagree with
+/// the header are refused with one line naming the file and the byte.
+pub fn layout(path: &Path, bytes: &[u8], h: &LasHeader) -> Result<Option<CopcLayout>> {
+    if !is_copc(h) || !h.compressed || h.point_format < 6 {
+        return Ok(None);
+    }
+    let bad = |at: u64, m: String| Error::format(path, at, format!("COPC: {m}"));
+    let info = &h.vlrs[0].data;
+    if info.len() < INFO_SIZE {
+        return Err(bad(
+            HEADER_SIZE as u64,
+            format!("info VLR of {} bytes, not {INFO_SIZE}", info.len()),
+        ));
+    }
+    let f = |k: usize| f64::from_le_bytes(info[8 * k..8 * k + 8].try_into().unwrap_or([0; 8]));
+    let cube = Cube {
+        center: [f(0), f(1), f(2)],
+        halfsize: f(3),
+    };
+    if !(cube.halfsize > 0.0 && cube.halfsize.is_finite()) {
+        return Err(bad(
+            HEADER_SIZE as u64,
+            "the octree's half size is not positive".into(),
+        ));
+    }
+    let (root_at, root_size) = (le_u64(info, 40), le_u64(info, 48));
+    let len = bytes.len() as u64;
+    let first = h.offset_to_points + 8;
+    let mut nodes = Vec::new();
+    let mut pages = vec![(root_at, root_size)];
+    let mut seen = 0usize;
+    while let Some((at, size)) = pages.pop() {
+        seen += 1;
+        if size % 32 != 0 || at.checked_add(size).is_none_or(|e| e > len) || seen > 1 << 20 {
+            return Err(bad(
+                at,
+                format!("hierarchy page of {size} bytes at byte {at} lies outside the file ({len} bytes)"),
+            ));
+        }
+        for e in 0..(size / 32) as usize {
+            let o = at as usize + 32 * e;
+            let key = [
+                le_i32(bytes, o),
+                le_i32(bytes, o + 4),
+                le_i32(bytes, o + 8),
+                le_i32(bytes, o + 12),
+            ];
+            let (offset, size, count) = (
+                le_u64(bytes, o + 16),
+                le_i32(bytes, o + 24),
+                le_i32(bytes, o + 28),
+            );
+            if count == -1 {
+                pages.push((offset, size.max(0) as u64));
+            } else if count > 0 {
+                let end = offset.checked_add(size.max(0) as u64);
+                if size <= 0 || offset < first || end.is_none_or(|e| e > len) {
+                    return Err(bad(
+                        o as u64,
+                        format!(
+                            "node {}-{}-{}-{}: chunk of {size} bytes at byte {offset} lies outside the point data (bytes {first} to {len})",
+                            key[0], key[1], key[2], key[3]
+                        ),
+                    ));
+                }
+                nodes.push(NodeChunk {
+                    key,
+                    offset,
+                    bytes: size as u64,
+                    points: count as u64,
+                });
+            }
+        }
+    }
+    nodes.sort_by_key(|n| n.offset);
+    let total: u64 = nodes.iter().map(|n| n.points).sum();
+    if total != h.point_count {
+        return Err(bad(
+            root_at,
+            format!(
+                "the hierarchy's nodes hold {total} points, the header {}",
+                h.point_count
+            ),
+        ));
+    }
+    let mut next = first;
+    for n in &nodes {
+        if n.offset != next {
+            return Ok(None);
+        }
+        next += n.bytes;
+    }
+    Ok(Some(CopcLayout { cube, nodes }))
+}
+
+/// Decodes the chunk of `node` (a node of [`layout`]'s) into `cloud` (cleared first) with
+/// the record decoder of every LAS reader, the class filter of `opts` and at most `cap`
+/// points kept; returns the points kept.
+pub(crate) fn decode_node(
+    path: &Path,
+    bytes: &[u8],
+    h: &LasHeader,
+    node: &NodeChunk,
+    opts: &super::ReadOptions,
+    cap: Option<u64>,
+    cloud: &mut super::PointCloud,
+) -> Result<u64> {
+    let vlr = h
+        .laszip_vlr()
+        .ok_or_else(|| Error::format(path, 0, "COPC without a LASzip VLR"))?;
+    let laz_vlr = laz::LazVlr::read_from(vlr.data.as_slice())
+        .map_err(|e| Error::format(path, 0, format!("unreadable LASzip VLR: {e}")))?;
+    let len = h.record_length as usize;
+    if laz_vlr.items_size() as usize != len {
+        return Err(Error::format(
+            path,
+            0,
+            "the record length disagrees with the LASzip items",
+        ));
+    }
+    let mut buf = vec![0u8; node.points as usize * len];
+    let at = node.offset;
+    let chunk = &bytes[at as usize..(at + node.bytes) as usize];
+    // A corrupt chunk can make the decompressor panic: that is a format error, not an abort.
+    let done = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        use laz::record::RecordDecompressor;
+        let mut d = laz::record::LayeredPointRecordDecompressor::new(Cursor::new(chunk));
+        d.set_fields_from(laz_vlr.items())
+            .map_err(|e| e.to_string())?;
+        d.decompress_many(&mut buf).map_err(|e| e.to_string())
+    }));
+    match done {
+        Ok(Ok(())) => {}
+        Ok(Err(e)) => {
+            return Err(Error::format(
+                path,
+                at,
+                format!("corrupt COPC node {:?}: {e}", node.key),
+            ))
+        }
+        Err(_) => {
+            return Err(Error::format(
+                path,
+                at,
+                format!("corrupt COPC node {:?}: the decompressor failed", node.key),
+            ))
+        }
+    }
+    let layout = super::las_records::Layout {
+        len,
+        extended: h.point_format >= 6,
+        scale: h.scale,
+        offset: h.offset,
+        columns: opts.columns,
+    };
+    cloud.x.clear();
+    cloud.y.clear();
+    cloud.z.clear();
+    cloud.classification.clear();
+    cloud.return_number.clear();
+    cloud.number_of_returns.clear();
+    cloud.intensity.clear();
+    Ok(super::las_records::decode(&buf, &layout, &opts.classes, cap, cloud).0 as u64)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
