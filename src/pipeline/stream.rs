@@ -478,32 +478,28 @@ fn reads_directly(pipeline: &LoadedPipeline, sc: &Scan, sizing: &Sizing) -> bool
         ReadMode::Bricks => false,
         ReadMode::Direct => true,
         ReadMode::Auto => {
-            // LAS files, and COPC files by their nodes (from the hierarchy).
-            let mut las = true;
-            let mut files: Vec<(Bounds, u64)> = Vec::new();
-            for s in &sc.sources {
-                let hb = s.header_bounds.unwrap_or(Bounds::EMPTY);
-                match copc_nodes(s) {
-                    Some(nodes) => files.extend(nodes),
-                    None => {
-                        las &= s.format == points::Format::Las;
-                        files.push((hb, s.points_in_file));
-                    }
-                }
-            }
+            // COPC files are LAZ here: read by node (`read = "direct"`) they decode about
+            // 7 points a point on a survey in one file, 2.4 times the CPU of the bricks
+            // (docs/scale.md), so `auto` buckets them.
+            let las = sc.sources.iter().all(|s| s.format == points::Format::Las);
+            let files: Vec<(Bounds, u64)> = sc
+                .sources
+                .iter()
+                .map(|s| (s.header_bounds.unwrap_or(Bounds::EMPTY), s.points_in_file))
+                .collect();
             las && direct::amplification(&files, sizing.points)
                 .is_some_and(|a| a <= DIRECT_MAX_READS)
         }
     }
 }
 
-/// A COPC input's nodes (box, points), from its header and hierarchy; `None` for any
-/// other input, or one that cannot be read (the counting pass then says why).
-fn copc_nodes(s: &SourceInfo) -> Option<Vec<(Bounds, u64)>> {
-    let map = points::map_file(&s.path).ok()?;
-    let h = points::LasHeader::parse(&s.path, &map).ok()?;
-    let l = points::copc::layout(&s.path, &map, &h).ok()??;
-    Some(l.node_boxes(&h.bounds()))
+/// True for a COPC input read by node (one that cannot be read is not: the scan says why).
+fn is_copc(s: &SourceInfo) -> bool {
+    let Ok(map) = points::map_file(&s.path) else {
+        return false;
+    };
+    points::LasHeader::parse(&s.path, &map)
+        .is_ok_and(|h| points::copc::layout(&s.path, &map, &h).is_ok_and(|l| l.is_some()))
 }
 
 /// Pass 2: every input into the bricks.
@@ -664,7 +660,7 @@ fn counts_from_headers(pipeline: &LoadedPipeline, sc: &Scan, direct: bool) -> bo
     let opts = pipeline.config.input.read_options();
     direct
         && pipeline.config.denoise.enabled
-        && !sc.sources.iter().any(|s| copc_nodes(s).is_some())
+        && !sc.sources.iter().any(is_copc)
         && !opts.classes.is_active()
         && opts.max_points.is_none()
         && sc.sources.iter().all(|s| s.header_bounds.is_some())

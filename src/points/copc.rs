@@ -458,24 +458,6 @@ pub struct CopcLayout {
     pub nodes: Vec<NodeChunk>,
 }
 
-impl CopcLayout {
-    /// Each node's x/y box (its cube's, clipped to `header`'s box) and points: what a
-    /// reader by bounds can know before decoding anything.
-    pub fn node_boxes(&self, header: &super::Bounds) -> Vec<(super::Bounds, u64)> {
-        self.nodes
-            .iter()
-            .map(|nd| {
-                let [x0, y0, x1, y1] = self.cube.node_box(nd.key);
-                let b = super::Bounds {
-                    min: [x0.max(header.min[0]), y0.max(header.min[1]), header.min[2]],
-                    max: [x1.min(header.max[0]), y1.min(header.max[1]), header.max[2]],
-                };
-                (b, nd.points)
-            })
-            .collect()
-    }
-}
-
 /// True when the header's first VLR is a COPC info VLR.
 pub fn is_copc(h: &LasHeader) -> bool {
     h.vlrs
@@ -648,13 +630,8 @@ pub(crate) fn decode_node(
         offset: h.offset,
         columns: opts.columns,
     };
-    cloud.x.clear();
-    cloud.y.clear();
-    cloud.z.clear();
-    cloud.classification.clear();
-    cloud.return_number.clear();
-    cloud.number_of_returns.clear();
-    cloud.intensity.clear();
+    // Emptied, its buffers kept for the next node.
+    cloud.truncate(0);
     Ok(super::las_records::decode(&buf, &layout, &opts.classes, cap, cloud).0 as u64)
 }
 

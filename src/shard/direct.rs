@@ -360,4 +360,86 @@ mod tests {
             }
         }
     }
+
+    /// A COPC file read by node: a small window decodes a few nodes (fewer points than the
+    /// file holds) and gets exactly the points, values and sequence numbers that the whole
+    /// file read as plain LAZ gives inside its range (the slow twin), with a class filter.
+    #[test]
+    fn copc_nodes_read_by_bounds_equal_the_whole_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let (las, copc) = (dir.path().join("a.las"), dir.path().join("a.copc.laz"));
+        let mut rng = crate::rng::SplitMix64::new(3);
+        let n = 240_000;
+        let cloud = PointCloud {
+            x: (0..n).map(|_| rng.range(0.0, 2000.0)).collect(),
+            y: (0..n).map(|_| rng.range(0.0, 1000.0)).collect(),
+            z: (0..n).map(|_| rng.range(0.0, 30.0)).collect(),
+            classification: (0..n).map(|i| [1, 2, 7][i % 3]).collect(),
+            ..PointCloud::default()
+        };
+        crate::points::write_las(&las, &cloud, &Default::default()).unwrap();
+        points::convert_copc(&las, &copc, points::Selection::All).unwrap();
+        let opts = ReadOptions {
+            classes: crate::points::ClassFilter::new(None, &[7]),
+            ..ReadOptions::default()
+        };
+        let map = points::map_file(&copc).unwrap();
+        let h = points::LasHeader::parse(&copc, &map).unwrap();
+        let l = copc::layout(&copc, &map, &h).unwrap().unwrap();
+        assert!(l.nodes.len() > 4);
+        let counted = count_nodes(&copc, &map, &h, &l, &opts, 0).unwrap();
+        let mut first = 0;
+        let (mut sources, mut read, mut boxes, mut parts) = (vec![], vec![], vec![], vec![]);
+        for (nd, (kept, b)) in l.nodes.iter().zip(counted) {
+            sources.push(SourceTransform {
+                first,
+                scale: h.scale,
+                offset: h.offset,
+            });
+            first += kept;
+            read.push(kept);
+            boxes.push(FileBox::of(&b));
+            parts.push(Part {
+                file: 0,
+                node: Some(*nd),
+            });
+        }
+        let paths = [copc.clone()];
+        let files = Files {
+            paths: &paths,
+            parts: &parts,
+            sources: &sources,
+            read: &read,
+            boxes: &boxes,
+            opts: &opts,
+        };
+        let whole = points::read(&copc, &opts, &crate::NoProgress).unwrap();
+        assert_eq!(first, whole.len() as u64);
+        let (x, y) = ([300.0, 500.0], [200.0, 400.0]);
+        let got = load(&files, x, y, |_, px, py| {
+            px >= x[0] && px <= x[1] && py >= y[0] && py <= y[1]
+        })
+        .unwrap();
+        let want: Vec<u64> = (0..whole.len())
+            .filter(|&i| {
+                let (px, py) = (whole.x[i], whole.y[i]);
+                px >= x[0] && px <= x[1] && py >= y[0] && py <= y[1]
+            })
+            .map(|i| i as u64)
+            .collect();
+        assert!(!want.is_empty());
+        assert_eq!(got.seq, want);
+        for (k, &s) in got.seq.iter().enumerate() {
+            let s = s as usize;
+            assert_eq!(
+                [got.x[k], got.y[k], got.z[k]],
+                [whole.x[s], whole.y[s], whole.z[s]]
+            );
+        }
+        let decoded: u64 = (0..files.units())
+            .filter(|&i| boxes[i].meets(x, y))
+            .map(|i| read[i])
+            .sum();
+        assert!(decoded < first / 2, "{decoded} of {first}");
+    }
 }
