@@ -218,51 +218,10 @@ pub fn write_copc(h: &LasHeader, records: &[u8], output: &Path) -> Result<CopcWr
             output.display()
         )));
     }
-    let target = copc_format(h.point_format).ok_or_else(|| {
-        Error::Usage(format!(
-            "{}: point format {} has no COPC equivalent",
-            output.display(),
-            h.point_format
-        ))
-    })?;
-    let mut in_format = las::point::Format::new(h.point_format).map_err(|e| las_err(output, e))?;
-    let base = in_format.len() as usize;
-    if len < base {
-        return Err(Error::Usage(format!(
-            "{}: records of {len} bytes are shorter than point format {} ({base})",
-            output.display(),
-            h.point_format
-        )));
-    }
-    let extra = (len - base) as u16;
-    in_format.extra_bytes = extra;
-    let mut out_format = las::point::Format::new(target).map_err(|e| las_err(output, e))?;
-    out_format.extra_bytes = extra;
+    let (target, in_format, out_format) = formats(h, output)?;
+    let extra = out_format.extra_bytes;
     let out_len = out_format.len() as usize;
-    let t = |k: usize| las::Transform {
-        scale: h.scale[k],
-        offset: h.offset[k],
-    };
-    let transforms = las::Vector {
-        x: t(0),
-        y: t(1),
-        z: t(2),
-    };
-
-    // Each record in the target format, the stored integers copied as they are. The `las`
-    // point conversion allocates a point's extra bytes: `convert` is not a hot path.
-    let mut converted = vec![0u8; n * out_len];
-    converted
-        .par_chunks_mut(out_len)
-        .zip(records.par_chunks_exact(len))
-        .try_for_each(|(o, r)| -> std::result::Result<(), las::Error> {
-            let raw = las::raw::Point::read_from(r, &in_format)?;
-            let (x, y, z) = (raw.x, raw.y, raw.z);
-            let mut back = las::Point::new(raw, &transforms).into_raw(&transforms)?;
-            (back.x, back.y, back.z) = (x, y, z);
-            back.write_to(&mut &mut o[..], &out_format)
-        })
-        .map_err(|e| las_err(output, e))?;
+    let converted = convert_records(h, records, &in_format, &out_format, output)?;
     let xyz: Vec<[f64; 3]> = converted
         .par_chunks_exact(out_len)
         .map(|r| {
@@ -284,18 +243,7 @@ pub fn write_copc(h: &LasHeader, records: &[u8], output: &Path) -> Result<CopcWr
     let nodes = build_octree(&xyz, &cube);
     drop(xyz);
 
-    // GPS time range (every COPC format has it, at byte 22) and points by return.
-    let (mut gmin, mut gmax) = (f64::INFINITY, f64::NEG_INFINITY);
-    let mut by_return = [0u64; 15];
-    for r in converted.chunks_exact(out_len) {
-        let g = f64::from_le_bytes(r[22..30].try_into().unwrap_or([0; 8]));
-        gmin = gmin.min(g);
-        gmax = gmax.max(g);
-        let ret = r[14] & 0x0F;
-        if (1..=15).contains(&ret) {
-            by_return[ret as usize - 1] += 1;
-        }
-    }
+    let ([gmin, gmax], by_return) = record_stats(&converted, out_len);
 
     let laz_vlr = laz::LazVlrBuilder::default()
         .with_point_format(target, extra)
@@ -349,17 +297,7 @@ pub fn write_copc(h: &LasHeader, records: &[u8], output: &Path) -> Result<CopcWr
             .map_err(|e| las_err(output, e))?;
         laz::laszip::ChunkTable::read_from(&mut c, &laz_vlr).map_err(|e| las_err(output, e))?
     };
-    let mut at = offset_to_points as u64 + 8;
-    let mut page = Vec::with_capacity(nodes.len() * 32);
-    for (nd, e) in nodes.iter().zip(table.as_ref()) {
-        for k in nd.key {
-            page.extend_from_slice(&k.to_le_bytes());
-        }
-        page.extend_from_slice(&at.to_le_bytes());
-        page.extend_from_slice(&(e.byte_count as i32).to_le_bytes());
-        page.extend_from_slice(&(nd.points.len() as i32).to_le_bytes());
-        at += e.byte_count;
-    }
+    let page = hierarchy_page(&nodes, table.as_ref(), offset_to_points as u64 + 8);
     let evlr_at = bytes.len() as u64;
     bytes.extend_from_slice(&0u16.to_le_bytes());
     bytes.extend_from_slice(&padded::<16>("copc"));
@@ -368,23 +306,12 @@ pub fn write_copc(h: &LasHeader, records: &[u8], output: &Path) -> Result<CopcWr
     bytes.extend_from_slice(&padded::<32>("EPT hierarchy"));
     bytes.extend_from_slice(&page);
 
-    // The info VLR's payload (COPC 1.0: centre, half size, spacing, root page, GPS range).
-    let mut info = Vec::with_capacity(INFO_SIZE);
-    for v in [
-        cube.center[0],
-        cube.center[1],
-        cube.center[2],
-        cube.halfsize,
-    ] {
-        info.extend_from_slice(&v.to_le_bytes());
-    }
-    info.extend_from_slice(&(2.0 * cube.halfsize / f64::from(NODE_GRID)).to_le_bytes());
-    info.extend_from_slice(&(evlr_at + EVLR_HEADER_SIZE as u64).to_le_bytes());
-    info.extend_from_slice(&(page.len() as u64).to_le_bytes());
-    info.extend_from_slice(&gmin.to_le_bytes());
-    info.extend_from_slice(&gmax.to_le_bytes());
-    info.resize(INFO_SIZE, 0);
-    let info_at = HEADER_SIZE + VLR_HEADER_SIZE as usize;
+    let info = info_payload(
+        &cube,
+        evlr_at + EVLR_HEADER_SIZE as u64,
+        page.len() as u64,
+        [gmin, gmax],
+    );
     vlrs[VLR_HEADER_SIZE as usize..VLR_HEADER_SIZE as usize + INFO_SIZE].copy_from_slice(&info);
 
     let mut raw = h.raw.clone();
@@ -411,6 +338,20 @@ pub fn write_copc(h: &LasHeader, records: &[u8], output: &Path) -> Result<CopcWr
         number_of_points_by_return: by_return,
     });
     raw.padding = Vec::new();
+    let head = header_bytes(&raw, output)?;
+    bytes[..HEADER_SIZE].copy_from_slice(&head);
+    bytes[HEADER_SIZE..offset_to_points].copy_from_slice(&vlrs);
+    crate::fsutil::write_bytes_atomic(output, &bytes)?;
+    Ok(CopcWritten {
+        points: n as u64,
+        nodes: nodes.len(),
+        levels: nodes.iter().map(|nd| nd.key[0]).max().unwrap_or(0) + 1,
+        point_format: target,
+    })
+}
+
+/// A LAS 1.4 header's 375 bytes.
+fn header_bytes(raw: &las::raw::Header, output: &Path) -> Result<Vec<u8>> {
     let mut head = Vec::with_capacity(HEADER_SIZE);
     raw.write_to(&mut head).map_err(|e| las_err(output, e))?;
     if head.len() != HEADER_SIZE {
@@ -419,20 +360,124 @@ pub fn write_copc(h: &LasHeader, records: &[u8], output: &Path) -> Result<CopcWr
             head.len()
         )));
     }
-    bytes[..HEADER_SIZE].copy_from_slice(&head);
-    bytes[HEADER_SIZE..offset_to_points].copy_from_slice(&vlrs);
-    debug_assert_eq!(
-        &bytes[info_at..info_at + INFO_SIZE],
-        &info[..],
-        "the info VLR at byte 375 + 54"
-    );
-    crate::fsutil::write_bytes_atomic(output, &bytes)?;
-    Ok(CopcWritten {
-        points: n as u64,
-        nodes: nodes.len(),
-        levels: nodes.iter().map(|nd| nd.key[0]).max().unwrap_or(0) + 1,
-        point_format: target,
-    })
+    Ok(head)
+}
+
+/// The info VLR's payload (COPC 1.0: centre, half size, spacing, root page, GPS range).
+fn info_payload(cube: &Cube, root_at: u64, root_size: u64, gps: [f64; 2]) -> Vec<u8> {
+    let mut info = Vec::with_capacity(INFO_SIZE);
+    for v in [
+        cube.center[0],
+        cube.center[1],
+        cube.center[2],
+        cube.halfsize,
+    ] {
+        info.extend_from_slice(&v.to_le_bytes());
+    }
+    info.extend_from_slice(&(2.0 * cube.halfsize / f64::from(NODE_GRID)).to_le_bytes());
+    info.extend_from_slice(&root_at.to_le_bytes());
+    info.extend_from_slice(&root_size.to_le_bytes());
+    info.extend_from_slice(&gps[0].to_le_bytes());
+    info.extend_from_slice(&gps[1].to_le_bytes());
+    info.resize(INFO_SIZE, 0);
+    info
+}
+
+/// The COPC point format for `h`'s, and the input's and the output's `las` formats (with the
+/// input's extra bytes).
+fn formats(h: &LasHeader, output: &Path) -> Result<(u8, las::point::Format, las::point::Format)> {
+    let len = h.record_length as usize;
+    let target = copc_format(h.point_format).ok_or_else(|| {
+        Error::Usage(format!(
+            "{}: point format {} has no COPC equivalent",
+            output.display(),
+            h.point_format
+        ))
+    })?;
+    let mut in_format = las::point::Format::new(h.point_format).map_err(|e| las_err(output, e))?;
+    let base = in_format.len() as usize;
+    if len < base {
+        return Err(Error::Usage(format!(
+            "{}: records of {len} bytes are shorter than point format {} ({base})",
+            output.display(),
+            h.point_format
+        )));
+    }
+    let extra = (len - base) as u16;
+    in_format.extra_bytes = extra;
+    let mut out_format = las::point::Format::new(target).map_err(|e| las_err(output, e))?;
+    out_format.extra_bytes = extra;
+
+    Ok((target, in_format, out_format))
+}
+
+/// Each record in the target format.
+fn convert_records(
+    h: &LasHeader,
+    records: &[u8],
+    in_format: &las::point::Format,
+    out_format: &las::point::Format,
+    output: &Path,
+) -> Result<Vec<u8>> {
+    let (len, out_len) = (h.record_length as usize, out_format.len() as usize);
+    let n = records.len() / len;
+    let t = |k: usize| las::Transform {
+        scale: h.scale[k],
+        offset: h.offset[k],
+    };
+    let transforms = las::Vector {
+        x: t(0),
+        y: t(1),
+        z: t(2),
+    };
+    // Each record in the target format, the stored integers copied as they are. The `las`
+    // point conversion allocates a point's extra bytes: `convert` is not a hot path.
+    let mut converted = vec![0u8; n * out_len];
+    converted
+        .par_chunks_mut(out_len)
+        .zip(records.par_chunks_exact(len))
+        .try_for_each(|(o, r)| -> std::result::Result<(), las::Error> {
+            let raw = las::raw::Point::read_from(r, in_format)?;
+            let (x, y, z) = (raw.x, raw.y, raw.z);
+            let mut back = las::Point::new(raw, &transforms).into_raw(&transforms)?;
+            (back.x, back.y, back.z) = (x, y, z);
+            back.write_to(&mut &mut o[..], out_format)
+        })
+        .map_err(|e| las_err(output, e))?;
+    Ok(converted)
+}
+
+/// The records' GPS time range (every COPC format has it, at byte 22) and points by return.
+fn record_stats(converted: &[u8], out_len: usize) -> ([f64; 2], [u64; 15]) {
+    let (mut gmin, mut gmax) = (f64::INFINITY, f64::NEG_INFINITY);
+    let mut by_return = [0u64; 15];
+    for r in converted.chunks_exact(out_len) {
+        let g = f64::from_le_bytes(r[22..30].try_into().unwrap_or([0; 8]));
+        gmin = gmin.min(g);
+        gmax = gmax.max(g);
+        let ret = r[14] & 0x0F;
+        if (1..=15).contains(&ret) {
+            by_return[ret as usize - 1] += 1;
+        }
+    }
+
+    ([gmin, gmax], by_return)
+}
+
+/// The hierarchy page: one 32-byte entry per node, its chunk's offset from the chunks' sizes
+/// in `table`, the first chunk at `at`.
+fn hierarchy_page(nodes: &[Node], table: &[laz::laszip::ChunkTableEntry], mut at: u64) -> Vec<u8> {
+    let mut page = Vec::with_capacity(nodes.len() * 32);
+    for (nd, e) in nodes.iter().zip(table.as_ref()) {
+        for k in nd.key {
+            page.extend_from_slice(&k.to_le_bytes());
+        }
+        page.extend_from_slice(&at.to_le_bytes());
+        page.extend_from_slice(&(e.byte_count as i32).to_le_bytes());
+        page.extend_from_slice(&(nd.points.len() as i32).to_le_bytes());
+        at += e.byte_count;
+    }
+    page
 }
 
 /// One octree node's LAZ chunk in a COPC file.
