@@ -86,12 +86,16 @@ enum Command {
     /// a lake hole, scan-line density, outliers).
     Generate(GenerateArgs),
     /// Convert LAS/LAZ to uncompressed LAS, optionally cut to N points (first N or a seeded
-    /// random sample); records pass through unchanged.
+    /// random sample); records pass through unchanged. With --copc, writes COPC 1.0
+    /// (cloud-optimised LAZ, point format 6/7/8) instead.
     Convert {
         /// Input LAS or LAZ.
         input: PathBuf,
-        /// Output LAS.
+        /// Output LAS (with --copc: a COPC file, named .copc.laz).
         output: PathBuf,
+        /// Write COPC 1.0: LAZ 1.4 in octree nodes, readable by bounds.
+        #[arg(long)]
+        copc: bool,
         /// Keep only the first N points.
         #[arg(long, value_name = "N", conflicts_with = "sample")]
         first: Option<u64>,
@@ -872,6 +876,7 @@ fn run(cli: Cli) -> Result<()> {
             first,
             sample,
             seed,
+            copc,
         } => {
             let sel = match (first, sample) {
                 (Some(n), _) => points::Selection::First(n),
@@ -879,14 +884,32 @@ fn run(cli: Cli) -> Result<()> {
                 (None, None) => points::Selection::All,
             };
             terratile::check_file_output(&output, &[&input])?;
-            refuse_laz_name(&output)?;
+            if copc {
+                refuse_non_laz_name(&output)?;
+            } else {
+                refuse_laz_name(&output)?;
+            }
             // `.NAME.tmp-PID` files that killed runs left beside the output.
             terratile::remove_stale_temps(&output);
             progress.start(&format!("converting {}", input.display()), 0);
-            let n = points::convert(&input, &output, sel);
-            progress.finish();
-            let n = n?;
-            outln!("{}: {n} points", output.display());
+            if copc {
+                let w = points::convert_copc(&input, &output, sel);
+                progress.finish();
+                let w = w?;
+                outln!(
+                    "{}: {} points, COPC point format {}, {} octree nodes in {} levels",
+                    output.display(),
+                    w.points,
+                    w.point_format,
+                    w.nodes,
+                    w.levels
+                );
+            } else {
+                let n = points::convert(&input, &output, sel);
+                progress.finish();
+                let n = n?;
+                outln!("{}: {n} points", output.display());
+            }
         }
         Command::Bench(cmd) => bench(cmd)?,
         Command::Classify(a) => classify(a, progress)?,
@@ -1248,6 +1271,20 @@ fn refuse_laz_name(output: &Path) -> Result<()> {
     if laz {
         return Err(Error::Usage(format!(
             "{}: terratile writes uncompressed LAS; name it .las",
+            output.display()
+        )));
+    }
+    Ok(())
+}
+
+/// `convert --copc` writes compressed COPC: any name but `.laz` would hide that.
+fn refuse_non_laz_name(output: &Path) -> Result<()> {
+    let laz = output
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("laz"));
+    if !laz {
+        return Err(Error::Usage(format!(
+            "{}: COPC is compressed LAZ; name it .copc.laz",
             output.display()
         )));
     }

@@ -62,7 +62,7 @@ fn run_jobs(dir: &Path, work: &str, jobs: usize) {
 
 /// `run` and plan + shard × jobs + merge on `input` give the same bytes; returns the
 /// directory of both.
-fn check_identical(input: &Path, extra: &str, shards: usize) -> tempfile::TempDir {
+pub(crate) fn check_identical(input: &Path, extra: &str, shards: usize) -> tempfile::TempDir {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     pipeline(d, "run.toml", input, "out-run", extra);

@@ -15,6 +15,7 @@ mod cli_mesh;
 mod cli_read;
 mod cli_terrain;
 mod cli_tiles;
+mod copc;
 mod geo;
 mod ground;
 mod ground_fill;

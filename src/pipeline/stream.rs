@@ -128,6 +128,8 @@ pub fn scan(pipeline: &LoadedPipeline, inputs: &[PathBuf]) -> Result<Scan> {
             ));
         }
         let h = points::LasHeader::parse(p, &map)?;
+        // A COPC input's hierarchy is checked here, before any pass relies on it.
+        points::copc::layout(p, &map, &h)?;
         bounds = bounds.union(h.bounds());
         total = total.saturating_add(h.point_count);
         sources.push(SourceInfo {
@@ -427,6 +429,10 @@ struct Bucketed {
     /// Read by bounds: each file's kept points' box (empty: read through the bricks).
     #[serde(default)]
     boxes: Vec<FileBox>,
+    /// Read by bounds when some input is COPC: the units (octree nodes, whole files) the
+    /// figures above are of; empty: the figures are the files'.
+    #[serde(default)]
+    parts: Vec<direct::Part>,
     /// Points, boxes and bounds taken from the headers and not yet checked against the
     /// points (see [`counts_from_headers`]).
     #[serde(default)]
@@ -457,6 +463,7 @@ impl Bucketed {
     fn files<'a>(&'a self, paths: &'a [PathBuf], opts: &'a points::ReadOptions) -> Files<'a> {
         Files {
             paths,
+            parts: &self.parts,
             sources: &self.sources,
             read: &self.read,
             boxes: &self.boxes,
@@ -471,6 +478,9 @@ fn reads_directly(pipeline: &LoadedPipeline, sc: &Scan, sizing: &Sizing) -> bool
         ReadMode::Bricks => false,
         ReadMode::Direct => true,
         ReadMode::Auto => {
+            // COPC files are LAZ here: read by node (`read = "direct"`) they decode about
+            // 7 points a point on a survey in one file, 2.4 times the CPU of the bricks
+            // (docs/scale.md), so `auto` buckets them.
             let las = sc.sources.iter().all(|s| s.format == points::Format::Las);
             let files: Vec<(Bounds, u64)> = sc
                 .sources
@@ -481,6 +491,15 @@ fn reads_directly(pipeline: &LoadedPipeline, sc: &Scan, sizing: &Sizing) -> bool
                 .is_some_and(|a| a <= DIRECT_MAX_READS)
         }
     }
+}
+
+/// True for a COPC input read by node (one that cannot be read is not: the scan says why).
+fn is_copc(s: &SourceInfo) -> bool {
+    let Ok(map) = points::map_file(&s.path) else {
+        return false;
+    };
+    points::LasHeader::parse(&s.path, &map)
+        .is_ok_and(|h| points::copc::layout(&s.path, &map, &h).is_ok_and(|l| l.is_some()))
 }
 
 /// Pass 2: every input into the bricks.
@@ -513,10 +532,39 @@ fn bucket(
         },
         scan.points,
     );
-    for info in &scan.sources {
+    let mut parts = Vec::new();
+    for (fi, info) in scan.sources.iter().enumerate() {
         let mut file_box = Bounds::EMPTY;
         let path = &info.path;
         let map = points::map_file(path)?;
+        if direct {
+            // A COPC input is counted node by node, and read so (see `direct::Part`).
+            let h = points::LasHeader::parse(path, &map)?;
+            if let Some(l) = points::copc::layout(path, &map, &h)? {
+                let counted = direct::count_nodes(path, &map, &h, &l, &opts, seq)?;
+                for (nd, (kept, nb)) in l.nodes.iter().zip(counted) {
+                    parts.push(direct::Part {
+                        file: fi,
+                        node: Some(*nd),
+                    });
+                    sources.push(SourceTransform {
+                        first: seq,
+                        scale: h.scale,
+                        offset: h.offset,
+                    });
+                    read.push(kept);
+                    boxes.push(FileBox::of(&nb));
+                    b = b.union(nb);
+                    seq += kept;
+                }
+                progress.advance(h.point_count);
+                continue;
+            }
+            parts.push(direct::Part {
+                file: fi,
+                node: None,
+            });
+        }
         let mut o = opts.clone();
         if let Some(cap) = opts.max_points {
             o.max_points = Some(cap.saturating_sub(seq));
@@ -594,6 +642,11 @@ fn bucket(
         points: seq,
         bytes,
         boxes: if direct { boxes } else { Vec::new() },
+        parts: if parts.iter().any(|p| p.node.is_some()) {
+            parts
+        } else {
+            Vec::new()
+        },
         unchecked_headers: false,
     })
 }
@@ -607,6 +660,7 @@ fn counts_from_headers(pipeline: &LoadedPipeline, sc: &Scan, direct: bool) -> bo
     let opts = pipeline.config.input.read_options();
     direct
         && pipeline.config.denoise.enabled
+        && !sc.sources.iter().any(is_copc)
         && !opts.classes.is_active()
         && opts.max_points.is_none()
         && sc.sources.iter().all(|s| s.header_bounds.is_some())
@@ -651,6 +705,7 @@ fn bucket_from_headers(scan: &Scan, sizing: &Sizing) -> (Bucketed, reuse::Header
         points: first,
         bytes: 0,
         boxes: header.iter().map(|h| FileBox::of(&h.0)).collect(),
+        parts: Vec::new(),
         unchecked_headers: true,
     };
     (bk, reuse::HeaderCheck::new(header))

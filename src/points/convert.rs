@@ -28,11 +28,45 @@ pub enum Selection {
 pub fn convert(input: &Path, output: &Path, selection: Selection) -> Result<u64> {
     let map = map_file(input)?;
     let (h, records) = raw_records(input, &map)?;
+    let picked = select(input, &h, &records, selection)?;
+    let out: &[u8] = picked.as_deref().unwrap_or(&records);
+    let layout = Layout {
+        len: h.record_length as usize,
+        extended: h.point_format >= 6,
+        scale: h.scale,
+        offset: h.offset,
+        // Only the count and the bounds are wanted from the decoded points.
+        columns: super::Columns::XYZ,
+    };
+    let mut cloud = PointCloud::default();
+    let (_, bounds) = las_records::decode(out, &layout, &ClassFilter::default(), None, &mut cloud);
+    write_raw_las(output, &h, out, &bounds)?;
+    Ok(cloud.len() as u64)
+}
+
+/// Converts `input` (LAS or LAZ) to a COPC 1.0 file at `output` (see [`super::copc`]).
+pub fn convert_copc(
+    input: &Path,
+    output: &Path,
+    selection: Selection,
+) -> Result<super::copc::CopcWritten> {
+    let map = map_file(input)?;
+    let (h, records) = raw_records(input, &map)?;
+    let picked = select(input, &h, &records, selection)?;
+    super::copc::write_copc(&h, picked.as_deref().unwrap_or(&records), output)
+}
+
+/// The records `selection` keeps: `None` for all of them.
+fn select(
+    input: &Path,
+    h: &super::LasHeader,
+    records: &[u8],
+    selection: Selection,
+) -> Result<Option<Vec<u8>>> {
     let len = h.record_length as usize;
     let total = h.point_count;
-    let picked: Vec<u8>;
-    let out: &[u8] = match selection {
-        Selection::All => &records,
+    Ok(match selection {
+        Selection::All => None,
         Selection::First(n) => {
             if n > total {
                 return Err(Error::Usage(format!(
@@ -40,7 +74,7 @@ pub fn convert(input: &Path, output: &Path, selection: Selection) -> Result<u64>
                     input.display()
                 )));
             }
-            &records[..n as usize * len]
+            Some(records[..n as usize * len].to_vec())
         }
         Selection::Sample { n, seed } => {
             if n > total {
@@ -54,20 +88,7 @@ pub fn convert(input: &Path, output: &Path, selection: Selection) -> Result<u64>
             for &i in &idx {
                 buf.extend_from_slice(&records[i as usize * len..(i as usize + 1) * len]);
             }
-            picked = buf;
-            &picked
+            Some(buf)
         }
-    };
-    let layout = Layout {
-        len,
-        extended: h.point_format >= 6,
-        scale: h.scale,
-        offset: h.offset,
-        // Only the count and the bounds are wanted from the decoded points.
-        columns: super::Columns::XYZ,
-    };
-    let mut cloud = PointCloud::default();
-    let (_, bounds) = las_records::decode(out, &layout, &ClassFilter::default(), None, &mut cloud);
-    write_raw_las(output, &h, out, &bounds)?;
-    Ok(cloud.len() as u64)
+    })
 }

@@ -6,6 +6,7 @@
 //! like text is XYZ.
 
 mod convert;
+pub mod copc;
 mod crs;
 mod las_header;
 mod las_read;
@@ -14,7 +15,7 @@ mod las_write;
 mod stats;
 mod xyz;
 
-pub use convert::{convert, Selection};
+pub use convert::{convert, convert_copc, Selection};
 pub use crs::{Crs, LinearUnit, VerticalCrs};
 pub use las_header::{LasHeader, Vlr};
 pub(crate) use las_read::for_each_decoded;

@@ -21,12 +21,24 @@
 
 use super::bricks::{BrickPoints, SourceTransform};
 use crate::error::{Error, Result};
+use crate::points::copc::{self, NodeChunk};
 use crate::points::{self, Bounds, PointCloud, ReadOptions};
 use serde::{Deserialize, Serialize};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Records decoded per batch while reading a file by bounds.
 const BATCH: usize = 1 << 18;
+
+/// A piece of an input read on its own: a COPC file's octree node (see
+/// [`crate::points::copc`]), whose points are the records of its chunk, so that a window
+/// decodes only the nodes whose box meets its range.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Part {
+    /// The input file's index.
+    pub file: usize,
+    /// The node's chunk (`None`: the whole file, not COPC).
+    pub node: Option<NodeChunk>,
+}
 
 /// One input file's kept points: their exact x/y box (empty: no point kept).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -58,11 +70,15 @@ impl FileBox {
     }
 }
 
-/// The inputs as the counting pass left them.
+/// The inputs as the counting pass left them, in units: the files, or when `parts` is not
+/// empty, the parts it lists (COPC nodes, each file's in file order, then the files in input
+/// order), the unit's figures below then being the part's.
 #[derive(Debug, Clone, Copy)]
 pub struct Files<'a> {
     /// The input files, in input order.
     pub paths: &'a [PathBuf],
+    /// The units when not the files.
+    pub parts: &'a [Part],
     /// Each file's first sequence number and transform.
     pub sources: &'a [SourceTransform],
     /// Each file's kept points.
@@ -74,6 +90,23 @@ pub struct Files<'a> {
 }
 
 impl Files<'_> {
+    /// The units: files or parts.
+    pub fn units(&self) -> usize {
+        if self.parts.is_empty() {
+            self.paths.len()
+        } else {
+            self.parts.len()
+        }
+    }
+
+    /// The file of unit `i`.
+    pub fn path(&self, i: usize) -> &Path {
+        match self.parts.get(i) {
+            Some(p) => &self.paths[p.file],
+            None => &self.paths[i],
+        }
+    }
+
     /// Decodes file `i` whole, calling `each(seq, x, y, z)` for every point it keeps in
     /// record order, with the sequence numbers the counting pass gave it. A file that gives
     /// another number of points than the counting pass (changed since) is refused, naming
@@ -86,7 +119,7 @@ impl Files<'_> {
     ) -> Result<u64> {
         let kept = self.decode_each_unchecked(i, cloud, each)?;
         if kept != self.read[i] {
-            return Err(changed_during_run(&self.paths[i], kept, self.read[i]));
+            return Err(changed_during_run(self.path(i), kept, self.read[i]));
         }
         Ok(kept)
     }
@@ -99,7 +132,7 @@ impl Files<'_> {
         cloud: &mut PointCloud,
         mut each: impl FnMut(u64, f64, f64, f64),
     ) -> Result<u64> {
-        let path = &self.paths[i];
+        let path = self.path(i);
         let first = self.sources[i].first;
         let mut o = self.opts.clone();
         if let Some(cap) = self.opts.max_points {
@@ -107,6 +140,15 @@ impl Files<'_> {
         }
         let map = points::map_file(path)?;
         let mut seq = first;
+        if let Some(node) = self.parts.get(i).and_then(|p| p.node) {
+            let h = points::LasHeader::parse(path, &map)?;
+            let kept = copc::decode_node(path, &map, &h, &node, &o, o.max_points, cloud)?;
+            for k in 0..cloud.len() {
+                each(seq, cloud.x[k], cloud.y[k], cloud.z[k]);
+                seq += 1;
+            }
+            return Ok(kept);
+        }
         let (_, kept) = points::for_each_decoded(path, &map, &o, BATCH, cloud, |c, _| {
             for k in 0..c.len() {
                 each(seq, c.x[k], c.y[k], c.z[k]);
@@ -115,6 +157,47 @@ impl Files<'_> {
             Ok(())
         })?;
         Ok(kept)
+    }
+}
+
+/// The counting pass over a COPC file's nodes (`layout`'s): each node's kept points and
+/// their exact box, the first node's first sequence number being `first`. The nodes are
+/// decoded in parallel unless a point cap may end inside one (then in order, each capped).
+pub fn count_nodes(
+    path: &Path,
+    map: &[u8],
+    h: &points::LasHeader,
+    layout: &copc::CopcLayout,
+    opts: &ReadOptions,
+    first: u64,
+) -> Result<Vec<(u64, Bounds)>> {
+    use rayon::prelude::*;
+    let one = |nd: &NodeChunk, cap: Option<u64>, cloud: &mut PointCloud| -> Result<(u64, Bounds)> {
+        let kept = copc::decode_node(path, map, h, nd, opts, cap, cloud)?;
+        let b = crate::terrain::bounds_of(&cloud.x, &cloud.y, &cloud.z, None).0;
+        Ok((kept, if kept == 0 { Bounds::EMPTY } else { b }))
+    };
+    match opts.max_points {
+        None => layout
+            .nodes
+            .par_iter()
+            .map_init(PointCloud::default, |cloud, nd| one(nd, None, cloud))
+            .collect(),
+        Some(cap) => {
+            let (mut seq, mut cloud) = (first, PointCloud::default());
+            let mut out = Vec::with_capacity(layout.nodes.len());
+            for nd in &layout.nodes {
+                let left = cap.saturating_sub(seq);
+                let r = if left == 0 {
+                    (0, Bounds::EMPTY)
+                } else {
+                    one(nd, Some(left), &mut cloud)?
+                };
+                seq += r.0;
+                out.push(r);
+            }
+            Ok(out)
+        }
     }
 }
 
@@ -129,7 +212,7 @@ pub fn load(
 ) -> Result<BrickPoints> {
     let mut p = BrickPoints::default();
     let mut cloud = PointCloud::default();
-    for i in 0..f.paths.len() {
+    for i in 0..f.units() {
         if f.read[i] == 0 || !f.boxes[i].meets(x, y) {
             continue;
         }
@@ -252,6 +335,7 @@ mod tests {
             let read = [counted];
             let files = Files {
                 paths: &paths,
+                parts: &[],
                 sources: &sources,
                 read: &read,
                 boxes: &boxes,
@@ -275,5 +359,87 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A COPC file read by node: a small window decodes a few nodes (fewer points than the
+    /// file holds) and gets exactly the points, values and sequence numbers that the whole
+    /// file read as plain LAZ gives inside its range (the slow twin), with a class filter.
+    #[test]
+    fn copc_nodes_read_by_bounds_equal_the_whole_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let (las, copc) = (dir.path().join("a.las"), dir.path().join("a.copc.laz"));
+        let mut rng = crate::rng::SplitMix64::new(3);
+        let n = 240_000;
+        let cloud = PointCloud {
+            x: (0..n).map(|_| rng.range(0.0, 2000.0)).collect(),
+            y: (0..n).map(|_| rng.range(0.0, 1000.0)).collect(),
+            z: (0..n).map(|_| rng.range(0.0, 30.0)).collect(),
+            classification: (0..n).map(|i| [1, 2, 7][i % 3]).collect(),
+            ..PointCloud::default()
+        };
+        crate::points::write_las(&las, &cloud, &Default::default()).unwrap();
+        points::convert_copc(&las, &copc, points::Selection::All).unwrap();
+        let opts = ReadOptions {
+            classes: crate::points::ClassFilter::new(None, &[7]),
+            ..ReadOptions::default()
+        };
+        let map = points::map_file(&copc).unwrap();
+        let h = points::LasHeader::parse(&copc, &map).unwrap();
+        let l = copc::layout(&copc, &map, &h).unwrap().unwrap();
+        assert!(l.nodes.len() > 4);
+        let counted = count_nodes(&copc, &map, &h, &l, &opts, 0).unwrap();
+        let mut first = 0;
+        let (mut sources, mut read, mut boxes, mut parts) = (vec![], vec![], vec![], vec![]);
+        for (nd, (kept, b)) in l.nodes.iter().zip(counted) {
+            sources.push(SourceTransform {
+                first,
+                scale: h.scale,
+                offset: h.offset,
+            });
+            first += kept;
+            read.push(kept);
+            boxes.push(FileBox::of(&b));
+            parts.push(Part {
+                file: 0,
+                node: Some(*nd),
+            });
+        }
+        let paths = [copc.clone()];
+        let files = Files {
+            paths: &paths,
+            parts: &parts,
+            sources: &sources,
+            read: &read,
+            boxes: &boxes,
+            opts: &opts,
+        };
+        let whole = points::read(&copc, &opts, &crate::NoProgress).unwrap();
+        assert_eq!(first, whole.len() as u64);
+        let (x, y) = ([300.0, 500.0], [200.0, 400.0]);
+        let got = load(&files, x, y, |_, px, py| {
+            px >= x[0] && px <= x[1] && py >= y[0] && py <= y[1]
+        })
+        .unwrap();
+        let want: Vec<u64> = (0..whole.len())
+            .filter(|&i| {
+                let (px, py) = (whole.x[i], whole.y[i]);
+                px >= x[0] && px <= x[1] && py >= y[0] && py <= y[1]
+            })
+            .map(|i| i as u64)
+            .collect();
+        assert!(!want.is_empty());
+        assert_eq!(got.seq, want);
+        for (k, &s) in got.seq.iter().enumerate() {
+            let s = s as usize;
+            assert_eq!(
+                [got.x[k], got.y[k], got.z[k]],
+                [whole.x[s], whole.y[s], whole.z[s]]
+            );
+        }
+        let decoded: u64 = (0..files.units())
+            .filter(|&i| boxes[i].meets(x, y))
+            .map(|i| read[i])
+            .sum();
+        assert!(decoded < first / 2, "{decoded} of {first}");
     }
 }

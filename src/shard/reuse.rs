@@ -359,7 +359,7 @@ where
                 if c.failed() {
                     return Err(Error::Internal(format!(
                         "{}: its points do not match its header's box and count",
-                        self.files.paths[f].display()
+                        self.files.path(f).display()
                     )));
                 }
                 kept
