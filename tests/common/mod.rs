@@ -341,3 +341,39 @@ pub fn height_in_triangle(p: [[f64; 3]; 3], x: f64, y: f64) -> Option<f64> {
     let l0 = 1.0 - l1 - l2;
     (l0 >= -1e-9 && l1 >= -1e-9 && l2 >= -1e-9).then(|| l0 * p[0][2] + l1 * p[1][2] + l2 * p[2][2])
 }
+
+/// `target/DIR/node_modules` with npm package `spec` (`name@version`), installed on first
+/// use; None (after saying why) without npm or the registry.
+pub fn npm_env(dir: &str, spec: &str) -> Option<PathBuf> {
+    let _one_at_a_time = environment_lock();
+    let root = repo().join("target").join(dir);
+    let modules = root.join("node_modules");
+    // Written after a complete install: a package.json alone may be a half-unpacked one.
+    let ready = root.join(format!(".terratile-ready-{}", spec.replace('/', "+")));
+    if ready.is_file() {
+        return Some(modules);
+    }
+    let _ = std::fs::create_dir_all(&root);
+    let _ = std::fs::write(root.join("package.json"), b"{\"private\": true}\n");
+    let o = std::process::Command::new("npm")
+        .current_dir(&root)
+        .args(["install", "--no-audit", "--no-fund", spec])
+        .output();
+    match o {
+        Ok(o) if o.status.success() => {
+            let _ = std::fs::write(&ready, b"");
+            Some(modules)
+        }
+        Ok(o) => {
+            eprintln!(
+                "skipping: npm install {spec} failed: {}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+            None
+        }
+        Err(e) => {
+            eprintln!("skipping: no npm ({e})");
+            None
+        }
+    }
+}

@@ -19,42 +19,6 @@ use std::process::Command;
 const A: f64 = 6_378_137.0;
 const F: f64 = 1.0 / 298.257_223_563;
 
-/// `target/DIR/node_modules` with npm package `spec` (`name@version`), installed on first
-/// use; None (after saying why) without npm or the registry.
-fn npm_env(dir: &str, spec: &str) -> Option<PathBuf> {
-    let _one_at_a_time = environment_lock();
-    let root = repo().join("target").join(dir);
-    let modules = root.join("node_modules");
-    // Written after a complete install: a package.json alone may be a half-unpacked one.
-    let ready = root.join(format!(".terratile-ready-{}", spec.replace('/', "+")));
-    if ready.is_file() {
-        return Some(modules);
-    }
-    let _ = std::fs::create_dir_all(&root);
-    let _ = std::fs::write(root.join("package.json"), b"{\"private\": true}\n");
-    let o = Command::new("npm")
-        .current_dir(&root)
-        .args(["install", "--no-audit", "--no-fund", spec])
-        .output();
-    match o {
-        Ok(o) if o.status.success() => {
-            let _ = std::fs::write(&ready, b"");
-            Some(modules)
-        }
-        Ok(o) => {
-            eprintln!(
-                "skipping: npm install {spec} failed: {}",
-                String::from_utf8_lossy(&o.stderr)
-            );
-            None
-        }
-        Err(e) => {
-            eprintln!("skipping: no npm ({e})");
-            None
-        }
-    }
-}
-
 /// Height of the decoded mesh `d` at (lon, lat) inside it (barycentric), None if no
 /// triangle holds the point.
 fn mesh_height_at(d: &Decoded, lon: f64, lat: f64) -> Option<f64> {
