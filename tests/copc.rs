@@ -3,7 +3,7 @@
 //! under `target/copc-py`), with the same points as the input; the same bytes for any
 //! thread count.
 
-use crate::common::{data_file, fixture_las, python_venv, run_with, terratile, walk};
+use crate::common::{data_file, fixture_las, python_venv, run_with, same_tree, terratile};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
@@ -190,25 +190,6 @@ fn figure(s: &Value, stage: &str, key: &str) -> Option<String> {
         .iter()
         .find(|f| f[0] == key)
         .and_then(|f| f[1].as_str().map(str::to_string))
-}
-
-fn same_tree(a: &Path, b: &Path) {
-    let files = |d: &Path| -> Vec<PathBuf> {
-        walk(d)
-            .into_iter()
-            .map(|p| p.strip_prefix(d).unwrap().to_path_buf())
-            .collect()
-    };
-    let (fa, fb) = (files(a), files(b));
-    assert_eq!(fa, fb);
-    assert!(fa.len() > 3);
-    for f in fa.iter().filter(|f| a.join(f).is_file()) {
-        assert!(
-            std::fs::read(a.join(f)).unwrap() == std::fs::read(b.join(f)).unwrap(),
-            "{} differs",
-            f.display()
-        );
-    }
 }
 
 /// The streaming run on a COPC file with `read = "direct"` reads it node by node (the counting pass once, then

@@ -22,32 +22,6 @@ fn pipeline(dir: &Path, name: &str, input: &Path, out: &str, extra: &str) {
     std::fs::write(dir.join(name), toml).unwrap();
 }
 
-/// Asserts that the trees `a` and `b` hold the same files with the same bytes.
-fn same_tree(a: &Path, b: &Path) {
-    let rel = |d: &Path| -> Vec<PathBuf> {
-        walk(d)
-            .into_iter()
-            .map(|p| p.strip_prefix(d).unwrap().to_path_buf())
-            .collect()
-    };
-    let (fa, fb) = (rel(a), rel(b));
-    assert_eq!(
-        fa,
-        fb,
-        "{} and {} list different files",
-        a.display(),
-        b.display()
-    );
-    assert!(fa.len() > 3, "too few outputs in {}", a.display());
-    for f in fa.iter().filter(|f| a.join(f).is_file()) {
-        assert!(
-            std::fs::read(a.join(f)).unwrap() == std::fs::read(b.join(f)).unwrap(),
-            "{} differs",
-            f.display()
-        );
-    }
-}
-
 /// The jobs of every phase in turn, in this process's order (any order within a phase
 /// gives the same result), then the merge.
 fn run_jobs(dir: &Path, work: &str, jobs: usize) {

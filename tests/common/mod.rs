@@ -377,3 +377,29 @@ pub fn npm_env(dir: &str, spec: &str) -> Option<PathBuf> {
         }
     }
 }
+
+/// Asserts that the trees `a` and `b` hold the same files with the same bytes.
+pub fn same_tree(a: &Path, b: &Path) {
+    let rel = |d: &Path| -> Vec<PathBuf> {
+        walk(d)
+            .into_iter()
+            .map(|p| p.strip_prefix(d).unwrap().to_path_buf())
+            .collect()
+    };
+    let (fa, fb) = (rel(a), rel(b));
+    assert_eq!(
+        fa,
+        fb,
+        "{} and {} list different files",
+        a.display(),
+        b.display()
+    );
+    assert!(fa.len() > 3, "too few outputs in {}", a.display());
+    for f in fa.iter().filter(|f| a.join(f).is_file()) {
+        assert!(
+            std::fs::read(a.join(f)).unwrap() == std::fs::read(b.join(f)).unwrap(),
+            "{} differs",
+            f.display()
+        );
+    }
+}
